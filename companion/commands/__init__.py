@@ -1,0 +1,1 @@
+"""One module per ``merlion`` subcommand (or group member); ``companion.cli`` finds them. See its docstring."""

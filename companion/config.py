@@ -1,0 +1,265 @@
+"""The one typed configuration object, built from YAML once at start-up and passed down.
+
+No other module reads configuration files or environment variables. Every key has a default here, so an empty
+file (or none at all) is a complete configuration that runs anywhere; ``config/default.yaml`` spells the same
+defaults out with a comment per key, and a test keeps the two in step.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+ENV_PREFIX = "MERLION__"
+
+
+class ConfigError(Exception):
+    """A configuration problem, worded as one line that names the file, the key and what is wrong."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class SourceConfig(_Section):
+    uri: str = "synthetic://dive"
+    """A video file, a folder of images, a V4L2 device (/dev/video0), rtsp://..., udp://@:5600 (RTP/H.264),
+    or synthetic://dive (generated murky footage, so the defaults run anywhere)."""
+    fps: float = Field(5.0, gt=0, le=240)
+    """Frames per second kept after subsampling (the vehicle runs at 5)."""
+    width: int | None = Field(None, gt=0)
+    """Capture width asked of a live camera (None: the device default)."""
+    height: int | None = Field(None, gt=0)
+    fourcc: Literal["MJPG", "H264", "YUYV"] | None = None
+    """Pixel format asked of a V4L2 device."""
+    realtime: bool = True
+    """Play files and folders at their own frame rate (as a camera would deliver them)."""
+    loop: bool = False
+    """Start a file or folder again when it ends."""
+    retry_initial_s: float = Field(1.0, gt=0)
+    retry_max_s: float = Field(30.0, gt=0)
+
+
+class EncoderConfig(_Section):
+    name: Literal["auto", "clip", "imagenet", "visual"] = "auto"
+    """auto: CLIP when its weights are available offline, else the packaged ImageNet encoder (said loudly)."""
+    model: str = "ViT-B-32"
+    """open_clip architecture name."""
+    pretrained: str | None = "laion2b_s34b_b79k"
+    """open_clip pretrained tag, used only when it is already in the local cache."""
+    weights: str | None = None
+    """A local CLIP checkpoint file; wins over `pretrained`."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    precision: Literal["auto", "fp32", "bf16", "fp16"] = "auto"
+    batch: int = Field(8, ge=1, le=256)
+    """Largest batch taken from the queue at once; smaller batches go as soon as they are there."""
+    input_size: int | None = Field(None, gt=0)
+    """Frames are downscaled to this side before encoding (None: what the model wants)."""
+
+
+class QueryConfig(_Section):
+    positive: str = "underwater image with fish"
+    negatives: list[str] = Field(default_factory=lambda: ["underwater image without fish"])
+    tau_ss: float = 0.5
+    """Semantic pre-sampling threshold, a fraction in (0, 1); a value above 1 is read as a percentage."""
+
+    @field_validator("tau_ss")
+    @classmethod
+    def _fraction(cls, value: float) -> float:
+        return as_fraction(value)
+
+
+class SamplerConfig(_Section):
+    k: int = Field(6, ge=1, le=1000)
+    distance: Literal["js", "kl", "cosine"] = "js"
+    threshold: Literal["mean", "min", "2min", "median"] = "mean"
+
+
+class EnhanceConfig(_Section):
+    mode: Literal["none", "always", "selective"] = "none"
+    method: Literal["classic", "model"] = "classic"
+    tau_ses: float = 0.7
+    """Second threshold: an enhanced frame goes on only if its score passes this."""
+    model_path: str | None = None
+    """TorchScript (.pt) or ONNX (.onnx) image-to-image model, for method: model."""
+    model_input_size: tuple[int, int] | None = None
+    """(width, height) the model wants; None: any size divisible by 8."""
+    model_value_range: Literal["0-1", "-1-1", "0-255"] = "0-1"
+    queue: int = Field(4, ge=1)
+    """Candidates waiting for the enhancer; more are dropped and counted."""
+
+    @field_validator("tau_ses")
+    @classmethod
+    def _fraction(cls, value: float) -> float:
+        return as_fraction(value)
+
+
+class MavlinkConfig(_Section):
+    connection: str | None = "udpin:127.0.0.1:14551"
+    """pymavlink connection string (udpin:, udpout:, tcp:, tcpin:, /dev/ttyACM0,115200); null: no vehicle link."""
+    system_id: int | None = Field(None, ge=1, le=254)
+    """The vehicle's system id; None: learnt from the autopilot heartbeat (1 until then). Never 255."""
+    component_id: int = Field(100, ge=1, le=254)
+    """This companion's component id: 100-105 are cameras (QGroundControl finds those), 191-194 onboard computers."""
+    heartbeat_timeout_s: float = Field(3.0, gt=0)
+    reconnect_initial_s: float = Field(0.5, gt=0)
+    reconnect_max_s: float = Field(10.0, gt=0)
+
+
+class TelemetryConfig(_Section):
+    attitude_hz: float = Field(10.0, gt=0)
+    position_hz: float = Field(5.0, gt=0)
+    pressure_hz: float = Field(5.0, gt=0)
+    stale_after_s: float = Field(1.0, gt=0)
+    """A frame whose nearest telemetry sample is older than this is tagged stale, never given a made-up pose."""
+    history_s: float = Field(30.0, gt=0)
+    fluid_density: float = Field(1025.0, gt=900, lt=1100)
+    """kg/m^3: 1025 sea water, 997 fresh water."""
+    surface_pressure_hpa: float = Field(1013.25, gt=800, lt=1200)
+
+
+class SurfaceConfig(_Section):
+    budget_bytes_per_s: int = Field(2000, ge=100)
+    """All the companion sends (heartbeat, answers, status, thumbnails, FTP) shares this wire budget."""
+    thumbnail_bytes: int = Field(2500, ge=300, le=65000)
+    thumbnail_format: Literal["jpeg", "webp"] = "jpeg"
+    thumbnail_max_side: int = Field(160, ge=16, le=1024)
+    push: bool = True
+    """Push each new summary frame with DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA."""
+    ftp: bool = True
+    ftp_writable: bool = False
+    """Allow uploads (e.g. /config/queries.txt to change the queries live)."""
+    status_hz: float = Field(1.0, gt=0, le=10)
+
+
+class StoreConfig(_Section):
+    dir: str = "merlion-store"
+    disk_budget_mb: float = Field(2048.0, gt=0)
+    keep_raw: bool = True
+    """Keep the raw frame beside the enhanced one."""
+
+
+class HealthConfig(_Section):
+    stall_after_s: float = Field(10.0, gt=0)
+    """A stage that has not made progress for this long is stuck: no watchdog ping is sent."""
+
+
+class LogConfig(_Section):
+    level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+
+class Config(_Section):
+    source: SourceConfig = Field(default_factory=SourceConfig)
+    encoder: EncoderConfig = Field(default_factory=EncoderConfig)
+    queries: QueryConfig = Field(default_factory=QueryConfig)
+    sampler: SamplerConfig = Field(default_factory=SamplerConfig)
+    enhance: EnhanceConfig = Field(default_factory=EnhanceConfig)
+    mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
+    telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
+    surface: SurfaceConfig = Field(default_factory=SurfaceConfig)
+    store: StoreConfig = Field(default_factory=StoreConfig)
+    health: HealthConfig = Field(default_factory=HealthConfig)
+    log: LogConfig = Field(default_factory=LogConfig)
+
+
+def as_fraction(value: float) -> float:
+    """Thresholds are fractions in (0, 1); operators often write percentages, so 40 means 0.4."""
+    if value > 1.0:
+        value = value / 100.0
+    if not 0.0 < value < 1.0:
+        raise ValueError(f"must be a fraction in (0, 1) or a percentage in (1, 100), got {value}")
+    return float(value)
+
+
+def _describe(err: ValidationError) -> str:
+    first = err.errors()[0]
+    key = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    msg = first["msg"]
+    if first["type"] == "extra_forbidden":
+        msg = "unknown key"
+    value = first.get("input")
+    shown = "" if first["type"] == "extra_forbidden" or isinstance(value, dict) else f" (got {value!r})"
+    return f"{key}: {msg}{shown}"
+
+
+def _env_overrides(environ: dict[str, str]) -> dict[str, Any]:
+    """MERLION__SECTION__KEY=value, the value parsed as YAML (so numbers and lists work)."""
+    tree: dict[str, Any] = {}
+    for name, raw in sorted(environ.items()):
+        if not name.startswith(ENV_PREFIX):
+            continue
+        path = [p.lower() for p in name[len(ENV_PREFIX) :].split("__") if p]
+        if not path:
+            continue
+        node = tree
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"environment {name}: conflicts with another override")
+        node[path[-1]] = yaml.safe_load(raw) if raw != "" else None
+    return tree
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def build_config(data: dict[str, Any] | None = None, *, origin: str = "config") -> Config:
+    """Validate a plain mapping; errors name the origin and the dotted key."""
+    try:
+        return Config.model_validate(data or {})
+    except ValidationError as err:
+        raise ConfigError(f"{origin}: {_describe(err)}") from None
+
+
+def load_config(
+    path: str | os.PathLike[str] | None = None,
+    *,
+    overrides: dict[str, Any] | None = None,
+    environ: dict[str, str] | None = None,
+) -> Config:
+    """The file (if any), then MERLION__* environment variables, then command-line overrides (nested dicts)."""
+    data: dict[str, Any] = {}
+    origin = "defaults"
+    if path is not None:
+        p = Path(path)
+        origin = str(p)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ConfigError(f"{p}: no such config file") from None
+        except OSError as err:
+            raise ConfigError(f"{p}: cannot read ({err.strerror})") from None
+        try:
+            loaded = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            mark = getattr(err, "problem_mark", None)
+            where = f" line {mark.line + 1}" if mark is not None else ""
+            problem = getattr(err, "problem", None) or "not valid YAML"
+            raise ConfigError(f"{p}:{where}: {problem}") from None
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{p}: top level must be a mapping of sections, got {type(loaded).__name__}")
+        data = loaded
+    env = _env_overrides(dict(os.environ) if environ is None else environ)
+    if env:
+        data = _merge(data, env)
+        origin = f"{origin} (with {ENV_PREFIX}* environment overrides)"
+    if overrides:
+        data = _merge(data, overrides)
+    return build_config(data, origin=origin)
+
+
+def config_to_yaml(config: Config) -> str:
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

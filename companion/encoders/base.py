@@ -1,0 +1,43 @@
+"""The one small interface every image encoder offers the pipeline.
+
+The pipeline never knows which encoder it holds: it encodes a batch of frames, scores them against the
+queries, and hands the sampler features. Encoders differ in how a score is computed (CLIP: softmax of
+100 x cosine; the packaged ImageNet encoder: concept probability mass), so scoring is the encoder's job.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+
+import numpy as np
+
+
+class Encoder(ABC):
+    name: str
+    """e.g. "clip:ViT-B-32", "imagenet:efficientnet-lite0", "visual"."""
+
+    @property
+    @abstractmethod
+    def input_size(self) -> tuple[int, int]:
+        """(width, height) the encoder wants; the pipeline may downscale frames to about this before encoding."""
+
+    @abstractmethod
+    def encode_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        """BGR uint8 frames (any size) -> (N, D) float32 image embeddings."""
+
+    @abstractmethod
+    def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
+        """Query texts -> (M, D') float32 query embeddings; raises MerlionError for a query it cannot answer."""
+
+    @abstractmethod
+    def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
+        """(N,) scores in (0, 1): the share of the first (positive) query, as REFERENCE.md section 1 defines."""
+
+    def sampler_features(self, image_embeddings: np.ndarray) -> np.ndarray:
+        """The part of the embedding the informative sampler compares (all of it unless an encoder says otherwise)."""
+        return image_embeddings
+
+    def describe(self) -> dict:
+        """What went into the scores (architecture, weights, precision, device), for summary.json and status."""
+        return {"name": self.name}

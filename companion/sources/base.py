@@ -1,0 +1,32 @@
+"""The frame-source interface that file, folder, camera and stream sources share."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+
+from companion.frame import Frame
+
+
+class FrameSource(ABC):
+    """An iterable of frames, already subsampled to the target rate.
+
+    ``lost`` counts frames the source could not decode (corrupt or truncated input); ``dropped`` counts frames
+    skipped on purpose (subsampling is not dropping). Sources are context managers and must release devices
+    and files on ``close()``.
+    """
+
+    name: str = "source"
+    lost: int = 0
+
+    @abstractmethod
+    def __iter__(self) -> Iterator[Frame]: ...
+
+    def close(self) -> None:
+        """Release the device or file; safe to call twice."""
+
+    def __enter__(self) -> FrameSource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

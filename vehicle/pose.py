@@ -1,0 +1,41 @@
+"""The vehicle's pose at a moment, as attached to a summary frame."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Where the vehicle was and how it was oriented at ``time`` (companion wall clock, seconds since epoch).
+
+    Fields the vehicle did not report are None. ``stale`` is True when the nearest telemetry sample is older than
+    the configured limit: then only ``time``, ``age_s`` and ``stale`` are meaningful, nothing is made up.
+    """
+
+    time: float
+    age_s: float
+    stale: bool
+    depth_m: float | None = None
+    """Positive down, metres below the surface."""
+    depth_source: str | None = None
+    """global_position_int | scaled_pressure2 | vfr_hud."""
+    roll: float | None = None
+    """Radians."""
+    pitch: float | None = None
+    yaw: float | None = None
+    q: tuple[float, float, float, float] | None = None
+    """Attitude quaternion, w-x-y-z (MAVLink order)."""
+    heading_deg: float | None = None
+    lat: float | None = None
+    """Degrees, only when the EKF has an origin."""
+    lon: float | None = None
+    alt_m: float | None = None
+    """AMSL metres, only when known."""
+    north_m: float | None = None
+    """LOCAL_POSITION_NED, only with a position source (DVL, USBL)."""
+    east_m: float | None = None
+    down_m: float | None = None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
