@@ -22,11 +22,11 @@ def cosd(a: float, b: float) -> float:
 
 
 def ref_kl(p, q) -> float:
-    return sum(pi * math.log(pi / qi) for pi, qi in zip(p, q) if pi > 0)
+    return sum(pi * math.log(pi / qi) for pi, qi in zip(p, q, strict=True) if pi > 0)
 
 
 def ref_js(p, q) -> float:
-    m = [(a + b) / 2 for a, b in zip(p, q)]
+    m = [(a + b) / 2 for a, b in zip(p, q, strict=True)]
     return 0.5 * ref_kl(p, m) + 0.5 * ref_kl(q, m)
 
 
@@ -183,7 +183,7 @@ def test_restore_resumes_exactly():
         whole.offer(key, raw)
         first.offer(key, raw)
     resumed = InformativeSampler(k=5)
-    assert resumed.restore(zip(first.keys, first.features)) == []
+    assert resumed.restore(zip(first.keys, first.features, strict=True)) == []
     for key, raw in enumerate(stream[40:], start=40):
         a, b = whole.offer(key, raw), resumed.offer(key, raw)
         assert (a.added, a.removed) == (b.added, b.removed)
