@@ -198,3 +198,36 @@ def load_humans(path: str | Path) -> dict[str, list[int]]:
     if not humans:
         raise MerlionError(f"{p}: no human summaries in it")
     return humans
+
+
+def read_summary_json(path: str | Path, label_fps: float | None = None) -> tuple[list[int], dict]:
+    """1-based label frames of a ``merlion summarize`` summary.json, and the file's content.
+
+    Each entry's ``index`` is the 0-based frame of the source video *before* subsampling (companion.frame), so
+    a summary taken at 5 fps from a 30 fps video still names source frames: label frame = index + 1. When the
+    label file was made at another frame rate than the video (``label_fps``), the entry's ``time_s`` is used
+    instead: label frame = round(time_s x label_fps) + 1.
+    """
+    p = Path(path)
+    if p.is_dir():
+        p = p / "summary.json"
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise MerlionError(f"{p}: no such summary file") from None
+    except (OSError, json.JSONDecodeError) as err:
+        raise MerlionError(f"{p}: not a readable summary.json ({err})") from None
+    entries = data.get("frames") if isinstance(data, dict) else None
+    if not isinstance(entries, list):
+        raise MerlionError(f"{p}: missing the 'frames' list")
+    frames = []
+    for n, entry in enumerate(entries):
+        try:
+            if label_fps is not None:
+                frames.append(round(float(entry["time_s"]) * label_fps) + 1)
+            else:
+                frames.append(int(entry["index"]) + 1)
+        except (KeyError, TypeError, ValueError):
+            need = "time_s" if label_fps is not None else "index"
+            raise MerlionError(f"{p}: frames[{n}] has no usable {need!r}") from None
+    return frames, data
