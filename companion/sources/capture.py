@@ -1,0 +1,76 @@
+"""A live OpenCV capture (camera or network stream) thinned to the target frame rate by wall-clock time.
+
+Live sources cannot be subsampled by frame number (cameras skip and stutter), so a frame is kept when at least
+1/fps seconds passed since the last kept one. A read that fails raises :class:`SourceLost`; the retrying wrapper
+turns that into back-off and a reconnect, so the companion stays up.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterator
+
+import cv2
+
+from companion.frame import Frame
+from companion.sources.base import FrameSource
+
+log = logging.getLogger(__name__)
+
+
+class SourceLost(Exception):
+    """The camera or stream stopped delivering frames (unplugged, network gone); worth retrying."""
+
+
+class CaptureSource(FrameSource):
+    """Frames from an opened ``cv2.VideoCapture``, kept at most ``fps`` per second."""
+
+    max_failed_reads = 25
+    """Consecutive failed reads before the device counts as gone (a live camera hiccups now and then)."""
+
+    def __init__(self, name: str, open_capture: Callable[[], cv2.VideoCapture], *, fps: float) -> None:
+        self.name = name
+        self.fps = float(fps)
+        self.lost = 0
+        self._open_capture = open_capture
+        self._cap: cv2.VideoCapture | None = None
+        self._closed = False
+
+    def open(self) -> cv2.VideoCapture:
+        cap = self._open_capture()
+        if cap is None or not cap.isOpened():
+            if cap is not None:
+                cap.release()
+            raise SourceLost(f"{self.name}: cannot open")
+        self._cap = cap
+        return cap
+
+    def __iter__(self) -> Iterator[Frame]:
+        cap = self._cap or self.open()
+        period = 1.0 / self.fps
+        start = time.monotonic()
+        next_due = start
+        index = 0
+        failed = 0
+        while not self._closed:
+            ok, image = cap.read()
+            now = time.monotonic()
+            if not ok or image is None:
+                failed += 1
+                if failed >= self.max_failed_reads:
+                    raise SourceLost(f"{self.name}: no frames ({failed} failed reads)")
+                time.sleep(min(period, 0.05))
+                continue
+            failed = 0
+            index += 1
+            if now < next_due:
+                continue
+            next_due = max(next_due + period, now - period)
+            yield Frame(image=image, index=index - 1, time_s=now - start, capture_time=time.time())
+
+    def close(self) -> None:
+        self._closed = True
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None

@@ -1,0 +1,180 @@
+"""Live sources: the generated dive, the retrying wrapper, V4L2 (mocked: no camera here) and RTP/UDP set-up."""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+from companion.config import SourceConfig
+from companion.errors import UsageError
+from companion.sources.base import FrameSource
+from companion.sources.capture import SourceLost
+from companion.sources.retrying import RetryingSource
+from companion.sources.stream import parse_udp, rtp_h264_sdp
+from companion.sources.synthetic import (
+    FISH_SEGMENTS,
+    SEGMENTS,
+    SyntheticSource,
+    parse_synthetic_uri,
+    segment_at,
+)
+from companion.sources.v4l2 import V4L2Source, is_v4l2
+
+
+def take(source, n: int) -> list:
+    out = []
+    for frame in source:
+        out.append(frame)
+        if len(out) >= n:
+            break
+    return out
+
+
+def test_synthetic_dive_is_deterministic_and_walks_through_its_segments() -> None:
+    uri = "synthetic://dive?seconds=1&width=160&height=96"
+    a = take(SyntheticSource(uri, fps=2, realtime=False), 12)
+    b = take(SyntheticSource(uri, fps=2, realtime=False), 12)
+    assert [f.index for f in a] == list(range(12))
+    assert [f.time_s for f in a] == pytest.approx([i / 2 for i in range(12)])
+    for fa, fb in zip(a, b, strict=True):
+        assert fa.image.shape == (96, 160, 3) and fa.image.dtype == np.uint8
+        np.testing.assert_array_equal(fa.image, fb.image)
+    assert [segment_at(f.time_s, 1.0) for f in a[::2]] == [*SEGMENTS, SEGMENTS[0]]
+    assert FISH_SEGMENTS <= set(SEGMENTS)
+    # scenes differ from one another (not one picture repeated)
+    assert np.abs(a[0].image.astype(int) - a[4].image.astype(int)).mean() > 5
+
+
+def test_synthetic_ends_after_the_segments_asked_for() -> None:
+    frames = list(SyntheticSource("synthetic://dive?seconds=1&segments=2&width=64&height=48", fps=4, realtime=False))
+    assert len(frames) == 8
+
+
+@pytest.mark.parametrize("uri", ["synthetic://reef", "synthetic://dive?colour=red", "synthetic://dive?seconds=-1"])
+def test_bad_synthetic_uri_is_a_usage_error(uri: str) -> None:
+    with pytest.raises(UsageError, match="source"):
+        parse_synthetic_uri(uri)
+
+
+class Flaky(FrameSource):
+    """A real synthetic camera that dies after a few frames, as an unplugged camera does."""
+
+    def __init__(self, frames: int) -> None:
+        self.inner = SyntheticSource("synthetic://dive?width=64&height=48", fps=50, realtime=False)
+        self.frames = frames
+        self.closed = False
+
+    def __iter__(self):
+        for i, frame in enumerate(self.inner):
+            if i >= self.frames:
+                raise SourceLost("camera unplugged")
+            yield frame
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_a_source_that_disappears_is_retried_with_back_off_and_returns() -> None:
+    attempts = []
+    states = []
+
+    def opener() -> FrameSource:
+        attempts.append(len(attempts))
+        if len(attempts) in (2, 3):
+            raise OSError("no such device /dev/video0")
+        return Flaky(3)
+
+    source = RetryingSource(opener, name="cam", live=True, initial_s=0.01, max_s=0.04,
+                            on_state=lambda s, d: states.append(s))
+    frames = take(source, 9)
+    source.close()
+    assert len(frames) == 9
+    assert [f.index for f in frames] == sorted({f.index for f in frames}), "indices keep growing across reopens"
+    assert source.failures >= 4 and len(attempts) >= 4
+    assert states[:3] == ["running", "retrying", "running"]
+    assert "camera unplugged" in source.last_error or "no such device" in source.last_error
+
+
+def test_a_file_like_source_ends_once_or_loops() -> None:
+    def opener() -> FrameSource:
+        return SyntheticSource("synthetic://dive?seconds=1&segments=1&width=64&height=48", fps=5, realtime=False)
+
+    once = RetryingSource(opener, name="clip", live=False)
+    assert len(list(once)) == 5 and once.state == "ended"
+    looping = RetryingSource(opener, name="clip", live=False, loop=True)
+    frames = take(looping, 12)
+    assert [f.index for f in frames] == list(range(12)) and looping.ended == 2
+
+
+def test_close_interrupts_a_long_back_off() -> None:
+    source = RetryingSource(lambda: (_ for _ in ()).throw(OSError("gone")), name="cam", live=True,
+                            initial_s=60, max_s=60)
+    done = threading.Event()
+
+    def drain() -> None:
+        list(source)
+        done.set()
+
+    threading.Thread(target=drain, daemon=True).start()
+    threading.Timer(0.2, source.close).start()
+    assert done.wait(10), "close() must end the back-off wait"
+    assert source.state == "closed"
+
+
+class FakeV4L2Capture:
+    """Stands in for cv2.VideoCapture on a V4L2 device (no camera can exist on a build machine)."""
+
+    instances: list[FakeV4L2Capture] = []
+
+    def __init__(self, path: str, api: int) -> None:
+        self.path, self.api, self.props = path, api, {}
+        self.reads = 0
+        FakeV4L2Capture.instances.append(self)
+
+    def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
+        return True
+
+    def set(self, prop: int, value: float) -> bool:
+        self.props[prop] = value
+        return True
+
+    def get(self, prop: int) -> float:
+        return float(self.props.get(prop, 0))
+
+    def read(self):
+        self.reads += 1
+        if self.reads > 6:
+            return False, None
+        return True, np.full((48, 64, 3), self.reads, np.uint8)
+
+    def release(self) -> None:
+        pass
+
+
+def test_v4l2_asks_for_the_configured_mode_and_reports_loss() -> None:
+    FakeV4L2Capture.instances.clear()
+    cfg = SourceConfig(uri="/dev/video2", width=1280, height=720, fourcc="MJPG", fps=240)
+    source = V4L2Source(cfg, video_capture=FakeV4L2Capture)
+    source.max_failed_reads = 2
+    frames = []
+    with pytest.raises(SourceLost):
+        for frame in source:
+            frames.append(frame)
+    cap = FakeV4L2Capture.instances[0]
+    assert cap.path == "/dev/video2" and cap.api == cv2.CAP_V4L2
+    assert cap.props[cv2.CAP_PROP_FRAME_WIDTH] == 1280 and cap.props[cv2.CAP_PROP_FRAME_HEIGHT] == 720
+    assert cap.props[cv2.CAP_PROP_FOURCC] == cv2.VideoWriter_fourcc(*"MJPG")
+    assert len(frames) >= 1 and frames[0].image.shape == (48, 64, 3)
+    assert is_v4l2("/dev/video0") and not is_v4l2("clip.mp4")
+
+
+def test_udp_rtp_source_description() -> None:
+    assert parse_udp("udp://@:5600") == ("0.0.0.0", 5600)
+    assert parse_udp("udp://127.0.0.1:5601") == ("127.0.0.1", 5601)
+    with pytest.raises(UsageError):
+        parse_udp("udp://@:notaport")
+    sdp = rtp_h264_sdp(5600)
+    assert "m=video 5600 RTP/AVP 96" in sdp and "H264/90000" in sdp
