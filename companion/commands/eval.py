@@ -1,0 +1,248 @@
+"""``merlion eval ...``: SRUM, the paper's Table I, label-based scores, AUROC and MERLION-vs-baseline."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from companion.errors import MerlionError, UsageError
+
+GROUP = "eval"
+GROUP_HELP = "evaluate summaries: SRUM, Table I, labels, AUROC, comparison with the visual baseline"
+
+
+def _srum_options(p: argparse.ArgumentParser, fps_default: str) -> None:
+    p.add_argument("--alpha", type=float, default=0.5, help="weight of the label match (paper: 0.5)")
+    p.add_argument("--tau", type=float, default=2.0, help="seconds of full time credit (paper: 2)")
+    p.add_argument("--fps", type=float, default=None, help=f"frame rate of the label numbering ({fps_default})")
+
+
+def _summary_options(p: argparse.ArgumentParser, runs: bool = False) -> None:
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--summary", type=int, nargs="+", metavar="FRAME", help="summary frames, 1-based")
+    g.add_argument("--summary-json", metavar="PATH", help="a summary.json (or its folder) from merlion summarize")
+    if runs:
+        g.add_argument("--run", help="a stored automatic summary of the data set JSON (e.g. merlion, rost_trial_A)")
+    p.add_argument("--label-fps", type=float, default=None,
+                   help="map summary.json entries by time_s at this rate instead of by source index")
+
+
+def register(add_command) -> None:
+    p = add_command("srum", "SRUM of a summary against human summaries (the paper's metric)", group=GROUP,
+                    group_help=GROUP_HELP)
+    p.add_argument("--labels", required=True, help="data set JSON (../shared/data/srum/*.json) or label CSV")
+    _summary_options(p, runs=True)
+    p.add_argument("--humans", help="human summaries: JSON {id: [frames]} or one summary per line "
+                                    "(default for a data set JSON: its paper_table_human_ids)")
+    _srum_options(p, "default: the data set's, else 30")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--report", metavar="DIR", help="write an HTML report here")
+    p.set_defaults(func=_cmd_srum)
+
+    p = add_command("table", "recompute the paper's Table I beside its printed values", group=GROUP)
+    p.add_argument("--data", metavar="DIR", help="folder of data set JSONs (default ../shared/data/srum)")
+    p.add_argument("--json", action="store_true", help="print {dataset: {column: value}}")
+    p.set_defaults(func=_cmd_table)
+
+    p = add_command("labels", "precision, coverage and SRUM vs an oracle for a video with per-frame labels",
+                    group=GROUP)
+    p.add_argument("--labels", required=True, help="label CSV (frame,labels or frame_index,...,fish_present)")
+    _summary_options(p)
+    p.add_argument("--query", help="the label that counts as relevant (default: fish when present, else any)")
+    p.add_argument("--k", type=int, help="oracle summary size (default: the summary's size)")
+    _srum_options(p, "default: 30; the survey video is 10")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--report", metavar="DIR", help="write an HTML report here")
+    p.set_defaults(func=_cmd_labels)
+
+    p = add_command("auroc", "how well the semantic score ranks labelled positive frames over negatives",
+                    group=GROUP)
+    p.add_argument("video", help="the labelled video")
+    p.add_argument("--labels", required=True, help="label CSV, one row per source frame")
+    p.add_argument("--config", help="YAML configuration (encoder and queries)")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="override encoder.name")
+    p.add_argument("--query", help="the label that counts as positive (default: fish when present, else any)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_auroc)
+
+    p = add_command("compare", "summarize one video with MERLION and with the visual baseline; score both",
+                    group=GROUP)
+    p.add_argument("video", help="the labelled video")
+    p.add_argument("--labels", required=True, help="label CSV, one row per source frame")
+    p.add_argument("--config", help="YAML configuration (MERLION's encoder, queries, sampler)")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet"], help="MERLION's encoder (override)")
+    p.add_argument("--query", help="the label that counts as relevant (default: fish when present, else any)")
+    p.add_argument("--out", metavar="DIR", help="keep both summaries here (default: a temporary folder)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--report", metavar="DIR", help="write an HTML report here")
+    p.set_defaults(func=_cmd_compare)
+
+
+def _params(args: argparse.Namespace, fps: float | None):
+    from companion.evaluation.srum import SrumParams
+
+    return SrumParams(alpha=args.alpha, tau_s=args.tau, fps=args.fps or fps or 30.0)
+
+
+def _summary_frames(args: argparse.Namespace) -> tuple[list[int], dict | None, Path | None]:
+    from companion.evaluation.datasets import read_summary_json
+
+    if getattr(args, "run", None):
+        return [], None, None
+    if args.summary_json:
+        frames, data = read_summary_json(args.summary_json, args.label_fps)
+        path = Path(args.summary_json)
+        return frames, data, path if path.is_dir() else path.parent
+    return list(args.summary), None, None
+
+
+def _cmd_srum(args: argparse.Namespace) -> int:
+    from companion.evaluation import srum as m
+    from companion.evaluation.datasets import load_dataset, load_humans, load_labels
+
+    frames, summary, base = _summary_frames(args)
+    if Path(args.labels).suffix.lower() == ".json":
+        ds = load_dataset(args.labels)
+        table = ds.table
+        humans = load_humans(args.humans) if args.humans else ds.paper_humans()
+        if args.run:
+            if args.run not in ds.automatic:
+                raise UsageError(f"--run {args.run}: not in {args.labels} (runs: {', '.join(ds.automatic)})")
+            frames = ds.automatic[args.run]
+    else:
+        if args.run:
+            raise UsageError("--run needs a data set JSON as --labels")
+        if not args.humans:
+            raise UsageError("--humans FILE is needed with a CSV label file (a data set JSON carries its own)")
+        table = load_labels(args.labels, args.fps)
+        humans = load_humans(args.humans)
+    params = _params(args, table.fps)
+    value = m.srum(frames, humans, table.labels, params)
+    human = m.human_score(humans, table.labels, params)
+    result = {"srum": value, "human": human, "relative": m.relative(value, human), "frames": frames,
+              "humans": len(humans), "alpha": params.alpha, "tau": params.tau_s, "fps": params.fps}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"SRUM {value:.4f}  human {human:.4f}  relative {result['relative']:.1f}%  "
+              f"({len(humans)} human summaries; alpha {params.alpha:g}, tau {params.tau_s:g} s, fps {params.fps:g})")
+    if args.report:
+        _report(args.report, "SRUM", summary, base, frames, result)
+    return 0
+
+
+def _report(out: str, name: str, summary: dict | None, base: Path | None, frames: list[int], metrics: dict) -> None:
+    from companion.evaluation.report import ReportRun, write_report
+    from companion.evaluation.runs import run_from_summary
+
+    shown = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
+    if summary is not None and base is not None:
+        run = run_from_summary(name, summary, base, shown)
+    else:
+        run = ReportRun(name=name, metrics=shown)
+    page = write_report(out, [run], title=f"MERLION evaluation: {name}")
+    print(f"report: {page}")
+
+
+def default_data_dir() -> Path:
+    """../shared/data/srum beside the current folder, else beside the repository."""
+    repo = Path(__file__).resolve().parents[2]
+    for base in (Path.cwd(), repo):
+        candidate = base.parent / "shared" / "data" / "srum"
+        if candidate.is_dir():
+            return candidate
+    raise MerlionError("SRUM data not found at ../shared/data/srum (beside the current folder or the repository); "
+                       "pass --data DIR")
+
+
+def _cmd_table(args: argparse.Namespace) -> int:
+    from companion.evaluation.table import compute_table, format_table, table_json
+
+    cells = compute_table(Path(args.data) if args.data else default_data_dir())
+    if args.json:
+        print(json.dumps(table_json(cells)))
+    else:
+        print(format_table(cells))
+    bad = [c for c in cells if c.verdict == "mismatch"]
+    return 1 if bad else 0
+
+
+def _cmd_labels(args: argparse.Namespace) -> int:
+    from companion.evaluation.datasets import load_labels
+    from companion.evaluation.labels_eval import default_query, evaluate_labels
+
+    frames, summary, base = _summary_frames(args)
+    table = load_labels(args.labels, args.fps)
+    query = args.query or default_query(table)
+    result = evaluate_labels(table, frames, query, args.k, _params(args, table.fps)).as_dict()
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"precision {result['precision']:.3f}  coverage {result['coverage']:.3f} "
+              f"({result['positive_segments']} positive segments)  label coverage {result['label_coverage']:.3f}  "
+              f"SRUM vs oracle {result['srum_oracle']:.4f}  (query {query or 'any label'}; oracle {result['oracle']})")
+    if args.report:
+        _report(args.report, "summary", summary, base, frames, result)
+    return 0
+
+
+def _config(args: argparse.Namespace, encoder: str | None):
+    from companion.config import load_config
+
+    overrides = {"encoder": {"name": encoder}} if encoder else None
+    return load_config(args.config, overrides=overrides)
+
+
+def make_encoder(cfg):
+    """The configured encoder: the team's factory, with the visual baseline always available."""
+    if cfg.encoder.name == "visual":
+        from companion.encoders.visual import VisualEncoder
+
+        return VisualEncoder(cfg.encoder)
+    try:
+        from companion.encoders.factory import make_encoder as factory
+    except ImportError:
+        raise MerlionError(f"encoder {cfg.encoder.name!r}: companion.encoders.factory is not installed") from None
+    return factory(cfg)
+
+
+def _cmd_auroc(args: argparse.Namespace) -> int:
+    from companion.evaluation.auroc import auroc, threshold_rates
+    from companion.evaluation.datasets import load_labels
+    from companion.evaluation.frame_scores import score_video
+    from companion.evaluation.labels_eval import default_query, is_positive
+
+    cfg = _config(args, args.encoder)
+    table = load_labels(args.labels)
+    query = args.query or default_query(table)
+    encoder = make_encoder(cfg)
+    vs = score_video(args.video, encoder, cfg.queries, cfg.encoder.batch)
+    missing = [i + 1 for i in vs.indices if i + 1 not in table.labels]
+    if missing:
+        raise MerlionError(f"{args.labels}: no label for video frame {missing[0]} (1-based); "
+                           f"the video has {len(vs.indices)} frames")
+    positive = [is_positive(table, i + 1, query) for i in vs.indices]
+    result = {"auroc": auroc(vs.scores, positive), "frames": len(positive), "positives": int(sum(positive)),
+              "encoder": encoder.describe(), "query": query, "prompts": [cfg.queries.positive, *cfg.queries.negatives],
+              "at_tau_ss": threshold_rates(vs.scores, positive, cfg.queries.tau_ss)}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        t = result["at_tau_ss"]
+        print(f"AUROC {result['auroc']:.4f}  ({result['positives']} positive of {result['frames']} frames; "
+              f"encoder {encoder.name}; at tau_ss {t['tau']:g}: recall {t['recall']:.3f}, "
+              f"false pass {t['false_pass']:.3f})")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from companion.evaluation.compare import compare, format_compare
+
+    cfg = _config(args, args.encoder)
+    result = compare(args.video, args.labels, cfg, query=args.query, out_dir=args.out, report_dir=args.report,
+                     encoder_factory=make_encoder)
+    print(json.dumps(result) if args.json else format_compare(result))
+    if args.report:
+        print(f"report: {Path(args.report) / 'index.html'}")
+    return 0

@@ -1,0 +1,62 @@
+"""The semantic score of every frame of a video, for AUROC and for the score-over-time plot.
+
+Reads the file with OpenCV in source order (no subsampling: labels are per source frame) and scores in batches
+with whatever encoder the configuration picks, exactly as the pipeline scores frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.config import QueryConfig
+from companion.encoders.base import Encoder
+from companion.errors import MerlionError
+
+
+@dataclass
+class VideoScores:
+    indices: list[int]
+    """0-based source frame of each score."""
+    times: list[float]
+    scores: np.ndarray
+    fps: float
+
+
+def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch: int = 8) -> VideoScores:
+    """Scores every frame of ``path`` against ``[positive, *negatives]``."""
+    p = Path(path)
+    if not p.is_file():
+        raise MerlionError(f"{p}: no such video file")
+    cap = cv2.VideoCapture(str(p))
+    if not cap.isOpened():
+        raise MerlionError(f"{p}: OpenCV cannot open this video")
+    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    text = encoder.encode_texts([queries.positive, *queries.negatives])
+    indices: list[int] = []
+    scores: list[np.ndarray] = []
+    pending: list[np.ndarray] = []
+
+    def flush() -> None:
+        if pending:
+            scores.append(encoder.semantic_scores(encoder.encode_images(pending), text))
+            pending.clear()
+
+    try:
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            indices.append(len(indices))
+            pending.append(img)
+            if len(pending) >= batch:
+                flush()
+        flush()
+    finally:
+        cap.release()
+    if not indices:
+        raise MerlionError(f"{p}: no frames could be decoded")
+    return VideoScores(indices, [i / fps for i in indices], np.concatenate(scores).astype(np.float64), fps)
