@@ -1,0 +1,27 @@
+"""Turn the configured source URI into a frame source: one readable dispatch, one branch per kind of source."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from companion.config import SourceConfig
+from companion.errors import MerlionError
+from companion.sources.base import FrameSource
+
+
+def open_source(cfg: SourceConfig, *, realtime: bool | None = None) -> FrameSource:
+    """The source for ``cfg.uri``; ``realtime`` overrides ``cfg.realtime`` (offline tools read files flat out)."""
+    uri = cfg.uri
+    paced = cfg.realtime if realtime is None else realtime
+    if uri.startswith("file://"):
+        uri = uri[len("file://"):]
+    path = Path(uri).expanduser()
+    if path.is_dir():
+        from companion.sources.folder import FolderSource
+
+        return FolderSource(path, fps=cfg.fps, realtime=paced, loop=cfg.loop)
+    if path.is_file():
+        from companion.sources.video import VideoSource
+
+        return VideoSource(path, fps=cfg.fps, realtime=paced, loop=cfg.loop)
+    raise MerlionError(f"source {cfg.uri}: no such file or folder")

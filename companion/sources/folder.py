@@ -1,0 +1,69 @@
+"""A folder of still images in natural order (frame2 before frame10), one frame per image.
+
+Stills carry no clock, so image i gets ``time_s = i / fps``: the folder plays as a camera at the target rate
+and nothing is subsampled away. Unreadable images are skipped and counted in ``lost``.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+
+from companion.errors import MerlionError
+from companion.frame import Frame
+from companion.sources.base import FrameSource
+from companion.sources.subsample import Pacer
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm"})
+
+
+def natural_key(name: str) -> list:
+    """Sort key that compares runs of digits as numbers: img2.jpg < img10.jpg."""
+    return [(0, int(part), "") if part.isdigit() else (1, 0, part.lower()) for part in re.split(r"(\d+)", name) if part]
+
+
+def list_images(folder: Path) -> list[Path]:
+    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
+    return sorted(files, key=lambda p: natural_key(p.name))
+
+
+class FolderSource(FrameSource):
+    def __init__(self, folder: str | Path, *, fps: float = 5.0, realtime: bool = False, loop: bool = False) -> None:
+        self.folder = Path(folder)
+        self.name = str(self.folder)
+        self.fps = float(fps)
+        self.realtime = realtime
+        self.loop = loop
+        self.lost = 0
+        if not self.folder.is_dir():
+            raise MerlionError(f"{self.folder}: no such folder")
+        self.files = list_images(self.folder)
+        if not self.files:
+            raise MerlionError(f"{self.folder}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in this folder")
+
+    def __iter__(self) -> Iterator[Frame]:
+        pacer = Pacer(self.realtime)
+        index, decoded = 0, 0
+        while True:
+            for path in self.files:
+                image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+                if image is None:
+                    self.lost += 1
+                    log.warning("%s: not a readable image, skipped", path)
+                else:
+                    decoded += 1
+                    time_s = index / self.fps
+                    pacer.wait(time_s)
+                    yield Frame(image, index, time_s, time.time())
+                index += 1
+            if decoded == 0:
+                raise MerlionError(f"{self.folder}: none of its {len(self.files)} images could be read")
+            if not self.loop:
+                return
