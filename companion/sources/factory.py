@@ -13,6 +13,18 @@ def open_source(cfg: SourceConfig, *, realtime: bool | None = None) -> FrameSour
     """The source for ``cfg.uri``; ``realtime`` overrides ``cfg.realtime`` (offline tools read files flat out)."""
     uri = cfg.uri
     paced = cfg.realtime if realtime is None else realtime
+    if uri.startswith("synthetic://"):
+        from companion.sources.synthetic import SyntheticSource
+
+        return SyntheticSource(uri, fps=cfg.fps, realtime=paced, width=cfg.width, height=cfg.height)
+    if uri.startswith(("rtsp://", "rtsps://", "udp://")):
+        from companion.sources.stream import StreamSource
+
+        return StreamSource(cfg)
+    if uri.startswith(("/dev/video", "/dev/v4l/", "v4l2://")):
+        from companion.sources.v4l2 import V4L2Source
+
+        return V4L2Source(cfg)
     if uri.startswith("file://"):
         uri = uri[len("file://"):]
     path = Path(uri).expanduser()
