@@ -1,0 +1,90 @@
+"""``merlion surface``: the topside receiver, gallery and live page."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+
+from companion.errors import UsageError
+from companion.surface.gallery import Gallery
+from companion.surface.surface_tool import SurfaceOptions, SurfaceTool
+from companion.surface.web import WebServer
+
+log = logging.getLogger("merlion.surface")
+
+
+def _ids(text: str) -> tuple[int, int]:
+    try:
+        system, component = (int(p) for p in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SYSTEM:COMPONENT such as 1:100, got {text!r}") from None
+    if not (1 <= system <= 255 and 1 <= component <= 255):
+        raise argparse.ArgumentTypeError(f"ids must be 1-255, got {text!r}")
+    return system, component
+
+
+def register(add_command) -> None:
+    p = add_command("surface", "receive the companion's summary topside: gallery folder and optional live web page")
+    p.add_argument("--connect", default="udpin:0.0.0.0:14550",
+                   help="pymavlink connection string (default udpin:0.0.0.0:14550; beside QGroundControl use a "
+                        "second routed port such as udpin:0.0.0.0:14560, see docs/surface-tool.md)")
+    p.add_argument("--out", required=True, metavar="DIR", help="gallery folder (created; reopened if it exists)")
+    p.add_argument("--web", type=int, metavar="PORT", help="serve the live page on this port (0: any free port)")
+    p.add_argument("--web-host", default="0.0.0.0", help="address the page listens on (default all)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests, demos)")
+    p.add_argument("--companion", type=_ids, metavar="SYS:COMP",
+                   help="the companion's ids (default: the camera component that sends captures)")
+    p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254, never "
+                                                             "255: that is the pilot's GCS)")
+    p.add_argument("--component-id", type=int, default=190, help="this tool's MAVLink component id (default 190)")
+    p.add_argument("--push-timeout", type=float, default=30.0, metavar="S",
+                   help="fetch a capture's thumbnail by FTP when no push brought it within S seconds")
+    p.add_argument("--no-ftp", action="store_true", help="never pull by MAVLink FTP (push only)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 1 <= args.system_id <= 254:
+        raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the pilot's ground station)")
+    if not 1 <= args.component_id <= 255:
+        raise UsageError(f"--component-id {args.component_id}: must be 1-255")
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError(f"--duration {args.duration}: must be positive")
+    if args.push_timeout <= 0:
+        raise UsageError(f"--push-timeout {args.push_timeout}: must be positive")
+    options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
+                             companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp)
+    return serve(options, args.out, web_port=args.web, web_host=args.web_host, duration=args.duration)
+
+
+def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "0.0.0.0",
+          duration: float | None = None, stop: threading.Event | None = None) -> int:
+    """Run the surface tool until SIGINT/SIGTERM, ``stop``, or ``duration``; what tests and the demo call."""
+    stop = stop or threading.Event()
+    gallery = Gallery(out_dir)
+    tool = SurfaceTool(options, gallery)
+    tool.open()
+    web = None
+    if web_port is not None:
+        web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host)
+        web.start()
+        # the line the demo and tests wait for (the port matters when 0 was asked)
+        print(f"merlion surface: live page at http://127.0.0.1:{web.port}/", flush=True)
+    print(f"merlion surface: listening on {options.connect}, gallery in {gallery.root}", flush=True)
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    try:
+        tool.run(stop, duration)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if web is not None:
+            web.close()
+    held = gallery.summary()
+    print(f"merlion surface: {len(held)} frames in the summary, "
+          f"{sum(1 for c in held if c.thumbnail)} with thumbnails, in {gallery.root}", flush=True)
+    return 0

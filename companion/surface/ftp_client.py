@@ -1,0 +1,255 @@
+"""A small MAVLink FTP (FILE_TRANSFER_PROTOCOL, 110) client that reads files, fed by someone else's receive loop.
+
+pymavlink's ``mavftp`` reads the connection itself (``recv_match`` in its own loops), which would steal the
+captures and thumbnails the surface tool's one receive loop must see; so this client is a message-driven state
+machine instead: ``handle`` takes FTP replies, ``tick`` retransmits what the link lost. One request is in flight
+at a time (the companion paces FTP last in its byte budget, so a window would only queue duplicates there), and
+the retransmission timeout adapts to the measured round trip. Protocol: mavlink.io/en/services/ftp.html.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+log = logging.getLogger("merlion.surface.ftp")
+
+OP_TERMINATE, OP_RESET, OP_OPEN_RO, OP_READ = 1, 2, 4, 5
+OP_ACK, OP_NAK = 128, 129
+NAK_NAMES = {
+    0: "none", 1: "fail", 2: "errno", 3: "invalid data size", 4: "invalid session", 5: "no sessions available",
+    6: "end of file", 7: "unknown command", 8: "file exists", 9: "file protected", 10: "file not found",
+}
+NAK_EOF = 6
+HEADER = struct.Struct("<HBBBBBxI")
+PAYLOAD_LEN = 251
+MAX_DATA = PAYLOAD_LEN - HEADER.size  # 239
+
+SendFn = Callable[[int, int, bytes], None]
+"""send(target_system, target_component, payload) puts one FILE_TRANSFER_PROTOCOL on the wire."""
+DoneFn = Callable[[str, "bytes | None", str], None]
+"""done(path, data or None, error text) is called once per fetch."""
+
+
+def pack(seq: int, session: int, opcode: int, offset: int = 0, data: bytes = b"", size: int | None = None) -> bytes:
+    """One FTP payload, padded to the 251 bytes of the message."""
+    body = HEADER.pack(seq & 0xFFFF, session, opcode, len(data) if size is None else size, 0, 0, offset) + data
+    return body.ljust(PAYLOAD_LEN, b"\0")
+
+
+@dataclass
+class Reply:
+    seq: int
+    session: int
+    opcode: int
+    size: int
+    req_opcode: int
+    burst_complete: int
+    offset: int
+    data: bytes
+
+
+def unpack(payload: bytes | list[int]) -> Reply:
+    raw = bytes(payload).ljust(PAYLOAD_LEN, b"\0")
+    seq, session, opcode, size, req_opcode, burst, offset = HEADER.unpack_from(raw)
+    return Reply(seq, session, opcode, size, req_opcode, burst, offset, raw[HEADER.size : HEADER.size + size])
+
+
+@dataclass
+class _Job:
+    path: str
+    done: DoneFn
+    session: int | None = None
+    size: int | None = None
+    data: bytearray | None = None
+    error: str = ""
+
+
+class FtpClient:
+    """Fetches whole files from one MAVLink FTP server, one after another, retransmitting lost requests."""
+
+    def __init__(self, send: SendFn, target: tuple[int, int], *, own: tuple[int, int] | None = None,
+                 clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 1.0,
+                 max_timeout_s: float = 10.0, max_tries: int = 8) -> None:
+        self._send = send
+        self.target = target
+        self._own = own
+        self._clock = clock
+        self._min_timeout, self._max_timeout, self._max_tries = min_timeout_s, max_timeout_s, max_tries
+        self._queue: deque[_Job] = deque()
+        self._job: _Job | None = None
+        self._seq = 0
+        self._request: tuple[int, bytes] | None = None  # (opcode, payload) awaiting its reply
+        self._sent_at = 0.0
+        self._first_sent_at = 0.0
+        self._tries = 0
+        self._srtt: float | None = None
+        self.retransmissions = 0
+        self.bytes_read = 0
+        self.files_done = 0
+
+    # --- public --------------------------------------------------------------------------------------------
+
+    def fetch(self, path: str, done: DoneFn) -> None:
+        """Queue a download of ``path`` (e.g. ``/summary/3.jpg``); ``done`` hears the outcome exactly once."""
+        self._queue.append(_Job(path, done))
+        if self._job is None:
+            self._next_job()
+
+    def pending(self) -> list[str]:
+        paths = [j.path for j in self._queue]
+        return paths if self._job is None else [self._job.path, *paths]
+
+    @property
+    def busy(self) -> bool:
+        return self._job is not None
+
+    def retarget(self, target: tuple[int, int]) -> None:
+        self.target = target
+
+    def handle(self, msg) -> None:
+        """Feed a FILE_TRANSFER_PROTOCOL message; replies to others or to stale requests are ignored."""
+        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or self._request is None:
+            return
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != self.target:
+            return
+        if self._own is not None and (msg.target_system, msg.target_component) not in (self._own, (self._own[0], 0)):
+            return
+        reply = unpack(msg.payload)
+        opcode, _ = self._request
+        if reply.opcode not in (OP_ACK, OP_NAK) or reply.req_opcode != opcode:
+            return
+        if reply.seq != (self._seq + 1) & 0xFFFF:
+            return
+        rtt = self._clock() - self._sent_at
+        if self._tries == 1:  # Karn: only unambiguous samples
+            self._srtt = rtt if self._srtt is None else 0.8 * self._srtt + 0.2 * rtt
+        self._request = None
+        self._seq = (self._seq + 2) & 0xFFFF
+        self._on_reply(opcode, reply)
+
+    def tick(self) -> None:
+        """Call often: retransmits a request whose reply is overdue, gives up after ``max_tries``."""
+        if self._request is None:
+            return
+        if self._clock() - self._sent_at < self._timeout():
+            return
+        opcode, payload = self._request
+        if self._tries >= self._max_tries and opcode == OP_TERMINATE:
+            self._request = None  # every byte is in; the server ends an idle session on its own
+            self._seq = (self._seq + 2) & 0xFFFF
+            self._complete()
+            return
+        if self._tries >= self._max_tries:
+            self._request = None
+            self._seq = (self._seq + 2) & 0xFFFF
+            self._finish(None, f"no answer to {'open' if opcode == OP_OPEN_RO else 'request'} after "
+                               f"{self._tries} tries")
+            return
+        self.retransmissions += 1
+        self._transmit(opcode, payload, retry=True)
+
+    # --- protocol ------------------------------------------------------------------------------------------
+
+    def _timeout(self) -> float:
+        base = self._min_timeout if self._srtt is None else max(self._min_timeout, 3.0 * self._srtt)
+        return min(self._max_timeout, base * (2 ** max(0, self._tries - 1)))
+
+    def _transmit(self, opcode: int, payload: bytes, retry: bool = False) -> None:
+        self._request = (opcode, payload)
+        self._tries = self._tries + 1 if retry else 1
+        self._sent_at = self._clock()
+        self._send(self.target[0], self.target[1], payload)
+
+    def _request_op(self, opcode: int, *, session: int = 0, offset: int = 0, data: bytes = b"",
+                    size: int | None = None) -> None:
+        self._transmit(opcode, pack(self._seq, session, opcode, offset, data, size))
+
+    def _next_job(self) -> None:
+        if not self._queue:
+            self._job = None
+            return
+        self._job = self._queue.popleft()
+        path = self._job.path.encode("utf-8")
+        if len(path) >= MAX_DATA:
+            self._finish(None, "path too long")
+            return
+        self._request_op(OP_OPEN_RO, data=path + b"\0", size=len(path))
+
+    def _on_reply(self, opcode: int, reply: Reply) -> None:
+        job = self._job
+        if job is None:
+            return
+        if opcode == OP_OPEN_RO:
+            if reply.opcode == OP_NAK:
+                self._finish(None, f"open failed: {_nak(reply)}", terminate=False)
+                return
+            job.session = reply.session
+            job.size = struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None  # 0: read to EOF
+            job.data = bytearray()
+            self._read_more()
+        elif opcode == OP_READ:
+            if reply.opcode == OP_NAK:
+                if reply.data[:1] == bytes([NAK_EOF]):
+                    self._terminate()
+                else:
+                    self._finish(None, f"read failed at {len(job.data or b'')}: {_nak(reply)}")
+                return
+            assert job.data is not None
+            if reply.offset == len(job.data):
+                job.data.extend(reply.data)
+                self.bytes_read += len(reply.data)
+            self._read_more()
+        elif opcode == OP_TERMINATE:
+            self._complete()
+
+    def _read_more(self) -> None:
+        job = self._job
+        assert job is not None and job.data is not None and job.session is not None
+        if job.size is not None and len(job.data) >= job.size:
+            self._terminate()
+            return
+        self._request_op(OP_READ, session=job.session, offset=len(job.data), size=MAX_DATA)
+
+    def _terminate(self) -> None:
+        job = self._job
+        assert job is not None
+        self._request_op(OP_TERMINATE, session=job.session or 0)
+
+    def _complete(self) -> None:
+        job = self._job
+        assert job is not None
+        if job.error:
+            self._finish(None, job.error, terminate=False)
+            return
+        data = bytes(job.data or b"")
+        if job.size is not None and len(data) != job.size:
+            self._finish(None, f"got {len(data)} of {job.size} bytes", terminate=False)
+            return
+        self.files_done += 1
+        self._finish(data, "", terminate=False)
+
+    def _finish(self, data: bytes | None, error: str, terminate: bool = True) -> None:
+        """End the current job; a failure mid-session first closes the session so the server frees it."""
+        job = self._job
+        assert job is not None
+        if data is None and terminate and job.session is not None and not job.error:
+            job.error = error
+            self._terminate()
+            return
+        self._job = None
+        try:
+            job.done(job.path, data, error)
+        except Exception:  # a caller's bug must not stall the queue
+            log.exception("FTP callback for %s failed", job.path)
+        if self._job is None:
+            self._next_job()
+
+
+def _nak(reply: Reply) -> str:
+    code = reply.data[0] if reply.data else 0
+    return NAK_NAMES.get(code, f"error {code}")

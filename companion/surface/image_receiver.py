@@ -1,0 +1,122 @@
+"""Reassembles images pushed with DATA_TRANSMISSION_HANDSHAKE (130) + ENCAPSULATED_DATA (131).
+
+It follows QGroundControl's reading of the protocol so that what we receive is what the operator's ground
+station receives: a handshake starts a new image, chunk ``seqnr`` is written at ``seqnr * payload``, the image is
+complete when every packet has arrived, and a lost packet leaves the image stalled until the next handshake
+(which abandons it; the caller then fetches that image another way).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+IMAGE_TYPES = {0: "jpeg", 1: "bmp", 2: "raw8u", 3: "raw32u", 4: "pgm", 5: "png"}
+"""MAVLINK_DATA_STREAM_TYPE values, as file-name extensions."""
+
+
+@dataclass
+class PushedImage:
+    """One image the sender pushed, complete and trimmed to the size its handshake announced."""
+
+    data: bytes
+    kind: str
+    width: int
+    height: int
+    source: tuple[int, int]
+    """(system, component) of the sender."""
+    started: float
+    finished: float
+    handshake_no: int
+    """Counts handshakes from this source, so callers can order pushes and spot abandoned ones."""
+
+
+@dataclass
+class _Transfer:
+    size: int
+    packets: int
+    payload: int
+    kind: str
+    width: int
+    height: int
+    started: float
+    handshake_no: int
+    buffer: bytearray = field(default_factory=bytearray)
+    received: set[int] = field(default_factory=set)
+
+
+@dataclass
+class Abandoned:
+    """An image whose handshake came but whose packets never all arrived before the next handshake."""
+
+    source: tuple[int, int]
+    handshake_no: int
+    received_packets: int
+    packets: int
+
+
+class ImageReceiver:
+    """Feeds on MAVLink messages; ``handle`` returns a finished image, an abandoned transfer, or None."""
+
+    def __init__(self, clock=time.monotonic) -> None:
+        self._clock = clock
+        self._transfers: dict[tuple[int, int], _Transfer] = {}
+        self._handshakes: dict[tuple[int, int], int] = {}
+        self.completed = 0
+        self.abandoned = 0
+        self.bytes_received = 0
+
+    def handle(self, msg) -> PushedImage | Abandoned | None:
+        """Process one message (others are ignored); say what, if anything, it finished or abandoned."""
+        kind = msg.get_type()
+        if kind == "DATA_TRANSMISSION_HANDSHAKE":
+            return self._handshake(msg)
+        if kind == "ENCAPSULATED_DATA":
+            return self._chunk(msg)
+        return None
+
+    def in_progress(self, source: tuple[int, int]) -> tuple[int, int, int] | None:
+        """(handshake number, packets received, packets expected) of the image arriving from ``source``."""
+        t = self._transfers.get(source)
+        return None if t is None else (t.handshake_no, len(t.received), t.packets)
+
+    def _handshake(self, msg) -> Abandoned | None:
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        previous = self._transfers.pop(source, None)
+        gone = None
+        if previous is not None and len(previous.received) < previous.packets:
+            self.abandoned += 1
+            gone = Abandoned(source, previous.handshake_no, len(previous.received), previous.packets)
+        # A handshake with nothing to send (size or packets 0) is how some senders answer a request: no image.
+        if msg.size <= 0 or msg.packets <= 0 or msg.payload <= 0:
+            return gone
+        if msg.packets * msg.payload < msg.size:
+            return gone  # cannot hold the announced size: not a transfer we can reassemble
+        number = self._handshakes.get(source, 0) + 1
+        self._handshakes[source] = number
+        self._transfers[source] = _Transfer(
+            size=msg.size, packets=msg.packets, payload=msg.payload, kind=IMAGE_TYPES.get(msg.type, "bin"),
+            width=msg.width, height=msg.height, started=self._clock(), handshake_no=number,
+            buffer=bytearray(msg.packets * msg.payload),
+        )
+        return gone
+
+    def _chunk(self, msg) -> PushedImage | None:
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        t = self._transfers.get(source)
+        if t is None or not 0 <= msg.seqnr < t.packets:
+            return None
+        start = msg.seqnr * t.payload
+        data = bytes(msg.data)[: t.payload]
+        t.buffer[start : start + len(data)] = data
+        if msg.seqnr not in t.received:
+            t.received.add(msg.seqnr)
+            self.bytes_received += len(data)
+        if len(t.received) < t.packets:
+            return None
+        del self._transfers[source]
+        self.completed += 1
+        return PushedImage(
+            data=bytes(t.buffer[: t.size]), kind=t.kind, width=t.width, height=t.height, source=source,
+            started=t.started, finished=self._clock(), handshake_no=t.handshake_no,
+        )

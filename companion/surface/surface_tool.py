@@ -1,0 +1,397 @@
+"""The surface tool's one MAVLink connection and its receive loop.
+
+One owner of the connection: this loop reads every message, keeps the link and companion status, pairs each
+CAMERA_IMAGE_CAPTURED with the thumbnail pushed for it (DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA), and
+falls back to a MAVLink FTP pull (``/summary/<n>.jpg``) for every capture whose push was lost or never came. It
+pulls ``/summary/index.json`` when it first meets the companion and after the summary changed, which gives the
+score and heading of each frame and mirrors the summary even when a STATUSTEXT was lost.
+
+Pairing pushes with captures: the image protocol carries no image index, so pushes are paired with captures in
+the order both arrive (the companion announces a frame, then pushes its thumbnail; thumbnails of frames trimmed
+before they were sent are dropped, and the trim is announced first). Each handshake takes the oldest capture
+still waiting; an image whose packets never all arrive is fetched by FTP instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+from pymavlink import mavutil
+
+from companion.errors import MerlionError
+from companion.surface.ftp_client import FtpClient
+from companion.surface.gallery import Capture, Gallery
+from companion.surface.image_receiver import Abandoned, ImageReceiver, PushedImage
+from companion.surface.messages import capture_from_message, mftp_path, parse_index, parse_statustext
+
+log = logging.getLogger("merlion.surface")
+
+MAV_TYPE_CAMERA = 30
+MAV_TYPE_GCS = 6
+MAV_AUTOPILOT_INVALID = 8
+INDEX_PATH = "/summary/index.json"
+
+
+@dataclass
+class SurfaceOptions:
+    connect: str = "udpin:0.0.0.0:14550"
+    system_id: int = 254
+    """Not 255: ArduSub takes heartbeats of system 255 for the pilot's GCS and would hide a real GCS loss."""
+    component_id: int = 190
+    companion: tuple[int, int] | None = None
+    """(system, component) of the companion; None: the camera component that sends captures or pushes images."""
+    push_timeout_s: float = 30.0
+    """A capture with no pushed thumbnail after this long is fetched by FTP."""
+    index_refresh_s: float = 10.0
+    """Pull index.json at most this often, and only after the summary changed."""
+    ftp: bool = True
+    statustext_keep: int = 20
+
+
+@dataclass
+class LinkStatus:
+    """What the web page shows about the link and the companion."""
+
+    started: float = field(default_factory=time.time)
+    messages: int = 0
+    last_message: float | None = None
+    companion: tuple[int, int] | None = None
+    companion_heartbeat: float | None = None
+    autopilot: tuple[int, int] | None = None
+    autopilot_heartbeat: float | None = None
+    values: dict[str, float] = field(default_factory=dict)
+    values_at: float | None = None
+    statustext: deque = field(default_factory=lambda: deque(maxlen=20))
+    pushed_ok: int = 0
+    pushed_lost: int = 0
+    ftp_ok: int = 0
+    ftp_failed: int = 0
+    index_pulls: int = 0
+    lost_packets: int = 0
+
+
+class SurfaceTool:
+    """Receive loop, pairing of pushes with captures, FTP fallback. ``run`` blocks until ``stop`` is set."""
+
+    def __init__(self, options: SurfaceOptions, gallery: Gallery, clock=time.monotonic) -> None:
+        self.options = options
+        self.gallery = gallery
+        self._clock = clock
+        self.status = LinkStatus()
+        self.status.statustext = deque(maxlen=options.statustext_keep)
+        self.lock = threading.Lock()
+        self.images = ImageReceiver(clock=clock)
+        self._conn = None
+        self._ftp: FtpClient | None = None
+        self._cameras: set[tuple[int, int]] = set()
+        self._waiting: deque[tuple[int, float]] = deque()  # captures waiting for a push: (image index, since)
+        self._early: deque[int] = deque()  # handshakes that came before their capture (handshake numbers)
+        self._bound: dict[int, int] = {}  # handshake number -> image index
+        self._orphans: dict[int, PushedImage] = {}  # finished pushes not yet paired
+        self._lost_push: set[int] = set()  # handshake numbers abandoned before pairing
+        self._fetching: set[int] = set()
+        self._index_due: float | None = None
+        self._index_pulled_at = -1e9
+        self._last_heartbeat = -1e9
+
+    # --- connection ----------------------------------------------------------------------------------------
+
+    def open(self) -> None:
+        try:
+            self._conn = mavutil.mavlink_connection(
+                self.options.connect, source_system=self.options.system_id,
+                source_component=self.options.component_id, autoreconnect=True,
+            )
+        except Exception as err:  # pymavlink raises many kinds for a bad string or a busy port
+            raise MerlionError(f"--connect {self.options.connect}: cannot open ({err})") from None
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def run(self, stop: threading.Event, duration: float | None = None) -> None:
+        """The loop: read everything that is there, then housekeeping; returns when stopped or after duration."""
+        if self._conn is None:
+            self.open()
+        end = None if duration is None else self._clock() + duration
+        try:
+            while not stop.is_set() and (end is None or self._clock() < end):
+                msg = self._conn.recv_match(blocking=True, timeout=0.05)
+                while msg is not None:
+                    self.handle(msg)
+                    msg = self._conn.recv_match(blocking=False)
+                self.housekeeping()
+        finally:
+            self.close()
+
+    def housekeeping(self) -> None:
+        now = self._clock()
+        if now - self._last_heartbeat >= 1.0 and self._conn is not None:
+            self._last_heartbeat = now
+            self._conn.mav.heartbeat_send(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        if self._ftp is not None:
+            self._ftp.tick()
+        while self._waiting and now - self._waiting[0][1] > self.options.push_timeout_s:
+            index, _ = self._waiting.popleft()
+            log.info("no push for capture %d after %.0f s: fetching it by FTP", index, self.options.push_timeout_s)
+            self._fetch_thumbnail(index)
+        if self._index_due is not None and now >= self._index_due and self._ftp is not None:
+            if INDEX_PATH not in self._ftp.pending():
+                self._index_due = None
+                self._index_pulled_at = now
+                self._ftp.fetch(INDEX_PATH, self._on_index)
+
+    # --- dispatch ------------------------------------------------------------------------------------------
+
+    def handle(self, msg) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            return
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        now = time.time()
+        with self.lock:
+            self.status.messages += 1
+            self.status.last_message = now
+            if self._conn is not None:
+                self.status.lost_packets = int(getattr(self._conn, "mav_loss", 0))
+        if kind == "HEARTBEAT":
+            self._on_heartbeat(msg, source, now)
+            return
+        if kind == "CAMERA_IMAGE_CAPTURED":
+            self._adopt(source)
+        elif kind in ("DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA") and source in self._cameras:
+            self._adopt(source)
+        if self.status.companion is None or source != self.status.companion:
+            return
+        if kind == "CAMERA_IMAGE_CAPTURED":
+            self._on_capture(msg)
+        elif kind == "DATA_TRANSMISSION_HANDSHAKE":
+            self._on_handshake(msg)
+        elif kind == "ENCAPSULATED_DATA":
+            self._on_push_result(self.images.handle(msg))
+        elif kind == "STATUSTEXT":
+            self._on_statustext(msg, now)
+        elif kind in ("NAMED_VALUE_FLOAT", "NAMED_VALUE_INT"):
+            name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else msg.name
+            with self.lock:
+                self.status.values[name.rstrip("\0")] = float(msg.value)
+                self.status.values_at = now
+        elif kind == "FILE_TRANSFER_PROTOCOL" and self._ftp is not None:
+            self._ftp.handle(msg)
+
+    def _on_heartbeat(self, msg, source: tuple[int, int], now: float) -> None:
+        with self.lock:
+            if msg.type == MAV_TYPE_CAMERA:
+                self._cameras.add(source)
+                if source == self.status.companion:
+                    self.status.companion_heartbeat = now
+            elif msg.type not in (MAV_TYPE_GCS,) and msg.autopilot != MAV_AUTOPILOT_INVALID:
+                self.status.autopilot = source
+                self.status.autopilot_heartbeat = now
+        if self.options.companion == source:
+            self._adopt(source)
+
+    def _adopt(self, source: tuple[int, int]) -> None:
+        """Lock onto the companion: the configured one, else the first camera that sends captures or images."""
+        if self.status.companion is not None:
+            return
+        if self.options.companion is not None and source != self.options.companion:
+            return
+        log.info("companion found at system %d component %d", *source)
+        with self.lock:
+            self.status.companion = source
+            self.status.companion_heartbeat = time.time()
+        if self.options.ftp and self._conn is not None:
+            self._ftp = FtpClient(self._send_ftp, source, own=(self.options.system_id, self.options.component_id),
+                                  clock=self._clock)
+            self._index_due = self._clock()  # learn the summary as it stands now
+
+    def _send_ftp(self, system: int, component: int, payload: bytes) -> None:
+        if self._conn is not None:
+            self._conn.mav.file_transfer_protocol_send(0, system, component, payload)
+
+    # --- captures and pushes -------------------------------------------------------------------------------
+
+    def _on_capture(self, msg) -> None:
+        cap = capture_from_message(msg)
+        known = self.gallery.get(cap.image_index)
+        if known is not None and not known.in_summary:
+            return  # a re-sent announcement of a frame already trimmed out
+        if not self.gallery.announce(cap):
+            return
+        log.info("capture %d at %.1f m", cap.image_index, cap.depth_m or 0.0)
+        self._want_index()
+        if self._early:
+            self._bind(self._early.popleft(), cap.image_index)
+        else:
+            self._waiting.append((cap.image_index, self._clock()))
+
+    def _on_handshake(self, msg) -> None:
+        self._on_push_result(self.images.handle(msg))
+        if msg.size <= 0 or msg.packets <= 0:
+            return
+        progress = self.images.in_progress((msg.get_srcSystem(), msg.get_srcComponent()))
+        if progress is None:
+            return
+        handshake_no = progress[0]
+        while self._waiting:
+            index, _ = self._waiting.popleft()
+            cap = self.gallery.get(index)
+            if cap is not None and cap.in_summary and cap.thumbnail is None:
+                self._bind(handshake_no, index)
+                return
+        self._early.append(handshake_no)
+
+    def _bind(self, handshake_no: int, index: int) -> None:
+        self._bound[handshake_no] = index
+        if handshake_no in self._orphans:
+            self._store_push(index, self._orphans.pop(handshake_no))
+        elif handshake_no in self._lost_push:
+            self._lost_push.discard(handshake_no)
+            self._fetch_thumbnail(index)
+
+    def _on_push_result(self, result: PushedImage | Abandoned | None) -> None:
+        if isinstance(result, PushedImage):
+            index = self._bound.pop(result.handshake_no, None)
+            if index is None:
+                self._orphans[result.handshake_no] = result
+            else:
+                self._store_push(index, result)
+        elif isinstance(result, Abandoned):
+            with self.lock:
+                self.status.pushed_lost += 1
+            index = self._bound.pop(result.handshake_no, None)
+            log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
+                     result.received_packets, result.packets)
+            if index is None:
+                self._lost_push.add(result.handshake_no)
+            else:
+                self._fetch_thumbnail(index)
+
+    def _store_push(self, index: int, image: PushedImage) -> None:
+        ext = "jpg" if image.kind == "jpeg" else image.kind
+        self.gallery.add_thumbnail(index, image.data, ext=ext, via="push")
+        with self.lock:
+            self.status.pushed_ok += 1
+
+    def _fetch_thumbnail(self, index: int) -> None:
+        cap = self.gallery.get(index)
+        if cap is None or not cap.in_summary or cap.thumbnail is not None or index in self._fetching:
+            return
+        if self._ftp is None:
+            return
+        path = mftp_path(cap.file_url or "") or f"/summary/{index}.jpg"
+        self._fetching.add(index)
+
+        def done(_path: str, data: bytes | None, error: str) -> None:
+            self._fetching.discard(index)
+            with self.lock:
+                if data is None:
+                    self.status.ftp_failed += 1
+                else:
+                    self.status.ftp_ok += 1
+            if data is None:
+                log.warning("FTP %s: %s", path, error)
+                return
+            now_cap = self.gallery.get(index)
+            if now_cap is not None and now_cap.thumbnail is None:
+                ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
+                self.gallery.add_thumbnail(index, data, ext=ext, via="ftp")
+
+        self._ftp.fetch(path, done)
+
+    # --- status and index ----------------------------------------------------------------------------------
+
+    def _on_statustext(self, msg, now: float) -> None:
+        text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else msg.text
+        text = text.rstrip("\0")
+        with self.lock:
+            self.status.statustext.append({"time": now, "severity": int(msg.severity), "text": text})
+        facts = parse_statustext(text)
+        for index in facts.removed:
+            if self.gallery.remove(index):
+                log.info("capture %d trimmed out of the summary", index)
+            self._waiting = deque((i, t) for i, t in self._waiting if i != index)
+        for index, score in facts.scores.items():
+            self.gallery.update_tags(index, score=score)
+        if facts.removed or facts.summary_changed or facts.added:
+            self._want_index()
+
+    def _want_index(self) -> None:
+        if self._ftp is None:
+            return
+        due = max(self._clock(), self._index_pulled_at + self.options.index_refresh_s)
+        if self._index_due is None or due < self._index_due:
+            self._index_due = due
+
+    def _on_index(self, _path: str, data: bytes | None, error: str) -> None:
+        if data is None:
+            log.warning("FTP %s: %s", INDEX_PATH, error)
+            with self.lock:
+                self.status.ftp_failed += 1
+            return
+        try:
+            captures = parse_index(data)
+        except (ValueError, UnicodeDecodeError) as err:
+            log.warning("%s: not JSON this tool understands (%s)", INDEX_PATH, err)
+            return
+        with self.lock:
+            self.status.index_pulls += 1
+            self.status.ftp_ok += 1
+        self.gallery.mirror([c.image_index for c in captures])
+        waiting = {i for i, _ in self._waiting}
+        for cap in captures:
+            tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
+                                                 "score", "file_url")}
+            self.gallery.update_tags(cap.image_index, **tags)
+            known = self.gallery.get(cap.image_index)
+            if known is None or known.thumbnail is not None:
+                continue
+            # a frame we never heard announced has no push coming: fetch it now
+            if cap.image_index not in waiting and cap.image_index not in self._bound.values():
+                self._fetch_thumbnail(cap.image_index)
+
+    # --- for the web page ----------------------------------------------------------------------------------
+
+    def snapshot(self) -> dict:
+        """A JSON-ready view of the link, the companion and the summary (newest first)."""
+        now = time.time()
+        with self.lock:
+            s = self.status
+            link = {
+                "connect": self.options.connect,
+                "messages": s.messages,
+                "last_message_age_s": None if s.last_message is None else round(now - s.last_message, 1),
+                "lost_packets": s.lost_packets,
+                "autopilot": list(s.autopilot) if s.autopilot else None,
+                "autopilot_heartbeat_age_s": _age(now, s.autopilot_heartbeat),
+                "pushed_ok": s.pushed_ok, "pushed_lost": s.pushed_lost,
+                "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
+            }
+            companion = {
+                "id": list(s.companion) if s.companion else None,
+                "heartbeat_age_s": _age(now, s.companion_heartbeat),
+                "values": dict(s.values),
+                "values_age_s": _age(now, s.values_at),
+                "statustext": list(s.statustext)[::-1],
+            }
+        summary = [_capture_view(c) for c in self.gallery.summary()]
+        return {"time": now, "link": link, "companion": companion, "summary": summary,
+                "thumbnails_waiting": self.gallery.missing_thumbnails()}
+
+
+def _age(now: float, then: float | None) -> float | None:
+    return None if then is None else round(now - then, 1)
+
+
+def _capture_view(c: Capture) -> dict:
+    return {
+        "image_index": c.image_index, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
+        "score": c.score, "lat": c.lat, "lon": c.lon, "thumbnail": c.thumbnail, "via": c.thumbnail_via,
+        "bytes": c.thumbnail_bytes,
+    }
