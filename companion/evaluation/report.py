@@ -104,7 +104,8 @@ def _plot_depth(run: ReportRun, path: Path) -> None:
 
 
 def _slug(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name).strip("_").lower() or "run"
+    words = "".join(c if c.isalnum() else " " for c in name).split()
+    return "_".join(words).lower() or "run"
 
 
 def _fmt(value: object) -> str:
