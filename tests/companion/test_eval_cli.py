@@ -1,0 +1,85 @@
+"""``merlion eval ...`` as a user runs it: real subprocesses, real data from ../shared/data."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.conftest import run_merlion, shared_file
+
+
+def test_table_json_reproduces_the_paper():
+    data = shared_file("srum/powellscay_low.json").parent
+    r = run_merlion("eval", "table", "--data", str(data), "--json", timeout=120)
+    assert r.returncode == 0, r.stderr
+    table = json.loads(r.stdout)
+    assert round(table["powellscay_low"]["Human"], 4) == 0.6562
+    assert round(table["bonaire_moderate"]["ROST"], 3) == 0.364
+    assert round(table["kralendijk_clear"]["MERLION"], 4) == 0.4227
+    text = run_merlion("eval", "table", "--data", str(data), timeout=120)
+    assert text.returncode == 0 and "truncated" in text.stdout and "mismatch" not in text.stdout
+
+
+def test_table_without_data_is_a_one_line_error(tmp_path):
+    r = run_merlion("eval", "table", "--data", str(tmp_path / "nowhere"))
+    assert r.returncode == 1
+    assert r.stderr.strip().count("\n") == 0 and "nowhere" in r.stderr and "--data" in r.stderr
+
+
+def test_srum_of_the_papers_merlion_summary_and_relative_score(tmp_path):
+    low = shared_file("srum/powellscay_low.json")
+    r = run_merlion("eval", "srum", "--labels", str(low), "--summary", "743", "2051", "2185", "2647", "2661", "2996",
+                    "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert round(out["srum"], 4) == 0.2446 and round(out["human"], 4) == 0.6562
+    assert out["relative"] == pytest.approx(100 * out["srum"] / out["human"])
+    # the same summary as a summary.json of 0-based source indices
+    (tmp_path / "summary.json").write_text(json.dumps(
+        {"source": "x", "encoder": {}, "params": {},
+         "frames": [{"index": f - 1, "time_s": (f - 1) / 30, "score": 0.9, "file": ""} for f in
+                    (743, 2051, 2185, 2647, 2661, 2996)]}))
+    r2 = run_merlion("eval", "srum", "--labels", str(low), "--summary-json", str(tmp_path), "--json",
+                     "--report", str(tmp_path / "rep"))
+    assert r2.returncode == 0, r2.stderr
+    assert json.loads(r2.stdout.splitlines()[0])["srum"] == pytest.approx(out["srum"])
+    assert (tmp_path / "rep" / "index.html").is_file()
+    bad = run_merlion("eval", "srum", "--labels", str(low), "--summary", "999999")
+    assert bad.returncode == 1 and "frame 999999" in bad.stderr
+
+
+def test_srum_with_a_csv_and_a_humans_file(tmp_path):
+    (tmp_path / "l.csv").write_text("frame,labels\n" + "".join(f"{f},{'A' if f in (10, 100) else ''}\n"
+                                                              for f in range(1, 201)))
+    (tmp_path / "h.txt").write_text("100\n10\n")
+    r = run_merlion("eval", "srum", "--labels", str(tmp_path / "l.csv"), "--humans", str(tmp_path / "h.txt"),
+                    "--summary", "10", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    # against [100]: 0.5 + 0.5 e^-1; against [10]: 1 -> mean; humans score each other 0.5 + 0.5 e^-1
+    assert out["srum"] == pytest.approx((0.5 + 0.5 * 0.36787944117 + 1) / 2)
+    assert out["human"] == pytest.approx(0.5 + 0.5 * 0.36787944117)
+    missing = run_merlion("eval", "srum", "--labels", str(tmp_path / "l.csv"), "--summary", "10")
+    assert missing.returncode == 2 and "--humans" in missing.stderr
+
+
+def test_labels_on_the_survey(tmp_path):
+    csv = shared_file("survey/survey_480x270_labels.csv")
+    r = run_merlion("eval", "labels", "--labels", str(csv), "--fps", "10", "--summary", "2", "20", "30", "47", "60",
+                    "75", "--json", "--report", str(tmp_path / "rep"))
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.splitlines()[0])
+    assert out["precision"] == pytest.approx(4 / 6) and out["coverage"] == 1.0 and out["query"] == "fish"
+    assert len(out["oracle"]) == 6 and 0 < out["srum_oracle"] <= 1
+    assert "precision" in (tmp_path / "rep" / "index.html").read_text()
+
+
+def test_auroc_of_the_visual_baseline_is_chance():
+    video = shared_file("survey/survey_480x270.mp4")
+    csv = shared_file("survey/survey_480x270_labels.csv")
+    r = run_merlion("eval", "auroc", str(video), "--labels", str(csv), "--encoder", "visual", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["auroc"] == 0.5 and out["frames"] == 93 and out["positives"] == 60
+    assert out["at_tau_ss"]["recall"] == 1.0 and out["at_tau_ss"]["false_pass"] == 1.0
