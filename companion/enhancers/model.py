@@ -12,6 +12,7 @@ is None), and the output is resized back to the frame's size.
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +49,9 @@ class _TorchScriptRunner:
         self._torch = torch
         self.device = device
         try:
-            self.module = torch.jit.load(str(path), map_location=device).eval()
+            with warnings.catch_warnings():  # TorchScript is deprecated upstream but still what exporters ship
+                warnings.simplefilter("ignore", FutureWarning)
+                self.module = torch.jit.load(str(path), map_location=device).eval()
         except Exception as err:  # torch raises RuntimeError/ValueError with long texts
             first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise MerlionError(f"enhance.model_path: {path} is not a TorchScript model ({first})",
