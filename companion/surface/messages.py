@@ -78,10 +78,13 @@ def parse_statustext(text: str) -> StatusFacts:
     if not any(w in text.lower() for w in ("summ", "trim", "remov", "drop", "evict", "add", "img", "image", "#")):
         return facts
     indices = [int(m) for m in _INDEX.findall(text)]
-    signed = [(sign, int(n)) for sign, n in re.findall(r"([+-])#?(\d+)\b", text)]
+    signed = [(sign, int(n)) for sign, n in re.findall(r"([+-])#(\d+)\b", text)]
     if signed:
         facts.added = [n for s, n in signed if s == "+"]
         facts.removed = [n for s, n in signed if s == "-"]
+        score = _SCORE.search(text)
+        if score and len(facts.added) == 1:
+            facts.scores[facts.added[0]] = float(score.group(1))
     elif indices and _REMOVED.search(text):
         facts.removed = indices
     elif indices and _ADDED.search(text):

@@ -15,24 +15,25 @@ still waiting; an image whose packets never all arrive is fetched by FTP instead
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.errors import MerlionError
+from companion.config import MavlinkConfig
 from companion.surface.ftp_client import FtpClient
 from companion.surface.gallery import Capture, Gallery
 from companion.surface.image_receiver import Abandoned, ImageReceiver, PushedImage
 from companion.surface.messages import capture_from_message, mftp_path, parse_index, parse_statustext
+from vehicle.link import MavLink, is_autopilot_heartbeat
 
 log = logging.getLogger("merlion.surface")
 
-MAV_TYPE_CAMERA = 30
-MAV_TYPE_GCS = 6
-MAV_AUTOPILOT_INVALID = 8
+MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
+MAV_TYPE_GCS = mav.MAV_TYPE_GCS
 INDEX_PATH = "/summary/index.json"
 
 
@@ -78,6 +79,7 @@ class SurfaceTool:
     """Receive loop, pairing of pushes with captures, FTP fallback. ``run`` blocks until ``stop`` is set."""
 
     def __init__(self, options: SurfaceOptions, gallery: Gallery, clock=time.monotonic) -> None:
+        """Checks the connection string at once (a typo is a one-line error); nothing opens until ``open``."""
         self.options = options
         self.gallery = gallery
         self._clock = clock
@@ -85,7 +87,15 @@ class SurfaceTool:
         self.status.statustext = deque(maxlen=options.statustext_keep)
         self.lock = threading.Lock()
         self.images = ImageReceiver(clock=clock)
-        self._conn = None
+        self._inbox: queue.Queue = queue.Queue()
+        self._link = MavLink(
+            options.connect,
+            MavlinkConfig(connection=options.connect, system_id=options.system_id,
+                          component_id=options.component_id),
+            name="surface", mav_type=MAV_TYPE_GCS,
+        )
+        self._opened = False
+        self._last_seq: dict[tuple[int, int], int] = {}
         self._ftp: FtpClient | None = None
         self._cameras: set[tuple[int, int]] = set()
         self._waiting: deque[tuple[int, float]] = deque()  # captures waiting for a push: (image index, since)
@@ -96,44 +106,43 @@ class SurfaceTool:
         self._fetching: set[int] = set()
         self._index_due: float | None = None
         self._index_pulled_at = -1e9
-        self._last_heartbeat = -1e9
 
     # --- connection ----------------------------------------------------------------------------------------
 
-    def open(self) -> None:
-        try:
-            self._conn = mavutil.mavlink_connection(
-                self.options.connect, source_system=self.options.system_id,
-                source_component=self.options.component_id, autoreconnect=True,
-            )
-        except Exception as err:  # pymavlink raises many kinds for a bad string or a busy port
-            raise MerlionError(f"--connect {self.options.connect}: cannot open ({err})") from None
+    def open(self, timeout: float = 5.0) -> None:
+        """Open the link (its own receive thread feeds our inbox; it also sends our 1 Hz GCS heartbeat)."""
+        if self._opened:
+            return
+        self._opened = True
+        self._link.subscribe(self._inbox.put)
+        self._link.start()
+        self._link.wait_open(timeout)
 
     def close(self) -> None:
-        if self._conn is not None:
-            self._conn.close()
-            self._conn = None
+        self._link.stop()
 
     def run(self, stop: threading.Event, duration: float | None = None) -> None:
-        """The loop: read everything that is there, then housekeeping; returns when stopped or after duration."""
-        if self._conn is None:
-            self.open()
+        """The loop: handle what arrived, then housekeeping; returns when stopped or after ``duration``."""
+        self.open()
         end = None if duration is None else self._clock() + duration
         try:
             while not stop.is_set() and (end is None or self._clock() < end):
-                msg = self._conn.recv_match(blocking=True, timeout=0.05)
+                try:
+                    msg = self._inbox.get(timeout=0.05)
+                except queue.Empty:
+                    msg = None
                 while msg is not None:
                     self.handle(msg)
-                    msg = self._conn.recv_match(blocking=False)
+                    try:
+                        msg = self._inbox.get_nowait()
+                    except queue.Empty:
+                        msg = None
                 self.housekeeping()
         finally:
             self.close()
 
     def housekeeping(self) -> None:
         now = self._clock()
-        if now - self._last_heartbeat >= 1.0 and self._conn is not None:
-            self._last_heartbeat = now
-            self._conn.mav.heartbeat_send(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, 0)
         if self._ftp is not None:
             self._ftp.tick()
         while self._waiting and now - self._waiting[0][1] > self.options.push_timeout_s:
@@ -154,11 +163,14 @@ class SurfaceTool:
             return
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         now = time.time()
+        seq = msg.get_seq()
         with self.lock:
             self.status.messages += 1
             self.status.last_message = now
-            if self._conn is not None:
-                self.status.lost_packets = int(getattr(self._conn, "mav_loss", 0))
+            last = self._last_seq.get(source)
+            if last is not None:
+                self.status.lost_packets += (seq - last - 1) % 256
+            self._last_seq[source] = seq
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, source, now)
             return
@@ -190,7 +202,7 @@ class SurfaceTool:
                 self._cameras.add(source)
                 if source == self.status.companion:
                     self.status.companion_heartbeat = now
-            elif msg.type not in (MAV_TYPE_GCS,) and msg.autopilot != MAV_AUTOPILOT_INVALID:
+            elif is_autopilot_heartbeat(msg) and source[0] != 255:
                 self.status.autopilot = source
                 self.status.autopilot_heartbeat = now
         if self.options.companion == source:
@@ -206,14 +218,13 @@ class SurfaceTool:
         with self.lock:
             self.status.companion = source
             self.status.companion_heartbeat = time.time()
-        if self.options.ftp and self._conn is not None:
+        if self.options.ftp:
             self._ftp = FtpClient(self._send_ftp, source, own=(self.options.system_id, self.options.component_id),
                                   clock=self._clock)
             self._index_due = self._clock()  # learn the summary as it stands now
 
     def _send_ftp(self, system: int, component: int, payload: bytes) -> None:
-        if self._conn is not None:
-            self._conn.mav.file_transfer_protocol_send(0, system, component, payload)
+        self._link.send(mav.MAVLink_file_transfer_protocol_message(0, system, component, list(payload)))
 
     # --- captures and pushes -------------------------------------------------------------------------------
 

@@ -1,0 +1,78 @@
+"""The surface FTP client against the companion's real FTP server, over real UDP, with and without loss."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.surface.ftp_client import FtpClient
+from tests.companion.surface_peer import CompanionPeer, summary_frame
+
+OWN = (254, 190)
+
+
+class _Client:
+    """An FtpClient on its own UDP socket, its receive loop in this test's thread."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.02)
+        self.peer = CompanionPeer(self.sock.getsockname()[1])
+        self.tx = mav.MAVLink(None, srcSystem=OWN[0], srcComponent=OWN[1])
+        self.rx = mav.MAVLink(None)
+        self.ftp = FtpClient(self._send, (1, 100), own=OWN, min_timeout_s=0.2, max_timeout_s=1.0)
+        self.results: dict[str, tuple[bytes | None, str]] = {}
+        self.done = threading.Event()
+
+    def _send(self, system: int, component: int, payload: bytes) -> None:
+        msg = mav.MAVLink_file_transfer_protocol_message(0, system, component, list(payload))
+        self.sock.sendto(msg.pack(self.tx), self.peer.sock.getsockname())
+
+    def fetch(self, *paths: str, timeout: float = 20.0) -> dict[str, tuple[bytes | None, str]]:
+        for p in paths:
+            self.ftp.fetch(p, lambda path, data, err: self.results.__setitem__(path, (data, err)))
+        end = time.monotonic() + timeout
+        while len(self.results) < len(paths) and time.monotonic() < end:
+            try:
+                data = self.sock.recv(4096)
+                for msg in self.rx.parse_buffer(data) or []:
+                    self.ftp.handle(msg)
+            except TimeoutError:
+                pass
+            self.ftp.tick()
+        return self.results
+
+    def close(self) -> None:
+        self.peer.close()
+        self.sock.close()
+
+
+def test_fetches_thumbnails_and_index_intact():
+    c = _Client()
+    try:
+        sent = {i: c.peer.add(summary_frame(i), push=False) for i in (1, 2)}
+        got = c.fetch("/summary/1.jpg", "/summary/2.jpg", "/summary/index.json", "/summary/99.jpg")
+    finally:
+        c.close()
+    assert got["/summary/1.jpg"] == (sent[1], "")
+    assert got["/summary/2.jpg"] == (sent[2], "")
+    assert b'"image_index": 2' in got["/summary/index.json"][0]
+    assert got["/summary/99.jpg"][0] is None and "not found" in got["/summary/99.jpg"][1]
+    assert c.ftp.files_done == 3 and not c.ftp.busy
+
+
+def test_every_byte_arrives_when_the_link_drops_a_third_of_the_replies():
+    c = _Client()
+    try:
+        sent = c.peer.add(summary_frame(3), push=False)
+        c.peer.drop_ftp_reply = lambda n: n % 3 == 0
+        got = c.fetch("/summary/3.jpg")
+    finally:
+        c.close()
+    assert got["/summary/3.jpg"] == (sent, "")
+    assert c.ftp.retransmissions >= 3
+    assert c.peer.ftp.retransmits_answered >= 1

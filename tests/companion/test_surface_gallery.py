@@ -1,0 +1,57 @@
+"""The gallery folder: thumbnails and tags written, mirrored, and read back after a restart."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from companion.errors import MerlionError
+from companion.surface.gallery import Capture, Gallery
+
+
+def test_round_trip_add_thumbnail_remove_reopen(tmp_path):
+    g = Gallery(tmp_path)
+    assert g.announce(Capture(image_index=1, depth_m=3.5, heading_deg=45.0, time_utc=1.7e9))
+    assert g.announce(Capture(image_index=2, depth_m=4.0))
+    assert not g.announce(Capture(image_index=2, heading_deg=90.0))  # known: tags merged, not duplicated
+    g.add_thumbnail(1, b"\xff\xd8one", via="push")
+    g.add_thumbnail(2, b"\xff\xd8two", via="ftp")
+    g.update_tags(2, score=0.75)
+    assert (tmp_path / "summary" / "1.jpg").read_bytes() == b"\xff\xd8one"
+    assert g.remove(1)
+    assert not (tmp_path / "summary" / "1.jpg").exists()
+    assert (tmp_path / "removed" / "1.jpg").read_bytes() == b"\xff\xd8one"
+
+    again = Gallery(tmp_path)
+    assert [c.image_index for c in again.summary()] == [2]
+    two = again.get(2)
+    assert (two.depth_m, two.heading_deg, two.score, two.thumbnail_via, two.thumbnail) == (
+        4.0, 90.0, 0.75, "ftp", "summary/2.jpg")
+    one = again.get(1)
+    assert not one.in_summary and one.thumbnail == "removed/1.jpg"
+
+    doc = json.loads((tmp_path / "gallery.json").read_text())
+    assert doc["summary"] == [2]
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    assert [r["event"] for r in rows] == ["added", "added", "tags", "thumbnail", "thumbnail", "tags", "removed"]
+    assert rows[-1]["image_index"] == "1" and rows[-1]["in_summary"] == "False"
+
+
+def test_mirror_makes_the_summary_exactly_the_given_frames(tmp_path):
+    g = Gallery(tmp_path)
+    for i in (1, 2, 3):
+        g.announce(Capture(image_index=i))
+        g.add_thumbnail(i, bytes([i]))
+    g.remove(2)
+    assert g.mirror([2, 3, 4]) == [1]
+    assert [c.image_index for c in g.summary()] == [4, 3, 2]  # newest first; 2 came back, 4 is new
+    assert (tmp_path / "summary" / "2.jpg").exists() and (tmp_path / "removed" / "1.jpg").exists()
+    assert g.missing_thumbnails() == [4]
+
+
+def test_a_damaged_gallery_file_is_a_one_line_error(tmp_path):
+    (tmp_path / "gallery.json").write_text("{not json")
+    with pytest.raises(MerlionError, match="gallery.json"):
+        Gallery(tmp_path)
