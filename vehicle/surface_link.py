@@ -1,0 +1,294 @@
+"""Everything the companion says to the surface, on one MAVLink link and one byte budget.
+
+The live loop hands ``SurfaceLink.publish`` each summary event and ``update_status`` its latest numbers; this
+object turns them into the camera protocol (CAMERA_IMAGE_CAPTURED, answers to requests), pushed thumbnails
+(DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA), a MAVLink FTP tree (/summary/index.json, thumbnails, full
+frames, /config/queries.txt), STATUSTEXT lines, 1 Hz NAMED_VALUE_FLOAT values and the parameter protocol, and
+queues all of it through one ``LinkBudget`` so the link is never asked for more than it has.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any
+
+import cv2
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.config import SurfaceConfig
+from companion.events import SummaryEvent, SummaryFrame
+from vehicle import status as st
+from vehicle.budget import LinkBudget, Priority
+from vehicle.camera import CameraComponent, CameraIdentity
+from vehicle.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
+from vehicle.ftp_server import FtpServer, VirtualTree
+from vehicle.image_push import push_messages
+from vehicle.params import ParamServer, ParamSpec
+from vehicle.thumbnails import Thumbnail, make_thumbnail
+
+log = logging.getLogger(__name__)
+
+QUERIES_PATH = "/config/queries.txt"
+INDEX_PATH = "/summary/index.json"
+FULL_QUALITY = 90
+_REQUEST_TYPES = ("COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET",
+                  "FILE_TRANSFER_PROTOCOL")
+
+
+def parse_queries(text: str) -> tuple[str, list[str]]:
+    """A queries file: the first non-empty, non-# line is the positive query, the others the negatives."""
+    lines = [ln.strip() for ln in text.replace("\r", "").split("\n")]
+    lines = [ln for ln in lines if ln and not ln.startswith("#")]
+    if len(lines) < 2:
+        raise ValueError("a queries file needs a positive line and at least one negative line")
+    if any(len(ln) > 300 for ln in lines):
+        raise ValueError("a query line is longer than 300 characters")
+    return lines[0], lines[1:]
+
+
+def format_queries(positive: str, negatives: list[str]) -> str:
+    return "# first line: positive query; following lines: negative queries\n" + "\n".join(
+        [positive, *negatives]) + "\n"
+
+
+@dataclass
+class _Held:
+    frame: SummaryFrame
+    thumb: Thumbnail
+    full: bytes | None = None
+
+
+def _frame_tags(frame: SummaryFrame) -> dict[str, Any]:
+    pose = frame.pose
+    tags: dict[str, Any] = {
+        "image_index": frame.image_index, "frame_index": frame.frame_index, "time_s": round(frame.time_s, 3),
+        "capture_time": frame.capture_time,
+        "utc": datetime.fromtimestamp(frame.capture_time, timezone.utc).isoformat(timespec="milliseconds"),
+        "score": round(float(frame.score), 4), "enhanced": frame.enhanced,
+    }
+    if pose is not None:
+        tags["pose"] = {k: v for k, v in pose.to_dict().items() if v is not None}
+    return tags
+
+
+class SurfaceLink:
+    """Camera, image push, FTP, status and parameters on ``link``, within ``cfg.budget_bytes_per_s``.
+
+    ``params`` is the tunable set (``vehicle.params.default_params(config)``), saved to ``params_path``;
+    ``loader`` fetches an old capture's frame from the store by image index; ``image_count`` is how many summary
+    frames earlier runs took; ``queries`` the text queries in force (positive, negatives).
+    """
+
+    def __init__(self, link: Any, cfg: SurfaceConfig, *, params: list[ParamSpec] | None = None,
+                 params_path: str | None = None, loader: Callable[[int], SummaryFrame | None] | None = None,
+                 image_count: int = 0, queries: tuple[str, list[str]] | None = None,
+                 identity: CameraIdentity | None = None, version: str = "",
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.link = link
+        self.cfg = cfg
+        self.clock = clock
+        self.version = version
+        self.thumbnail_bytes = cfg.thumbnail_bytes
+        self.ext = "webp" if cfg.thumbnail_format == "webp" else "jpg"
+        self.budget = LinkBudget(link, cfg.budget_bytes_per_s, clock=clock)
+        self.captures = CaptureLog(clock=clock, initial_count=image_count, loader=loader, ext=self.ext)
+        self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
+                                      component_id=link.component_id, identity=identity)
+        self.status = st.StatusReporter(self.captures.time_boot_ms)
+        self.params = ParamServer(params or [], system_id=lambda: link.system_id,
+                                  component_id=link.component_id, path=params_path)
+        self.params.on_change(self._own_param)
+        self.tree = VirtualTree()
+        self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable)
+        self._held: dict[int, _Held] = {}
+        self._lock = threading.Lock()
+        self._queries = queries or ("", [])
+        self._query_cbs: list[Callable[[str, list[str]], None]] = []
+        self._unsubscribe: Callable[[], None] | None = None
+        self._stop = threading.Event()
+        self._status_thread: threading.Thread | None = None
+        self.tree.put(INDEX_PATH, self.index_json)
+        self.tree.put(QUERIES_PATH, lambda: format_queries(*self._queries).encode())
+        self.tree.uploadable(QUERIES_PATH, self._upload_queries)
+        self.budget.add_source(Priority.BULK, self._next_burst)
+        for name, value in self.params.restored.items():
+            self._own_param(name, value)
+
+    # ---- wiring ---------------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Listen for requests, start the budget's sender and the status tick; announce the start."""
+        if self._unsubscribe is not None:
+            return
+        self._stop.clear()
+        self._unsubscribe = self.link.subscribe(self._on_message, _REQUEST_TYPES)
+        self.budget.start()
+        self._status_thread = threading.Thread(target=self._status_loop, name="surface-status", daemon=True)
+        self._status_thread.start()
+        self.event(*st.started_text(self.version or "companion"))
+
+    def stop(self) -> None:
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
+        self._stop.set()
+        if self._status_thread is not None:
+            self._status_thread.join(timeout=5)
+            self._status_thread = None
+        self.budget.stop()
+
+    def __enter__(self) -> SurfaceLink:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def on_queries_changed(self, callback: Callable[[str, list[str]], None]) -> None:
+        """``callback(positive, negatives)`` after a client uploaded a valid queries file (raise ValueError to refuse)."""
+        self._query_cbs.append(callback)
+
+    def on_param_changed(self, callback: Callable[[str, float], None], *, replay: bool = True) -> None:
+        """``callback(name, value)`` on every accepted PARAM_SET; ``replay`` first hands it the values restored
+        from the parameter file, so a restart resumes with what the operator last set."""
+        self.params.on_change(callback)
+        if replay:
+            for name, value in self.params.restored.items():
+                callback(name, value)
+
+    def set_queries(self, positive: str, negatives: list[str]) -> None:
+        """The queries in force, as /config/queries.txt shows them."""
+        self._queries = (positive, list(negatives))
+
+    # ---- outgoing -------------------------------------------------------------------------------------------
+
+    def publish(self, event: SummaryEvent) -> None:
+        """Announce a frame that entered (capture, thumbnail, push) or left (STATUSTEXT, files gone) the summary."""
+        frame = event.frame
+        idx = frame.image_index
+        if event.kind == "added":
+            thumb = make_thumbnail(frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side,
+                                   fmt=self.cfg.thumbnail_format)
+            with self._lock:
+                self._held[idx] = _Held(frame, thumb)
+                self._prune(event.summary)
+            self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
+            self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
+            self.budget.submit(self.captures.record(frame), Priority.STATUS)
+            self.event(added_text(frame, len(event.summary) or len(self._held)))
+            if self.cfg.push:
+                push = thumb if thumb.format == "jpeg" else make_thumbnail(
+                    frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side)
+                for msg in push_messages(push.data, push.width, push.height, push.quality):
+                    self.budget.submit(msg, Priority.THUMBNAIL, tag=("thumb", idx))
+        else:
+            with self._lock:
+                self._held.pop(idx, None)
+                self._prune(event.summary)
+            self._forget(idx)
+            self.event(trimmed_text(frame, len(event.summary)))
+        self.status.update(summary=len(self._held))
+
+    def _prune(self, summary: list[int]) -> None:
+        """Drop frames the event's summary list no longer holds (called with the lock held)."""
+        if not summary:
+            return
+        for old in [i for i in self._held if i not in summary]:
+            self._held.pop(old)
+            self._forget(old)
+
+    def _forget(self, idx: int) -> None:
+        self.tree.remove(thumbnail_path(idx, self.ext))
+        self.tree.remove(f"/summary/full/{idx}.jpg")
+        self.budget.drop(("thumb", idx))
+
+    def _full(self, idx: int) -> bytes:
+        with self._lock:
+            held = self._held.get(idx)
+        if held is None:
+            return b""
+        if held.full is None:
+            ok, buf = cv2.imencode(".jpg", held.frame.image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
+            held.full = buf.tobytes() if ok else b""
+        return held.full
+
+    def index_json(self) -> bytes:
+        """The current summary with its tags, newest first (what /summary/index.json serves)."""
+        with self._lock:
+            held = sorted(self._held.values(), key=lambda h: h.frame.image_index, reverse=True)
+        items = []
+        for h in held:
+            tags = _frame_tags(h.frame)
+            tags.update(thumbnail=thumbnail_path(h.frame.image_index, self.ext),
+                        full=f"/summary/full/{h.frame.image_index}.jpg", thumbnail_bytes=len(h.thumb.data),
+                        width=h.thumb.width, height=h.thumb.height)
+            items.append(tags)
+        body = {"image_count": self.captures.image_count, "summary": items}
+        return json.dumps(body, separators=(",", ":")).encode()
+
+    def event(self, text: str, severity: int = st.INFO) -> None:
+        """One STATUSTEXT line (cut to 50 characters)."""
+        self.budget.submit(st.status_text(text, severity), Priority.STATUS)
+
+    def update_status(self, **values: float | None) -> None:
+        """Latest fps, score, summary, depth_m (see ``StatusReporter.update``); sent on the next tick."""
+        self.status.update(**values)
+
+    def _status_loop(self) -> None:
+        period = 1.0 / self.cfg.status_hz
+        while not self._stop.wait(period):
+            self.status.update(link_bps=self.budget.in_use_bps())
+            for msg in self.status.messages():
+                self.budget.submit(msg, Priority.STATUS, tag=("nvf", msg.name), replace=True)
+
+    # ---- incoming -------------------------------------------------------------------------------------------
+
+    def _on_message(self, msg: mav.MAVLink_message) -> None:
+        kind = msg.get_type()
+        if kind == "FILE_TRANSFER_PROTOCOL":
+            self._on_ftp(msg)
+            return
+        handler = self.camera.handle if kind.startswith("COMMAND") else self.params.handle
+        for reply in handler(msg):
+            self.budget.submit(reply, Priority.CONTROL)
+
+    def _on_ftp(self, msg: mav.MAVLink_message) -> None:
+        if not self.cfg.ftp:
+            return
+        if msg.target_system not in (0, self.link.system_id) or msg.target_component != self.link.component_id:
+            return
+        who = (msg.get_srcSystem(), msg.get_srcComponent())
+        for payload in self.ftp.handle(bytes(msg.payload), who):
+            self.budget.submit(mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload)),
+                               Priority.BULK)
+        self.budget.wake()
+
+    def _next_burst(self) -> mav.MAVLink_message | None:
+        got = self.ftp.next_burst()
+        if got is None:
+            return None
+        (sysid, compid), payload = got
+        return mav.MAVLink_file_transfer_protocol_message(0, sysid, compid, list(payload))
+
+    def _upload_queries(self, data: bytes) -> None:
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ValueError("queries file is not UTF-8 text") from None
+        positive, negatives = parse_queries(text)
+        for callback in self._query_cbs:
+            callback(positive, negatives)
+        self._queries = (positive, negatives)
+        self.event(f"Queries set: {positive}"[:50])
+
+    def _own_param(self, name: str, value: float) -> None:
+        if name == "MERL_THUMB_B":
+            self.thumbnail_bytes = int(value)
+        elif name == "MERL_LINK_BPS":
+            self.budget.set_rate(value)
