@@ -204,6 +204,21 @@ class MavLink:
             self.tx_messages += 1
             return len(buf)
 
+    def send_raw(self, packet: bytes) -> int:
+        """Write an already packed MAVLink packet unchanged (log replay keeps the recorded ids and sequence)."""
+        with self._send_lock:
+            conn = self._conn
+            if conn is None or not self._has_peer(conn):
+                return 0
+            try:
+                conn.write(packet)
+            except Exception as err:
+                log.debug("%s: raw send failed: %s", self.name, err)
+                return 0
+            self.tx_bytes += len(packet)
+            self.tx_messages += 1
+            return len(packet)
+
     @property
     def connected(self) -> bool:
         conn = self._conn

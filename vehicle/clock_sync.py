@@ -1,0 +1,69 @@
+"""Map the autopilot's ``time_boot_ms`` onto the companion's clock, so telemetry and frames share one time line.
+
+Every sample gives ``offset = arrival_time - time_boot``: the true offset plus a transport delay that is never
+negative. The smallest offset over a sliding window is therefore the best estimate (jitter only ever makes a
+packet late), and the window lets slow drift between the two clocks through. A reboot shows as ``time_boot``
+going backwards (or, after a long silence, as every new offset sitting far above the estimate): the window is
+then cleared and the mapping starts again from the new boot.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+
+class BootClock:
+    """Estimate ``companion_time = time_boot_s + offset`` from (time_boot_ms, arrival time) pairs."""
+
+    def __init__(self, window_s: float = 20.0, reboot_tolerance_s: float = 1.0, jump_samples: int = 5) -> None:
+        self.window_s = window_s
+        self.reboot_tolerance_s = reboot_tolerance_s
+        self.jump_samples = jump_samples
+        self.reboots = 0
+        self.samples = 0
+        self._window: deque[tuple[float, float]] = deque()  # (arrival, offset), offsets increasing (min-queue)
+        self._last_boot_s: float | None = None
+        self._above = 0
+
+    @property
+    def synced(self) -> bool:
+        return bool(self._window)
+
+    @property
+    def offset(self) -> float | None:
+        """Seconds to add to the autopilot's boot time to get companion time (None before the first sample)."""
+        return self._window[0][1] if self._window else None
+
+    def observe(self, time_boot_ms: int, arrival: float) -> bool:
+        """Take one sample; True when it revealed an autopilot reboot (the mapping was restarted)."""
+        boot_s = time_boot_ms / 1000.0
+        offset = arrival - boot_s
+        rebooted = False
+        if self._last_boot_s is not None and boot_s < self._last_boot_s - self.reboot_tolerance_s:
+            rebooted = True
+        elif self._window and offset > self._window[0][1] + self.reboot_tolerance_s:
+            # far later than expected: one late packet is jitter, a run of them means the boot clock restarted
+            self._above += 1
+            if self._above >= self.jump_samples:
+                rebooted = True
+            else:
+                return False
+        else:
+            self._above = 0
+        if rebooted:
+            self._window.clear()
+            self._above = 0
+            self.reboots += 1
+        self._last_boot_s = boot_s
+        self.samples += 1
+        while self._window and self._window[-1][1] >= offset:
+            self._window.pop()
+        self._window.append((arrival, offset))
+        while len(self._window) > 1 and self._window[0][0] < arrival - self.window_s:
+            self._window.popleft()
+        return rebooted
+
+    def to_local(self, time_boot_ms: int) -> float | None:
+        """The companion time of an autopilot timestamp (None until synced)."""
+        offset = self.offset
+        return None if offset is None else time_boot_ms / 1000.0 + offset
