@@ -292,3 +292,48 @@ def _cms(v: float) -> int:
 
 def _wrap_pi(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+def run_sim_vehicle(
+    sim: SimVehicle,
+    *,
+    duration: float | None = None,
+    silence_at: float | None = None,
+    silence_for: float = 5.0,
+    reboot_at: float | None = None,
+    stop: threading.Event | None = None,
+    report: Callable[[str], None] | None = None,
+    report_every_s: float = 10.0,
+) -> dict[str, object]:
+    """Run ``sim`` until ``duration`` or ``stop``, going silent / rebooting at the scheduled times (seconds after
+    start); returns counters. The command line adds signals (SIGUSR1: silence, SIGUSR2: reboot) on top."""
+    stop = stop or threading.Event()
+    events = sorted(
+        [(t, "silence") for t in ([silence_at] if silence_at is not None else [])]
+        + [(t, "reboot") for t in ([reboot_at] if reboot_at is not None else [])]
+    )
+    sim.start()
+    t0 = sim.clock()
+    next_report = report_every_s
+    try:
+        while not stop.is_set():
+            elapsed = sim.clock() - t0
+            if duration is not None and elapsed >= duration:
+                break
+            while events and elapsed >= events[0][0]:
+                _, what = events.pop(0)
+                if what == "silence":
+                    sim.silence(silence_for)
+                else:
+                    sim.reboot()
+            if report is not None and elapsed >= next_report:
+                next_report += report_every_s
+                s = sim.state()
+                report(f"sim-vehicle: t={elapsed:.0f} s depth {s.depth:.2f} m, heading "
+                       f"{math.degrees(s.yaw) % 360:.0f} deg, mode {s.mode}{' (silent)' if sim.silent else ''}, "
+                       f"sent {sum(sim.sent.values())} messages")
+            stop.wait(0.05)
+    finally:
+        sim.stop()
+    return {"sent": dict(sim.sent), "reboots": sim.reboots, "commands": len(sim.commands),
+            "data_stream_requests": len(sim.data_stream_requests), "rx_bad": sim.link.rx_bad}

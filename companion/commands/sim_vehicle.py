@@ -1,0 +1,85 @@
+"""``merlion sim-vehicle``: a simulated ArduSub on the wire, for demos and tests without a vehicle."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+
+
+def register(add_command) -> None:
+    p = add_command("sim-vehicle", "simulated ArduSub autopilot on MAVLink: scripted dive, telemetry, rate commands, "
+                    "silence and reboot on demand (SIGUSR1: go silent, SIGUSR2: reboot)")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--connect", metavar="CONNECTION", help="send to the companion, e.g. udpout:127.0.0.1:14551")
+    where.add_argument("--listen", metavar="CONNECTION", help="wait for the companion, e.g. udpin:0.0.0.0:14552 "
+                       "or tcpin:127.0.0.1:5760")
+    p.add_argument("--profile", metavar="YAML", help="dive profile (default: descend to 8 m, 4-lane survey, ascend)")
+    p.add_argument("--system-id", type=int, default=1, help="the vehicle's MAVLink system id (default 1)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until Ctrl-C)")
+    p.add_argument("--silence-at", type=float, metavar="T", help="go silent T seconds after start")
+    p.add_argument("--silence-for", type=float, default=5.0, metavar="N",
+                   help="how long a silence lasts (also for SIGUSR1), seconds (default 5)")
+    p.add_argument("--reboot-at", type=float, metavar="T", help="reboot T seconds after start (boot time restarts)")
+    p.add_argument("--reboot-s", type=float, default=2.0, metavar="S", help="silent time of a reboot (default 2)")
+    p.add_argument("--rate", action="append", default=[], metavar="MESSAGE=HZ",
+                   help="default rate of a message, e.g. ATTITUDE=20 or ATTITUDE_QUATERNION=10 (repeatable)")
+    p.add_argument("--no-message-interval", action="store_true",
+                   help="behave like old firmware: answer SET_MESSAGE_INTERVAL with UNSUPPORTED")
+    p.add_argument("--fluid-density", type=float, default=1025.0, help="kg/m^3 for SCALED_PRESSURE2 (default 1025)")
+    p.add_argument("--json", action="store_true", help="print the final counters as JSON")
+    p.set_defaults(func=run)
+
+
+def _rates(items: list[str]) -> dict[str, float]:
+    from companion.errors import UsageError
+    from vehicle.sim_vehicle import DEFAULT_RATES
+
+    rates: dict[str, float] = {}
+    for item in items:
+        name, _, hz = item.partition("=")
+        name = name.strip().upper()
+        if name not in DEFAULT_RATES:
+            raise UsageError(f"--rate {item}: unknown message (one of {', '.join(DEFAULT_RATES)})")
+        try:
+            rates[name] = float(hz)
+        except ValueError:
+            raise UsageError(f"--rate {item}: rate must be a number of Hz") from None
+        if rates[name] < 0:
+            raise UsageError(f"--rate {item}: rate must be >= 0")
+    return rates
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.errors import UsageError
+    from vehicle.dive_profile import load_profile
+    from vehicle.link import parse_connection
+    from vehicle.sim_vehicle import SimVehicle, run_sim_vehicle
+
+    connection = args.connect or args.listen
+    parse_connection(connection)
+    if not 1 <= args.system_id <= 254:
+        raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the ground station's)")
+    for name in ("duration", "silence_for", "reboot_s"):
+        value = getattr(args, name)
+        if value is not None and value <= 0:
+            raise UsageError(f"--{name.replace('_', '-')} {value}: must be positive")
+    sim = SimVehicle(connection, load_profile(args.profile), system_id=args.system_id, rates=_rates(args.rate),
+                     message_interval=not args.no_message_interval, fluid_density=args.fluid_density,
+                     reboot_s=args.reboot_s)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGUSR1, lambda *_: sim.silence(args.silence_for))
+    signal.signal(signal.SIGUSR2, lambda *_: sim.reboot())
+    print(f"sim-vehicle: ArduSub system {args.system_id} on {connection} "
+          f"(dive {sim.profile.duration:.0f} s; SIGUSR1: silent {args.silence_for:g} s, SIGUSR2: reboot)", flush=True)
+    result = run_sim_vehicle(sim, duration=args.duration, silence_at=args.silence_at, silence_for=args.silence_for,
+                             reboot_at=args.reboot_at, stop=stop, report=lambda line: print(line, flush=True))
+    if args.json:
+        print(json.dumps(result), flush=True)
+    else:
+        print(f"sim-vehicle: sent {sum(result['sent'].values())} messages, {result['commands']} commands answered, "
+              f"{result['reboots']} reboots", flush=True)
+    return 0
