@@ -119,7 +119,7 @@ class ParamServer:
     # ---- persistence ----------------------------------------------------------------------------------------
 
     def _load(self) -> dict[str, float]:
-        """Values saved by an earlier run (only known names within range); a bad file is reported and ignored."""
+        """Saved values that differ from the configuration (known names, in range); a bad file is logged and ignored."""
         if self.path is None or not self.path.exists():
             return {}
         try:
@@ -136,8 +136,9 @@ class ParamServer:
             if spec is None or not isinstance(value, (int, float)) or not self._valid(spec, float(value)):
                 log.warning("%s: ignoring saved %s=%r", self.path, name, value)
                 continue
-            spec.value = float(value)
-            restored[name] = float(value)
+            if float(value) != spec.value:  # only what differs from the configuration needs replaying
+                spec.value = float(value)
+                restored[name] = float(value)
         return restored
 
     def _save(self) -> None:

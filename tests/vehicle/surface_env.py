@@ -50,6 +50,10 @@ def added(index: int, held: list[int]) -> SummaryEvent:
     return SummaryEvent("added", summary_frame(index), summary=list(held))
 
 
+def removed(index: int, held: list[int]) -> SummaryEvent:
+    return SummaryEvent("removed", summary_frame(index), summary=list(held))
+
+
 def companion_link(port: int, **cfg) -> MavLink:
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100, **cfg))
     link.start()
