@@ -88,6 +88,9 @@ class FtpClient:
         self._first_sent_at = 0.0
         self._tries = 0
         self._srtt: float | None = None
+        self.started_wall = 0.0
+        """Wall clock when the current (or, inside ``done``, the finished) download sent its open request:
+        the server built the file after that moment."""
         self.retransmissions = 0
         self.bytes_read = 0
         self.files_done = 0
@@ -174,6 +177,7 @@ class FtpClient:
             self._job = None
             return
         self._job = self._queue.popleft()
+        self.started_wall = time.time()
         path = self._job.path.encode("utf-8")
         if len(path) >= MAX_DATA:
             self._finish(None, "path too long")

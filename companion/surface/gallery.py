@@ -197,11 +197,16 @@ class Gallery:
             self._persist("removed", cap)
             return True
 
-    def mirror(self, summary: list[int]) -> list[int]:
-        """Make the gallery's current summary exactly ``summary`` (from index.json); return indices removed."""
+    def mirror(self, summary: list[int], announced_before: float | None = None) -> list[int]:
+        """Make the gallery's current summary ``summary`` (from index.json); return indices removed.
+
+        Frames announced after ``announced_before`` (when the index was asked for) are kept: the index was
+        built before they existed.
+        """
         wanted = set(summary)
         with self._lock:
-            gone = [i for i, c in self._captures.items() if c.in_summary and i not in wanted]
+            gone = [i for i, c in self._captures.items() if c.in_summary and i not in wanted
+                    and (announced_before is None or (c.announced_at or 0.0) < announced_before)]
             back = [i for i, c in self._captures.items() if not c.in_summary and i in wanted]
         for i in gone:
             self.remove(i)

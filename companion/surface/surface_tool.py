@@ -95,6 +95,7 @@ class SurfaceTool:
             name="surface", mav_type=MAV_TYPE_GCS,
         )
         self._opened = False
+        self._early_text: dict[tuple[int, int], deque] = {}
         self._last_seq: dict[tuple[int, int], int] = {}
         self._ftp: FtpClient | None = None
         self._cameras: set[tuple[int, int]] = set()
@@ -168,16 +169,20 @@ class SurfaceTool:
             self.status.messages += 1
             self.status.last_message = now
             last = self._last_seq.get(source)
-            if last is not None:
-                self.status.lost_packets += (seq - last - 1) % 256
+            gap = 0 if last is None else (seq - last - 1) % 256
+            if gap < 128:  # a larger jump is a restart or reordering, not a loss
+                self.status.lost_packets += gap
             self._last_seq[source] = seq
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, source, now)
             return
         if kind == "CAMERA_IMAGE_CAPTURED":
             self._adopt(source)
-        elif kind in ("DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA") and source in self._cameras:
+        elif kind in ("DATA_TRANSMISSION_HANDSHAKE", "STATUSTEXT", "NAMED_VALUE_FLOAT") and source in self._cameras:
             self._adopt(source)
+        if self.status.companion is None and kind == "STATUSTEXT":
+            # the companion's first lines ("started") may come before its heartbeat: keep a few for later
+            self._early_text.setdefault(source, deque(maxlen=5)).append((msg, now))
         if self.status.companion is None or source != self.status.companion:
             return
         if kind == "CAMERA_IMAGE_CAPTURED":
@@ -209,7 +214,8 @@ class SurfaceTool:
             self._adopt(source)
 
     def _adopt(self, source: tuple[int, int]) -> None:
-        """Lock onto the companion: the configured one, else the first camera that sends captures or images."""
+        """Lock onto the companion: the configured one, else the first camera (by heartbeat) that sends captures,
+        images, status lines or values (a plain camera, such as BlueOS's camera manager, sends none of those)."""
         if self.status.companion is not None:
             return
         if self.options.companion is not None and source != self.options.companion:
@@ -218,6 +224,9 @@ class SurfaceTool:
         with self.lock:
             self.status.companion = source
             self.status.companion_heartbeat = time.time()
+        for msg, when in self._early_text.pop(source, ()):
+            self._on_statustext(msg, when)
+        self._early_text.clear()
         if self.options.ftp:
             self._ftp = FtpClient(self._send_ftp, source, own=(self.options.system_id, self.options.component_id),
                                   clock=self._clock)
@@ -290,9 +299,11 @@ class SurfaceTool:
         with self.lock:
             self.status.pushed_ok += 1
 
-    def _fetch_thumbnail(self, index: int) -> None:
+    def _fetch_thumbnail(self, index: int, *, replace: bool = False) -> None:
         cap = self.gallery.get(index)
-        if cap is None or not cap.in_summary or cap.thumbnail is not None or index in self._fetching:
+        if cap is None or not cap.in_summary or index in self._fetching:
+            return
+        if cap.thumbnail is not None and not replace:
             return
         if self._ftp is None:
             return
@@ -310,7 +321,7 @@ class SurfaceTool:
                 log.warning("FTP %s: %s", path, error)
                 return
             now_cap = self.gallery.get(index)
-            if now_cap is not None and now_cap.thumbnail is None:
+            if now_cap is not None and (replace or now_cap.thumbnail is None):
                 ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
                 self.gallery.add_thumbnail(index, data, ext=ext, via="ftp")
 
@@ -354,14 +365,27 @@ class SurfaceTool:
         with self.lock:
             self.status.index_pulls += 1
             self.status.ftp_ok += 1
-        self.gallery.mirror([c.image_index for c in captures])
+        asked = self._ftp.started_wall if self._ftp is not None else None
+        gone = set(self.gallery.mirror([c.image_index for c in captures], announced_before=asked))
+        # frames that left without a push keep no place in the pairing queue (else every later push shifts)
+        self._waiting = deque((i, t) for i, t in self._waiting if i not in gone)
         waiting = {i for i, _ in self._waiting}
         for cap in captures:
             tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
                                                  "score", "file_url")}
             self.gallery.update_tags(cap.image_index, **tags)
             known = self.gallery.get(cap.image_index)
-            if known is None or known.thumbnail is not None:
+            if known is None:
+                continue
+            if (known.thumbnail is not None and known.thumbnail_via == "push" and cap.thumbnail_bytes is not None
+                    and known.thumbnail_bytes != cap.thumbnail_bytes):
+                # the push paired with this capture was another frame's (a thumbnail dropped unannounced):
+                # fetch the right one by name
+                log.warning("capture %d: pushed thumbnail has %d bytes, the companion says %d: re-fetching",
+                            cap.image_index, known.thumbnail_bytes, cap.thumbnail_bytes)
+                self._fetch_thumbnail(cap.image_index, replace=True)
+                continue
+            if known.thumbnail is not None:
                 continue
             # a frame we never heard announced has no push coming: fetch it now
             if cap.image_index not in waiting and cap.image_index not in self._bound.values():

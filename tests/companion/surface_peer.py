@@ -72,6 +72,7 @@ class CompanionPeer:
     def send(self, msg) -> None:
         with self._lock:
             self.sock.sendto(msg.pack(self.mav), self.addr)
+            self.mav.seq = (self.mav.seq + 1) % 256
 
     def heartbeat(self) -> None:
         self.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_CAMERA, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))

@@ -55,3 +55,11 @@ def test_a_damaged_gallery_file_is_a_one_line_error(tmp_path):
     (tmp_path / "gallery.json").write_text("{not json")
     with pytest.raises(MerlionError, match="gallery.json"):
         Gallery(tmp_path)
+
+
+def test_mirror_keeps_frames_announced_after_the_index_was_asked_for(tmp_path):
+    g = Gallery(tmp_path)
+    g.announce(Capture(image_index=1, announced_at=100.0))
+    g.announce(Capture(image_index=2, announced_at=200.0))
+    assert g.mirror([], announced_before=150.0) == [1]  # 2 is newer than the index: not yet in it, kept
+    assert [c.image_index for c in g.summary()] == [2]

@@ -1,0 +1,63 @@
+"""The surface tool end to end in-process: captures paired with pushes, FTP fallback, trims mirrored."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from companion.commands.surface import serve
+from companion.surface.gallery import Gallery
+from companion.surface.surface_tool import SurfaceOptions
+from tests.companion.surface_peer import CompanionPeer, summary_frame
+from tests.conftest import free_udp_port
+
+
+def _wait(predicate, timeout: float = 20.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return predicate()
+
+
+def test_gallery_mirrors_the_companion_summary_with_push_and_ftp_fallback(tmp_path):
+    port = free_udp_port()
+    stop = threading.Event()
+    options = SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", push_timeout_s=3.0, index_refresh_s=0.5)
+    thread = threading.Thread(target=serve, args=(options, str(tmp_path)), kwargs={"stop": stop}, daemon=True)
+    thread.start()
+    peer = CompanionPeer(port)
+    try:
+        gallery = Gallery(tmp_path)  # a second reader of the same folder: what the tool wrote is on disk
+        # until the tool answers (its heartbeat), it may not be listening yet
+        assert _wait(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
+        sent = {}
+        sent[1] = peer.add(summary_frame(1, depth=10.0, yaw_deg=30, score=0.91))
+        sent[2] = peer.add(summary_frame(2, depth=11.0, yaw_deg=60, score=0.82), drop_chunks={2})  # stalls
+        sent[3] = peer.add(summary_frame(3, depth=12.0, yaw_deg=90, score=0.73))
+        sent[4] = peer.add(summary_frame(4, depth=13.0, yaw_deg=120, score=0.64), push=False)  # push never comes
+        peer.values(MRL_FPS=4.5, MRL_SUMN=4)
+        peer.trim(3)
+
+        def settled() -> bool:
+            g = Gallery(tmp_path)
+            held = {c.image_index: c for c in g.summary()}
+            return set(held) == {1, 2, 4} and all(c.thumbnail and c.score is not None for c in held.values())
+
+        assert _wait(settled, 30), Gallery(tmp_path).captures()
+        gallery = Gallery(tmp_path)
+        held = {c.image_index: c for c in gallery.summary()}
+        for i in (1, 2, 4):
+            assert (tmp_path / held[i].thumbnail).read_bytes() == sent[i]
+        assert held[1].thumbnail_via == "push"
+        assert held[2].thumbnail_via == "ftp" and held[4].thumbnail_via == "ftp"
+        assert (held[1].depth_m, held[1].score) == (10.0, 0.91)
+        assert abs(held[4].heading_deg - 120) < 0.2
+        three = gallery.get(3)
+        assert not three.in_summary and (tmp_path / "removed" / "3.jpg").read_bytes() == sent[3]
+    finally:
+        stop.set()
+        thread.join(10)
+        peer.close()
+    assert not thread.is_alive()
