@@ -1,0 +1,316 @@
+"""The live companion: one process joining the camera, the vision core, the vehicle link and the surface link.
+
+Start-up order, and why:
+
+1. the store (resume: the summary, its features and the next image index must be known before anything runs);
+2. the encoder and the pipeline, restored from the store (the slow part; nothing is on the wire yet, so a bad
+   model fails before the vehicle sees a half-started camera);
+3. the MAVLink link, the telemetry and the surface link (the camera component now answers, with the resumed
+   summary already in place);
+4. the capture and inference threads, then READY=1 to systemd and the health monitor's watchdog pings.
+
+Shutdown runs the other way round; the store is always consistent on disk, so a SIGKILL loses nothing saved.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from companion import __version__
+from companion.config import Config
+from companion.events import SummaryEvent
+from companion.frame import Frame
+from companion.live.health import Health
+from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
+from companion.live.notify import Notifier
+from companion.live.queues import DropOldestQueue
+from companion.sources.retrying import RetryingSource
+from companion.store import Store
+
+log = logging.getLogger(__name__)
+
+LIVE_PREFIXES = ("/dev/video", "/dev/v4l/", "v4l2://", "rtsp://", "rtsps://", "udp://")
+CAPTURE_QUEUE = 4
+"""Frames waiting for inference; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
+
+
+def is_live_uri(uri: str) -> bool:
+    return uri.startswith(LIVE_PREFIXES)
+
+
+@dataclass
+class LiveOptions:
+    notifier: Notifier | None = None
+    """sd_notify (built from the environment by the command line; None: silent)."""
+    make_encoder: Callable[[Any], Any] | None = None
+    """Encoder factory override (tests); default companion.encoders.factory.make_encoder."""
+    params_path: str | None = None
+    """Where live-tuned parameters persist (default: in the store directory)."""
+
+
+class LiveCompanion:
+    def __init__(self, cfg: Config, options: LiveOptions | None = None) -> None:
+        self.cfg = cfg
+        self.options = options or LiveOptions()
+        self.notifier = self.options.notifier or Notifier(None)
+        self.health = Health(cfg.health.stall_after_s)
+        self.counters = LiveCounters()
+        self.stop_event = threading.Event()
+        self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
+        self.pipeline_lock = threading.Lock()
+        self.started_at = time.monotonic()
+        self.store: Store | None = None
+        self.pipeline = None
+        self.encoder = None
+        self.link = None
+        self.telemetry = None
+        self.surface = None
+        self.source: RetryingSource | None = None
+        self.capture: CaptureLoop | None = None
+        self.inference: InferenceLoop | None = None
+        self._monitor: threading.Thread | None = None
+        self._last_ping = 0.0
+        self.watchdog_pings = 0
+        self.watchdog_withheld = 0
+
+    # ---- start-up -----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        cfg = self.cfg
+        self.store = Store(cfg.store)
+        resume = self.store.resume_state()
+        if resume.frames:
+            log.info("resuming with %d summary frame(s); next image index %d", len(resume.frames),
+                     resume.next_image_index)
+        self._build_pipeline(resume)
+        self._start_vehicle(resume.next_image_index)
+        self._start_loops()
+        self._monitor = threading.Thread(target=self._monitor_loop, name="health", daemon=True)
+        self._monitor.start()
+        self.notifier.ready(self.status_line())
+        log.info("companion running: source %s, encoder %s, mavlink %s, store %s", cfg.source.uri,
+                 getattr(self.encoder, "name", "?"), cfg.mavlink.connection, self.store.dir)
+
+    def _build_pipeline(self, resume) -> None:
+        from companion.pipeline import Pipeline
+
+        factory = self.options.make_encoder
+        if factory is None:
+            from companion.encoders.factory import make_encoder as factory
+        self.encoder = factory(self.cfg.encoder)
+        self.pipeline = Pipeline.from_config(self.cfg, self.encoder, first_image_index=resume.next_image_index)
+        removed = self.pipeline.restore(resume.frames)
+        self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
+        if removed:  # a smaller K than before the restart trims at once
+            self._persist(removed)
+
+    def _start_vehicle(self, image_count: int) -> None:
+        cfg = self.cfg
+        if not cfg.mavlink.connection:
+            log.warning("mavlink.connection is null: no vehicle link, no surface link (store only)")
+            return
+        from vehicle.link import MavLink
+        from vehicle.params import default_params
+        from vehicle.surface_link import SurfaceLink
+
+        self.link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="companion")
+        self.link.healthy = self.health.healthy
+        self.telemetry = _make_telemetry(self.link, cfg)
+        params_path = self.options.params_path or str(Path(cfg.store.dir) / "params.json")
+        self.surface = SurfaceLink(
+            self.link, cfg.surface, params=default_params(cfg), params_path=params_path,
+            loader=self.store.frame, image_count=image_count,
+            queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
+        )
+        self.surface.on_param_changed(self._on_param)
+        self.surface.on_queries_changed(self._on_queries)
+        self.link.on_autopilot(self._on_autopilot)
+        self.link.start()
+        if self.telemetry is not None and hasattr(self.telemetry, "start"):
+            self.telemetry.start()
+        self.surface.start()
+        for frame in self.pipeline.summary:  # the resumed summary is on the FTP tree again
+            self.surface.publish(SummaryEvent("added", frame, [f.image_index for f in self.pipeline.summary]))
+
+    def _start_loops(self) -> None:
+        from companion.sources.factory import open_source
+
+        cfg = self.cfg.source
+        self.source = RetryingSource(
+            lambda: open_source(cfg), name=cfg.uri, live=is_live_uri(cfg.uri), loop=False,
+            initial_s=cfg.retry_initial_s, max_s=cfg.retry_max_s, on_state=self._on_source_state,
+        )
+        self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event)
+        self.inference = InferenceLoop(
+            self.pipeline, self.queue, self.health, self.counters, self.stop_event,
+            batch=self.cfg.encoder.batch, pose_at=self._pose_at, on_events=self._persist, lock=self.pipeline_lock,
+        )
+        self.inference.start()
+        self.capture.start()
+
+    # ---- the data path ------------------------------------------------------------------------------------------
+    def _pose_at(self, t: float):
+        if self.telemetry is None:
+            return None
+        try:
+            return self.telemetry.pose_at(t)
+        except Exception:  # noqa: BLE001 - a pose lookup problem must not cost the frame
+            log.debug("pose lookup failed", exc_info=True)
+            return None
+
+    def _persist(self, events: list[SummaryEvent]) -> None:
+        """Store first (the source of truth), then the surface: a crash in between loses no saved frame."""
+        tags = {"query": self.cfg.queries.positive, "encoder": getattr(self.encoder, "name", ""),
+                "source": self.cfg.source.uri}
+        for event in events:
+            self.store.apply(event, tags=tags)
+            if self.surface is not None:
+                try:
+                    self.surface.publish(event)
+                except Exception:  # noqa: BLE001 - the surface link must never stop the summary being kept
+                    log.exception("surface link could not publish image %d", event.frame.image_index)
+
+    # ---- live tuning from the surface -------------------------------------------------------------------------
+    def _on_param(self, name: str, value: float) -> None:
+        with self.pipeline_lock:
+            if name == "MERL_TAU_SS":
+                self.pipeline.tau_ss = value
+            elif name == "MERL_TAU_SES":
+                self.pipeline.tau_ses = value
+            elif name == "MERL_K":
+                events = self.pipeline.set_k(int(value))
+            else:
+                return
+        if name == "MERL_K" and events:
+            self._persist(events)
+        log.info("parameter %s set to %g", name, value)
+
+    def _on_queries(self, positive: str, negatives: list[str]) -> None:
+        with self.pipeline_lock:
+            self.pipeline.presampler.set_queries(positive, negatives)
+        log.info("queries set: %r against %r", positive, negatives)
+
+    def _on_autopilot(self, alive: bool) -> None:
+        if alive:
+            log.info("autopilot heartbeat back")
+        else:
+            log.warning("autopilot heartbeat lost; frames are tagged stale until it returns")
+        if self.surface is not None:
+            from vehicle import status as st
+
+            self.surface.event(*st.link_text(alive))
+
+    def _on_source_state(self, state: str, detail: str) -> None:
+        if self.surface is None:
+            return
+        from vehicle import status as st
+
+        if state == "retrying":
+            self.surface.event(*st.camera_text(False))
+        elif state == "running" and self.source is not None and self.source.opens > 1:
+            self.surface.event(*st.camera_text(True))
+        elif state == "ended":
+            self.surface.event("Source ended; still serving", st.NOTICE)
+
+    # ---- health, status, watchdog ------------------------------------------------------------------------------
+    def _monitor_loop(self) -> None:
+        ping_every = self.notifier.ping_interval_s or 1.0
+        while not self.stop_event.wait(min(1.0, ping_every)):
+            stuck = self.health.stuck()
+            if stuck:
+                self.watchdog_withheld += 1
+                log.warning("stage(s) %s stuck for over %.0f s: no watchdog ping", ", ".join(stuck),
+                            self.health.stall_after_s)
+            elif time.monotonic() - self._last_ping >= ping_every:
+                self.notifier.watchdog()
+                self.watchdog_pings += 1
+                self._last_ping = time.monotonic()
+            self._update_status()
+
+    def _update_status(self) -> None:
+        depth = None
+        if self.telemetry is not None:
+            pose = self._pose_at(time.time())
+            depth = getattr(pose, "depth_m", None) if pose is not None and not pose.stale else None
+        if self.surface is not None:
+            self.surface.update_status(fps=self.counters.fps(), score=self.counters.last_score,
+                                       summary=len(self.store.summary), depth_m=depth)
+        self.notifier.status(self.status_line())
+
+    def status_line(self) -> str:
+        c = self.counters
+        src = self.source.state if self.source is not None else "starting"
+        ap = "up" if self.link is not None and self.link.autopilot_alive else "down"
+        store = "memory-only" if self.store is not None and self.store.memory_only else "ok"
+        summary = len(self.store.summary) if self.store is not None else 0
+        return (f"source {src}; {c.fps():.1f} fps; seen {c.frames_seen} passed {c.frames_passed}; "
+                f"summary {summary}/{self.cfg.sampler.k}; dropped {self.queue.dropped}; autopilot {ap}; store {store}")
+
+    def report(self) -> dict[str, Any]:
+        """Numbers for the demo report, the soak bench and logs."""
+        c = self.counters
+        link = self.link
+        return {
+            "frames_seen": c.frames_seen, "frames_scored": c.frames_scored, "frames_passed": c.frames_passed,
+            "frames_enhanced": c.frames_enhanced, "frames_dropped": self.queue.dropped,
+            "frames_lost": self.source.lost if self.source is not None else 0,
+            "summary": self.store.summary if self.store is not None else [],
+            "summary_added": c.summary_added, "summary_removed": c.summary_removed,
+            "inference_errors": c.inference_errors,
+            "bytes_sent": link.tx_bytes if link is not None else 0,
+            "bytes_received": link.rx_bytes if link is not None else 0,
+            "rx_bad": link.rx_bad if link is not None else 0,
+            "source_state": self.source.state if self.source is not None else "",
+            "source_failures": self.source.failures if self.source is not None else 0,
+            "store": self.store.describe() if self.store is not None else {},
+            "encoder": getattr(self.encoder, "name", ""),
+            "watchdog_pings": self.watchdog_pings, "watchdog_withheld": self.watchdog_withheld,
+            "uptime_s": round(time.monotonic() - self.started_at, 1),
+        }
+
+    # ---- running and stopping -----------------------------------------------------------------------------------
+    def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
+        """Block until ``stop`` is set, ``duration`` passes, or stop() is called."""
+        deadline = None if duration is None else time.monotonic() + duration
+        waiter = stop or self.stop_event
+        while not self.stop_event.is_set():
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            if waiter.wait(0.5 if left is None else min(0.5, left)):
+                break
+
+    def stop(self) -> None:
+        """Finish the batch in hand, then close everything in reverse order."""
+        self.notifier.stopping()
+        self.stop_event.set()
+        self.queue.close()
+        if self.source is not None:
+            self.source.close()
+        for thread in (self.capture, self.inference, self._monitor):
+            if thread is not None and thread.is_alive():
+                thread.join(timeout=15)
+        if self.surface is not None:
+            self.surface.stop()
+        if self.telemetry is not None and hasattr(self.telemetry, "stop"):
+            self.telemetry.stop()
+        if self.link is not None:
+            self.link.stop()
+        self.notifier.close()
+
+
+def _make_telemetry(link, cfg: Config):
+    """The vehicle's pose history attached to the link (vehicle/telemetry.py)."""
+    from vehicle.telemetry import VehicleTelemetry
+
+    return VehicleTelemetry(link, cfg.telemetry)
+
+
+def environ_notifier(environ: Mapping[str, str] | None = None) -> Notifier:
+    return Notifier.from_environ(dict(os.environ) if environ is None else environ)

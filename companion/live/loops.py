@@ -1,0 +1,130 @@
+"""The capture and inference loops of the live companion, each on its own thread.
+
+Capture reads the (retrying) source as fast as it delivers and puts frames on a bounded drop-oldest queue;
+inference takes whatever is waiting (up to the encoder batch), tags each frame with the vehicle's pose at its
+capture time, runs the pipeline, and hands the summary events to the store and the surface link. Neither waits
+for the other: a slow encoder costs dropped frames (counted), never a stalled camera or link.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from companion.events import SummaryEvent
+from companion.frame import Frame
+from companion.live.health import Health
+from companion.live.queues import DropOldestQueue
+from companion.sources.retrying import RetryingSource
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LiveCounters:
+    """What the companion did; read by status, the demo report and the soak bench."""
+
+    frames_seen: int = 0
+    frames_scored: int = 0
+    frames_passed: int = 0
+    frames_enhanced: int = 0
+    summary_added: int = 0
+    summary_removed: int = 0
+    last_score: float | None = None
+    inference_errors: int = 0
+    recent: deque = field(default_factory=lambda: deque(maxlen=64))
+    """Monotonic times of recently scored frames, for the frames/s figure."""
+
+    def fps(self, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        times = [t for t in self.recent if now - t <= 10.0]
+        if len(times) < 2:
+            return 0.0
+        span = max(times[-1] - times[0], 1e-6)
+        return (len(times) - 1) / span
+
+
+class CaptureLoop(threading.Thread):
+    def __init__(self, source: RetryingSource, queue: DropOldestQueue[Frame], health: Health,
+                 counters: LiveCounters, stop: threading.Event) -> None:
+        super().__init__(name="capture", daemon=True)
+        self.source = source
+        self.queue = queue
+        self.health = health
+        self.counters = counters
+        self.stop_event = stop
+        self.ended = threading.Event()
+
+    def run(self) -> None:
+        self.health.register("capture")
+        try:
+            for frame in self.source:
+                self.health.beat("capture")
+                self.counters.frames_seen += 1
+                self.queue.put(frame)
+                if self.stop_event.is_set():
+                    break
+        except Exception:  # noqa: BLE001 - the retrying source handles failures; this is a last guard
+            log.exception("capture loop failed")
+        finally:
+            # an ended file or a stop is not a stuck stage
+            self.health.forget("capture")
+            self.ended.set()
+
+
+class InferenceLoop(threading.Thread):
+    """Drives the pipeline from the queue; ``on_events`` persists and publishes (store first, then surface)."""
+
+    def __init__(self, pipeline, queue: DropOldestQueue[Frame], health: Health, counters: LiveCounters,
+                 stop: threading.Event, *, batch: int, pose_at: Callable[[float], object] | None,
+                 on_events: Callable[[list[SummaryEvent]], None], lock: threading.Lock) -> None:
+        super().__init__(name="inference", daemon=True)
+        self.pipeline = pipeline
+        self.queue = queue
+        self.health = health
+        self.counters = counters
+        self.stop_event = stop
+        self.batch = batch
+        self.pose_at = pose_at
+        self.on_events = on_events
+        self.lock = lock
+        """Held while the pipeline runs, so live tuning (K, tau, queries) never changes it mid-batch."""
+
+    def run(self) -> None:
+        self.health.register("inference")
+        while not self.stop_event.is_set():
+            frames = self.queue.get_batch(self.batch, timeout=0.5)
+            self.health.beat("inference")
+            if not frames:
+                continue
+            try:
+                self.step(frames)
+            except Exception:  # noqa: BLE001 - one bad batch must not end the dive; it is logged and counted
+                self.counters.inference_errors += 1
+                log.exception("inference failed on %d frame(s); going on", len(frames))
+            self.health.beat("inference")
+        self.health.forget("inference")
+
+    def step(self, frames: list[Frame]) -> None:
+        poses = [self.pose_at(f.capture_time) for f in frames] if self.pose_at is not None else None
+        with self.lock:
+            outcome = self.pipeline.process(frames, poses=poses)
+        now = time.monotonic()
+        c = self.counters
+        for result in outcome.results:
+            c.frames_scored += 1
+            c.frames_passed += int(result.passed)
+            c.frames_enhanced += int(result.enhanced)
+            c.last_score = result.score
+            c.recent.append(now)
+        for event in outcome.events:
+            if event.kind == "added":
+                c.summary_added += 1
+            else:
+                c.summary_removed += 1
+        if outcome.events:
+            self.on_events(outcome.events)
