@@ -123,9 +123,16 @@ class InformativeSampler:
 
     # ----- the method ---------------------------------------------------------------------------------------
 
-    def offer(self, key: int, embedding: np.ndarray) -> Decision:
-        """Test one frame (a raw embedding or an already prepared feature) and update the summary."""
-        v = dist.prepare_features(np.asarray(embedding).reshape(-1))
+    def offer(self, key: int, embedding: np.ndarray, *, prepared: bool = False) -> Decision:
+        """Test one frame and update the summary.
+
+        ``embedding`` is a raw sampler embedding, or with ``prepared=True`` a feature already made absolute and
+        L2-normalised by ``distances.prepare_features`` (float64), which the pipeline does once per batch.
+        """
+        if prepared:
+            v = np.asarray(embedding, dtype=np.float64).reshape(-1)
+        else:
+            v = dist.prepare_features(np.asarray(embedding).reshape(-1))
         if len(self._keys) and v.shape[0] != self._feat.shape[1]:
             raise ValueError(f"feature has {v.shape[0]} dimensions, the summary holds {self._feat.shape[1]}")
         v_h = float(dist.xlogx_sum(v))
