@@ -286,9 +286,8 @@ class LiveCompanion:
             if waiter.wait(0.5 if left is None else min(0.5, left)):
                 break
 
-    def stop(self) -> None:
-        """Finish the batch in hand, then close everything in reverse order."""
-        self.notifier.stopping()
+    def stop_pipeline(self) -> None:
+        """Stop capture and inference (the batch in hand finishes); the links keep serving."""
         self.stop_event.set()
         self.queue.close()
         if self.source is not None:
@@ -296,6 +295,25 @@ class LiveCompanion:
         for thread in (self.capture, self.inference, self._monitor):
             if thread is not None and thread.is_alive():
                 thread.join(timeout=15)
+
+    def drain(self, timeout: float) -> bool:
+        """Wait (at most ``timeout``) until the thumbnails already queued for the surface are on the wire."""
+        if self.surface is None:
+            return True
+        from vehicle.budget import Priority
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.surface.budget.pending(Priority.THUMBNAIL) == 0 and self.surface.budget.pending(
+                    Priority.STATUS) == 0:
+                return True
+            time.sleep(0.1)
+        return False
+
+    def stop(self) -> None:
+        """Finish the batch in hand, then close everything in reverse order."""
+        self.notifier.stopping()
+        self.stop_pipeline()
         if self.surface is not None:
             self.surface.stop()
         if self.telemetry is not None and hasattr(self.telemetry, "stop"):

@@ -1,0 +1,29 @@
+"""`merlion demo`: simulated ArduSub + companion + surface tool on loopback, in one command (the README's first)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(add_command) -> None:
+    p = add_command("demo", "run the whole system on this machine: simulated ArduSub, the companion on a generated "
+                    "dive, and the surface tool; prints a report")
+    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds to run (default 60)")
+    p.add_argument("--out", type=Path, default=Path("merlion-demo"), metavar="DIR",
+                   help="where the surface gallery (DIR/surface), store (DIR/store) and report go "
+                        "(default ./merlion-demo; an existing store is resumed)")
+    p.add_argument("--source", metavar="PATH", help="real video or a folder of frames instead of the generated dive "
+                   "(played in a loop)")
+    p.add_argument("--tau-ss", type=float, metavar="T", help="semantic threshold (default 0.3 on the generated "
+                   "dive, the config's 0.5 on real video)")
+    p.add_argument("--encoder", default="auto", choices=["auto", "clip", "imagenet", "visual"],
+                   help="encoder (default auto: CLIP when its weights are here, else the packaged one)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.demo import DemoOptions, main
+
+    return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,
+                            encoder=args.encoder))
