@@ -3,7 +3,7 @@
 A token bucket in wire bytes: it fills at ``rate`` up to a small ``capacity`` and every byte the link writes
 drains it, including bytes the link sent on its own (its 1 Hz heartbeat, read from ``link.tx_bytes``). A queued
 message goes only when the bucket holds its size, so over any window W the wire carries at most
-``rate * W + capacity + one message`` bytes; with the default capacity of a quarter second that is within 5% over
+``rate * W + capacity + one message`` bytes; with the default capacity (a tenth of a second, at least one frame) that is within 3% over
 10 s. Queues are served strictly by priority; bulk sources (FTP bursts) are asked for a packet only when all
 queues above them are empty and the budget allows, so a new burst never waits behind a stale one.
 """
@@ -59,7 +59,7 @@ class LinkBudget:
     """Priority queues drained by one thread within ``rate`` bytes per second (see the module docstring)."""
 
     def __init__(self, link: Link, rate: float = 2000.0, *, clock: Callable[[], float] = time.monotonic,
-                 capacity_s: float = 0.25, queue_limit: int = 4000) -> None:
+                 capacity_s: float = 0.1, queue_limit: int = 4000) -> None:
         self.link = link
         self._clock = clock
         self._capacity_s = capacity_s

@@ -1,0 +1,49 @@
+"""``merlion bench surface``: surface-link payload efficiency and time for a summary to reach the surface."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.bench import surface_bench as sb
+    from companion.errors import MerlionError
+
+    try:
+        images = sb.load_frames(args.source, args.frames)
+    except ValueError as err:
+        raise MerlionError(str(err)) from None
+    print(f"surface bench: {args.frames} frames from {args.source}, budget {args.budget} B/s, "
+          f"thumbnails <= {args.thumbnail_bytes} B", flush=True)
+    push = sb.measure_push(images, budget=args.budget, thumbnail_bytes=args.thumbnail_bytes)
+    result = {"push": push, "limit_encapsulated_data": round(sb.LIMIT, 4), "limit_reference": sb.REFERENCE_LIMIT}
+    print(f"push: {push['frames']} thumbnails ({sum(push['thumbnail_bytes'])} B) reached the surface in "
+          f"{push['seconds_to_surface']} s, intact={push['intact']}, captures {push['captures_received']}; "
+          f"payload efficiency {push['push_efficiency']:.1%} of push bytes (limit {sb.LIMIT:.1%}), "
+          f"{push['overall_efficiency']:.1%} of all bytes; {push['achieved_bytes_per_s']} B/s on the wire",
+          flush=True)
+    if not args.no_pull:
+        with tempfile.TemporaryDirectory() as tmp:
+            pull = sb.measure_pull(images, budget=args.budget, thumbnail_bytes=args.thumbnail_bytes,
+                                   workdir=Path(tmp))
+        result["pull"] = pull
+        print(f"pull (mavftp): {pull['intact']}/{pull['frames']} thumbnails intact in {pull['seconds_to_surface']} s",
+              flush=True)
+    if args.json:
+        print(json.dumps(result))
+    return 0 if push["intact"] else 1
+
+
+def register(add_command) -> None:
+    p = add_command("surface", "surface link: payload efficiency and time for a summary to reach the surface",
+                    group="bench")
+    p.add_argument("--frames", type=int, default=6, help="summary size to send (default 6)")
+    p.add_argument("--budget", type=int, default=2000, help="link budget in bytes/s (default 2000)")
+    p.add_argument("--thumbnail-bytes", type=int, default=2500, help="thumbnail byte budget (default 2500)")
+    p.add_argument("--source", default="synthetic://dive", help="frames from this source (default synthetic://dive)")
+    p.add_argument("--no-pull", action="store_true", help="skip the MAVLink FTP download measurement")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON line at the end")
+    p.set_defaults(func=run)

@@ -1,0 +1,24 @@
+"""``merlion bench surface`` end to end as a user runs it (a small, fast configuration)."""
+
+from __future__ import annotations
+
+import json
+
+from tests.conftest import run_merlion
+
+
+def test_bench_surface_reports_efficiency_and_time():
+    proc = run_merlion("bench", "surface", "--frames", "2", "--budget", "20000", "--json", timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    push = result["push"]
+    assert push["intact"] and push["captures_received"] == 2
+    assert 0.85 < push["push_efficiency"] <= result["limit_encapsulated_data"] < result["limit_reference"]
+    assert push["seconds_to_surface"] > 0
+    assert result["pull"] == {"frames": 2, "intact": 2, "seconds_to_surface": result["pull"]["seconds_to_surface"]}
+
+
+def test_bench_surface_bad_source_is_one_line():
+    proc = run_merlion("bench", "surface", "--source", "/nonexistent/video.mp4", timeout=60)
+    assert proc.returncode != 0
+    assert proc.stderr.strip().splitlines()[-1].startswith("merlion: error: source /nonexistent/video.mp4")
