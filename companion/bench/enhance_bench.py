@@ -154,12 +154,15 @@ class LabelledSet:
     fish: np.ndarray
 
 
-def load_labelled(data_dir: str | Path) -> list[LabelledSet]:
+LABELLED_SETS = ("suim", "survey")
+
+
+def load_labelled(data_dir: str | Path, names: Sequence[str] = LABELLED_SETS) -> list[LabelledSet]:
     """The fish-labelled real footage in ../shared/data: SUIM stills and every frame of the survey video."""
     root = Path(data_dir)
     sets: list[LabelledSet] = []
     suim = root / "suim" / "labels.csv"
-    if suim.is_file():
+    if "suim" in names and suim.is_file():
         imgs, labels = [], []
         with suim.open(newline="", encoding="utf-8") as fh:
             for row in csv.DictReader(fh):
@@ -171,7 +174,7 @@ def load_labelled(data_dir: str | Path) -> list[LabelledSet]:
         sets.append(LabelledSet("suim", imgs, np.array(labels, dtype=bool)))
     survey = root / "survey" / "survey_480x270.mp4"
     survey_labels = root / "survey" / "survey_480x270_labels.csv"
-    if survey.is_file() and survey_labels.is_file():
+    if "survey" in names and survey.is_file() and survey_labels.is_file():
         with survey_labels.open(newline="", encoding="utf-8") as fh:
             by_frame = {int(r["frame_index"]): int(r["fish_present"]) for r in csv.DictReader(fh)}
         cap = cv2.VideoCapture(str(survey))
@@ -188,7 +191,8 @@ def load_labelled(data_dir: str | Path) -> list[LabelledSet]:
         cap.release()
         sets.append(LabelledSet("survey", imgs, np.array(labels, dtype=bool)))
     if not sets:
-        raise UsageError(f"{root}: neither suim/labels.csv nor survey/survey_480x270.mp4 with labels is there")
+        raise UsageError(f"{root}: none of {', '.join(names)} is there (suim/labels.csv, "
+                         "survey/survey_480x270.mp4 with its labels)")
     return sets
 
 
