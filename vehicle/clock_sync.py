@@ -15,7 +15,7 @@ from collections import deque
 class BootClock:
     """Estimate ``companion_time = time_boot_s + offset`` from (time_boot_ms, arrival time) pairs."""
 
-    def __init__(self, window_s: float = 20.0, reboot_tolerance_s: float = 1.0, jump_samples: int = 5) -> None:
+    def __init__(self, window_s: float = 20.0, reboot_tolerance_s: float = 0.5, jump_samples: int = 5) -> None:
         self.window_s = window_s
         self.reboot_tolerance_s = reboot_tolerance_s
         self.jump_samples = jump_samples

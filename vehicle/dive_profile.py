@@ -116,7 +116,7 @@ class DiveProfile:
             lat = self.origin.lat + math.degrees(north / _EARTH_RADIUS_M)
             lon = self.origin.lon + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(self.origin.lat))))
             alt = self.origin.alt_m - depth
-        return VehicleState(t, north, east, depth, vn, ve, vd, roll, pitch, yaw, a.mode, self.armed, lat, lon, alt)
+        return VehicleState(t, north, east, depth, vn, ve, vd, roll, pitch, yaw, b.mode, self.armed, lat, lon, alt)
 
 
 def _number(leg: str, data: dict[str, Any], key: str, default: float | None, *, positive: bool = True) -> float:

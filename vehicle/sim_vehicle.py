@@ -145,6 +145,12 @@ class SimVehicle:
     def time_boot_ms(self) -> int:
         return max(0, int((self.clock() - self._boot) * 1000))
 
+    def set_rate(self, name: str, hz: float) -> None:
+        """Change a message rate from outside, as a ground station's SET_MESSAGE_INTERVAL would (0: off)."""
+        if name not in self._intervals:
+            raise ValueError(f"sim vehicle cannot send {name}")
+        self._set_interval(name, 1.0 / hz if hz > 0 else None)
+
     def interval(self, name: str) -> float | None:
         """The current interval of a message in seconds (None: not sent)."""
         with self._lock:
