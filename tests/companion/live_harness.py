@@ -1,0 +1,180 @@
+"""Helpers for the live companion's tests: a real `merlion run` subprocess, a UDP hub, a MAVLink listener.
+
+The companion runs as a real process on real loopback sockets; tests wait on its log lines and on files in
+its store (with timeouts), never on fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import yaml
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from tests.conftest import REPO
+
+FAST_SOURCE = "synthetic://dive?seconds=1&width=160&height=96"
+
+
+def write_config(path: Path, **sections) -> Path:
+    """A config file for a quick companion: the cheap visual encoder, a fast generated source."""
+    data = {
+        "source": {"uri": FAST_SOURCE, "fps": 10, "realtime": True, "retry_initial_s": 0.2, "retry_max_s": 0.5},
+        "encoder": {"name": "visual"},
+        "queries": {"tau_ss": 0.5},
+        "surface": {"budget_bytes_per_s": 20000, "status_hz": 2},
+        "health": {"stall_after_s": 30},
+    }
+    for key, value in sections.items():
+        data.setdefault(key, {}).update(value)
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+class Companion:
+    """`merlion run` in a subprocess with its log collected line by line."""
+
+    def __init__(self, *args: str, env: dict | None = None) -> None:
+        full_env = dict(os.environ)
+        full_env.update(env or {})
+        full_env["PYTHONUNBUFFERED"] = "1"
+        self.proc = subprocess.Popen([sys.executable, "-m", "companion", "run", *args], cwd=REPO, env=full_env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+        with self._cond:
+            self._cond.notify_all()
+
+    @property
+    def output(self) -> str:
+        with self._cond:
+            return "\n".join(self.lines)
+
+    def wait_for(self, pattern: str, timeout: float = 60.0, start: int = 0) -> str:
+        """The first log line (from line ``start``) matching ``pattern``; fails the test on timeout or exit."""
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                for line in self.lines[start:]:
+                    if rx.search(line):
+                        return line
+                if self.proc.poll() is not None and not self._reader.is_alive():
+                    raise AssertionError(f"companion exited ({self.proc.returncode}) before {pattern!r}:\n"
+                                         + "\n".join(self.lines[-40:]))
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"no {pattern!r} within {timeout} s:\n" + "\n".join(self.lines[-40:]))
+                self._cond.wait(min(left, 0.5))
+
+    def mark(self) -> int:
+        with self._cond:
+            return len(self.lines)
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def terminate(self, timeout: float = 60.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            return self.proc.wait(timeout)
+        finally:
+            self._reader.join(timeout=5)
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(30)
+        self._reader.join(timeout=5)
+
+
+def wait_until(predicate, timeout: float = 60.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.1)
+
+
+def store_summary(store: Path) -> dict:
+    try:
+        return json.loads((store / "summary.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+class Listener:
+    """A surface-side UDP socket that parses whatever MAVLink reaches it (as a ground station would)."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.parser = mav.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.messages: list = []
+        self._stop = threading.Event()
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65535)
+            except (TimeoutError, OSError):
+                continue
+            now = time.time()
+            try:
+                msgs = self.parser.parse_buffer(data) or []
+            except mav.MAVError:
+                continue
+            with self._cond:
+                for m in msgs:
+                    m._received = now
+                    self.messages.append(m)
+                self._cond.notify_all()
+
+    def of_type(self, kind: str) -> list:
+        with self._cond:
+            return [m for m in self.messages if m.get_type() == kind]
+
+    def texts(self) -> list[str]:
+        return [m.text if isinstance(m.text, str) else m.text.decode(errors="replace")
+                for m in self.of_type("STATUSTEXT")]
+
+    def wait_for(self, predicate, timeout: float = 60.0, what: str = "message"):
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                for m in self.messages:
+                    if predicate(m):
+                        return m
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"no {what} within {timeout} s")
+                self._cond.wait(min(left, 0.5))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.sock.close()
