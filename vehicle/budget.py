@@ -166,6 +166,8 @@ class LinkBudget:
         with self._cond:
             while True:
                 self._refill()
+                if not getattr(self.link, "connected", True):
+                    return 0.2  # no peer yet (a UDP server before anyone spoke): keep the queue, lose nothing
                 wait = self._send_one()
                 if wait != 0.0:
                     return wait

@@ -100,15 +100,16 @@ class CaptureLog:
         """Milliseconds since this companion component started (its own boot clock)."""
         return int((self._clock() - self._t0) * 1000)
 
-    def record(self, frame: SummaryFrame) -> mav.MAVLink_camera_image_captured_message:
-        """Announce a new summary frame: count it and keep its message for re-requests."""
+    def record(self, frame: SummaryFrame, *, count: bool = True) -> mav.MAVLink_camera_image_captured_message:
+        """Keep the capture message of a summary frame for re-requests; ``count`` it unless an earlier run did."""
         msg = captured_message(frame, self.time_boot_ms(), ext=self.ext)
         with self._lock:
             self._messages[frame.image_index] = msg
             self._messages.move_to_end(frame.image_index)
             while len(self._messages) > self._keep:
                 self._messages.popitem(last=False)
-            self.image_count += 1
+            if count:
+                self.image_count += 1
             self.last_index = frame.image_index if self.last_index is None else max(self.last_index,
                                                                                   frame.image_index)
         return msg

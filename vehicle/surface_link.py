@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
@@ -61,7 +61,7 @@ def format_queries(positive: str, negatives: list[str]) -> str:
 class _Held:
     frame: SummaryFrame
     thumb: Thumbnail
-    full: bytes | None = None
+    encoded: dict[str, bytes] = field(default_factory=dict)
 
 
 def _frame_tags(frame: SummaryFrame) -> dict[str, Any]:
@@ -98,6 +98,7 @@ class SurfaceLink:
         self.ext = "webp" if cfg.thumbnail_format == "webp" else "jpg"
         self.budget = LinkBudget(link, cfg.budget_bytes_per_s, clock=clock)
         self.captures = CaptureLog(clock=clock, initial_count=image_count, loader=loader, ext=self.ext)
+        self._earlier_runs = image_count
         self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
                                       component_id=link.component_id, identity=identity)
         self.status = st.StatusReporter(self.captures.time_boot_ms)
@@ -169,7 +170,11 @@ class SurfaceLink:
     # ---- outgoing -------------------------------------------------------------------------------------------
 
     def publish(self, event: SummaryEvent) -> None:
-        """Announce a frame that entered (capture, thumbnail, push) or left (STATUSTEXT, files gone) the summary."""
+        """Announce a frame that entered (capture, thumbnail, push) or left (STATUSTEXT, files gone) the summary.
+
+        A frame an earlier run took (``image_index`` below the ``image_count`` given at start, i.e. the resumed
+        summary) goes back on the FTP tree and answers re-requests, but is neither counted nor announced again.
+        """
         frame = event.frame
         idx = frame.image_index
         if event.kind == "added":
@@ -180,7 +185,14 @@ class SurfaceLink:
                 self._prune(event.summary)
             self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
             self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
-            self.budget.submit(self.captures.record(frame), Priority.STATUS)
+            if frame.raw_image is not None:
+                self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True))
+            resumed = idx < self._earlier_runs
+            capture = self.captures.record(frame, count=not resumed)
+            if resumed:
+                self.status.update(summary=len(self._held))
+                return
+            self.budget.submit(capture, Priority.STATUS)
             self.event(added_text(frame, len(event.summary) or len(self._held)))
             if self.cfg.push:
                 push = thumb if thumb.format == "jpeg" else make_thumbnail(
@@ -206,17 +218,23 @@ class SurfaceLink:
     def _forget(self, idx: int) -> None:
         self.tree.remove(thumbnail_path(idx, self.ext))
         self.tree.remove(f"/summary/full/{idx}.jpg")
+        self.tree.remove(f"/summary/raw/{idx}.jpg")
         self.budget.drop(("thumb", idx))
 
-    def _full(self, idx: int) -> bytes:
+    def _full(self, idx: int, raw: bool = False) -> bytes:
+        """The full-resolution frame as JPEG, encoded on first request and kept while the frame is held."""
         with self._lock:
             held = self._held.get(idx)
         if held is None:
             return b""
-        if held.full is None:
-            ok, buf = cv2.imencode(".jpg", held.frame.image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
-            held.full = buf.tobytes() if ok else b""
-        return held.full
+        image = held.frame.raw_image if raw else held.frame.image
+        if image is None:
+            return b""
+        key = "raw" if raw else "full"
+        if key not in held.encoded:
+            ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
+            held.encoded[key] = buf.tobytes() if ok else b""
+        return held.encoded[key]
 
     def index_json(self) -> bytes:
         """The current summary with its tags, newest first (what /summary/index.json serves)."""
@@ -225,9 +243,11 @@ class SurfaceLink:
         items = []
         for h in held:
             tags = _frame_tags(h.frame)
-            tags.update(thumbnail=thumbnail_path(h.frame.image_index, self.ext),
-                        full=f"/summary/full/{h.frame.image_index}.jpg", thumbnail_bytes=len(h.thumb.data),
-                        width=h.thumb.width, height=h.thumb.height)
+            idx = h.frame.image_index
+            tags.update(thumbnail=thumbnail_path(idx, self.ext), full=f"/summary/full/{idx}.jpg",
+                        thumbnail_bytes=len(h.thumb.data), width=h.thumb.width, height=h.thumb.height)
+            if h.frame.raw_image is not None:
+                tags["raw"] = f"/summary/raw/{idx}.jpg"
             items.append(tags)
         body = {"image_count": self.captures.image_count, "summary": items}
         return json.dumps(body, separators=(",", ":")).encode()

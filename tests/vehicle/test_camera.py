@@ -10,6 +10,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.config import SurfaceConfig
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import added, companion_link, ground_station, removed, summary_frame, wait_for
+from vehicle.budget import Priority
 from vehicle.camera import CameraComponent
 from vehicle.captures import CaptureLog, captured_message, quaternion
 from vehicle.pose import Pose
@@ -113,3 +114,20 @@ def test_ground_station_discovers_the_camera_and_sees_captures_over_udp():
         surface.stop()
         link.stop()
 
+
+
+def test_a_resumed_summary_is_served_but_not_counted_or_announced_again():
+    link = companion_link(free_udp_port())
+    try:
+        surface = SurfaceLink(link, SurfaceConfig(), image_count=10)  # an earlier run took images 0-9
+        old = added(8, [8])
+        old.frame.raw_image = old.frame.image[:, ::-1].copy()
+        surface.publish(old)
+        assert surface.captures.image_count == 10 and surface.budget.pending() == 0
+        assert surface.tree.read("/summary/8.jpg") and surface.tree.read("/summary/raw/8.jpg")[:2] == b"\xff\xd8"
+        assert surface.camera.handle(_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 263, 8))[1].image_index == 8
+        surface.publish(added(10, [8, 10]))
+        assert surface.captures.image_count == 11
+        assert surface.budget.pending(Priority.THUMBNAIL) > 0 and surface.budget.pending(Priority.STATUS) == 2
+    finally:
+        link.stop()
