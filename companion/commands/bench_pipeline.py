@@ -1,0 +1,43 @@
+"""``merlion bench pipeline SOURCE``: end-to-end vs encoder-only frames/s, sampler ms/frame, peak RSS."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def register(add_command) -> None:
+    p = add_command("pipeline", "vision pipeline speed: end to end vs encoder only, sampler cost, peak memory",
+                    group="bench")
+    p.add_argument("source", metavar="SOURCE", help="video file or image folder (looped until --frames are done)")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder (default auto)")
+    p.add_argument("--model", help="open_clip architecture for clip (default ViT-B-32)")
+    p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
+    p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
+    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], help="encoder precision")
+    p.add_argument("--frames", type=int, default=256, help="frames to push through (default 256)")
+    p.add_argument("--fps", type=float, help="subsample the source to this rate (default: every frame)")
+    p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
+    p.add_argument("--json", action="store_true", help="end with one JSON object on the last line")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.bench.pipeline_bench import bench_pipeline
+    from companion.config import load_config
+    from companion.errors import UsageError
+
+    if args.frames < 1:
+        raise UsageError(f"--frames must be at least 1, got {args.frames}")
+    over: dict = {"source": {"uri": args.source, "fps": args.fps if args.fps is not None else 240.0}}
+    enc = {"name": args.encoder, "model": args.model, "weights": args.weights, "batch": args.batch,
+           "precision": args.precision}
+    enc = {k: v for k, v in enc.items() if v is not None}
+    if enc:
+        over["encoder"] = enc
+    cfg = load_config(args.config, overrides=over)
+    result = bench_pipeline(cfg, frames=args.frames)
+    print(result.table())
+    if args.json:
+        print(json.dumps(result.as_json()))
+    return 0

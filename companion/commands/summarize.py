@@ -1,0 +1,64 @@
+"""``merlion summarize SOURCE --out DIR``: the K most informative frames of a video or image folder."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from companion.config import load_config
+
+
+def register(add_command) -> None:
+    p = add_command("summarize", "summarize a video file or image folder into DIR (summary.json, frames/, contact sheet)")
+    p.add_argument("source", metavar="SOURCE", help="video file (H.264, HEVC, MJPEG, ...) or folder of images")
+    p.add_argument("--out", "-o", required=True, metavar="DIR", help="output directory (must not exist unless --force)")
+    p.add_argument("-k", "--k", type=int, help="summary size (default 6)")
+    p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
+    p.add_argument("--negative", metavar="TEXT", action="append",
+                   help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    p.add_argument("--threshold", type=float, metavar="TAU",
+                   help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50)")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
+    p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
+    p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
+    p.add_argument("--fps", type=float, help="frames per second kept from the source (default 5)")
+    p.add_argument("--enhance", choices=["none", "always", "selective"], help="MERLION-E enhancement mode")
+    p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
+    p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
+    p.add_argument("--force", action="store_true", help="replace DIR if it exists")
+    p.set_defaults(func=run)
+
+
+def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
+    """Command-line options as a nested configuration override (only the ones given)."""
+    over: dict[str, dict[str, Any]] = {"source": {"uri": args.source}}
+
+    def put(section: str, key: str, value: Any) -> None:
+        if value is not None:
+            over.setdefault(section, {})[key] = value
+
+    put("source", "fps", args.fps)
+    put("sampler", "k", args.k)
+    put("queries", "positive", args.query)
+    put("queries", "tau_ss", args.threshold)
+    if args.negative is not None:
+        put("queries", "negatives", args.negative)
+    elif args.query is not None:
+        put("queries", "negatives", [])  # the default negative belongs to the default positive
+    put("encoder", "name", args.encoder)
+    put("encoder", "model", args.model)
+    put("encoder", "weights", args.weights)
+    put("encoder", "batch", args.batch)
+    put("enhance", "mode", args.enhance)
+    return over
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.summarize import summarize
+
+    cfg = load_config(args.config, overrides=overrides_from(args))
+    result = summarize(cfg, args.out, force=args.force)
+    lost = f", {result.frames_lost} lost" if result.frames_lost else ""
+    print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
+          f"({result.frames_passed} passed the query{lost}); see summary.json and contact_sheet.jpg")
+    return 0
