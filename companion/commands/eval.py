@@ -74,6 +74,8 @@ def register(add_command) -> None:
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet"], help="MERLION's encoder (override)")
     p.add_argument("--query", help="the label that counts as relevant (default: fish when present, else any)")
     p.add_argument("--out", metavar="DIR", help="keep both summaries here (default: a temporary folder)")
+    p.add_argument("--no-scores", action="store_true",
+                   help="skip MERLION's full-rate scoring pass (no AUROC, no score plot; half the time)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--report", metavar="DIR", help="write an HTML report here")
     p.set_defaults(func=_cmd_compare)
@@ -240,8 +242,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from companion.evaluation.compare import compare, format_compare
 
     cfg = _config(args, args.encoder)
-    result = compare(args.video, args.labels, cfg, query=args.query, out_dir=args.out, report_dir=args.report,
-                     encoder_factory=make_encoder)
+    result = compare(args.video, args.labels, cfg, make_encoder, query=args.query, out_dir=args.out,
+                     report_dir=args.report, scores=not args.no_scores)
     print(json.dumps(result) if args.json else format_compare(result))
     if args.report:
         print(f"report: {Path(args.report) / 'index.html'}")
