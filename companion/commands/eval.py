@@ -206,7 +206,7 @@ def make_encoder(cfg):
         from companion.encoders.factory import make_encoder as factory
     except ImportError:
         raise MerlionError(f"encoder {cfg.encoder.name!r}: companion.encoders.factory is not installed") from None
-    return factory(cfg)
+    return factory(cfg.encoder)
 
 
 def _cmd_auroc(args: argparse.Namespace) -> int:
