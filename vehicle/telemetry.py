@@ -24,7 +24,7 @@ from vehicle.clock_sync import BootClock
 from vehicle.link import MavLink
 from vehicle.message_rates import RateKeeper
 from vehicle.pose import Pose
-from vehicle.pose_history import PoseHistory, euler_to_quaternion, quaternion_to_euler
+from vehicle.pose_history import PoseHistory, euler_to_quaternion, normalise, quaternion_to_euler
 
 log = logging.getLogger(__name__)
 
@@ -119,8 +119,15 @@ class VehicleTelemetry:
                            clock_offset_s=self.boot_clock.offset, autopilot_reboots=self.boot_clock.reboots)
 
     def pose_at(self, t: float) -> Pose:
-        """The pose at companion wall-clock time ``t`` (a frame's ``capture_time``); stale when nothing is near."""
-        return self.history.pose_at(t)
+        """The pose at companion wall-clock time ``t`` (a frame's ``capture_time``); stale when nothing is near.
+
+        The history is kept in the autopilot's own time (seconds since boot), so a better clock estimate later
+        moves every sample together; ``t`` is mapped into that time line with the current estimate.
+        """
+        offset = self.boot_clock.offset
+        if offset is None:
+            return Pose(time=t, age_s=math.inf, stale=True)
+        return replace(self.history.pose_at(t - offset), time=t)
 
     def wait_for(self, predicate: Callable[[TelemetrySnapshot], bool], timeout: float) -> bool:
         """Block until ``predicate(latest)`` holds (for start-up, tools and tests)."""
@@ -138,14 +145,16 @@ class VehicleTelemetry:
         with self._changed:
             self._changed.notify_all()
 
-    def _sample_time(self, msg: mav2.MAVLink_message, arrival: float) -> float:
+    def _sample_time(self, msg: mav2.MAVLink_message, arrival: float) -> float | None:
+        """When the autopilot measured ``msg``, in its seconds since boot (None: not placeable yet)."""
         boot_ms = getattr(msg, "time_boot_ms", None)
-        if boot_ms is None:
-            return arrival
+        if boot_ms is None:  # VFR_HUD and friends carry no time: place them at arrival, mapped back
+            offset = self.boot_clock.offset
+            return None if offset is None else arrival - offset
         if self.boot_clock.observe(boot_ms, arrival):
             log.warning("autopilot rebooted (time_boot_ms went back to %d): time mapping restarted", boot_ms)
-        local = self.boot_clock.to_local(boot_ms)
-        return arrival if local is None else local
+            self.history.clear()
+        return boot_ms / 1000.0
 
     def _on_message(self, msg: mav2.MAVLink_message) -> None:
         if self.link.autopilot is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self.link.autopilot:
@@ -154,7 +163,7 @@ class VehicleTelemetry:
         t = self._sample_time(msg, arrival)
         mtype = msg.get_type()
         update: dict = {}
-        h = self.history
+        h = self.history if t is not None else None  # None: cannot be placed in time yet, state only
         if mtype == "HEARTBEAT":
             update["armed"] = bool(msg.base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED)
             update["mode"] = mavutil.mode_mapping_sub.get(msg.custom_mode, f"MODE{msg.custom_mode}")
@@ -163,32 +172,37 @@ class VehicleTelemetry:
                 update["autopilot_utc"] = msg.time_unix_usec / 1e6
         elif mtype == "ATTITUDE":
             q = euler_to_quaternion(msg.roll, msg.pitch, msg.yaw)
-            h.add_attitude(t, q)
+            if h is not None:
+                h.add_attitude(t, q)
             update.update(roll=msg.roll, pitch=msg.pitch, yaw=msg.yaw, heading_deg=math.degrees(msg.yaw) % 360.0)
         elif mtype == "ATTITUDE_QUATERNION":
-            q = (msg.q1, msg.q2, msg.q3, msg.q4)
             try:
-                h.add_attitude(t, q)
+                q = normalise((msg.q1, msg.q2, msg.q3, msg.q4))
             except ValueError:
-                return
+                return  # all zeros (not initialised yet) or NaN: nothing to record
+            if h is not None:
+                h.add_attitude(t, q)
             roll, pitch, yaw = quaternion_to_euler(q)
             update.update(roll=roll, pitch=pitch, yaw=yaw, heading_deg=math.degrees(yaw) % 360.0)
         elif mtype == "GLOBAL_POSITION_INT":
             self._depth(update, t, arrival, "global_position_int", -msg.relative_alt / 1000.0)
-            if msg.hdg != 65535:
+            if msg.hdg != 65535 and h is not None:
                 h.add_heading(t, msg.hdg / 100.0)
             if msg.lat != 0 or msg.lon != 0:  # 0/0 means the EKF has no origin
                 lat, lon = msg.lat / 1e7, msg.lon / 1e7
-                h.add_global_position(t, lat, lon, msg.alt / 1000.0)
+                if h is not None:
+                    h.add_global_position(t, lat, lon, msg.alt / 1000.0)
                 update.update(lat=lat, lon=lon)
         elif mtype == "SCALED_PRESSURE2":
             depth = depth_from_pressure(msg.press_abs, self.cfg.fluid_density, self.cfg.surface_pressure_hpa)
             self._depth(update, t, arrival, "scaled_pressure2", depth)
         elif mtype == "VFR_HUD":
             self._depth(update, t, arrival, "vfr_hud", -msg.alt)
-            h.add_heading(t, float(msg.heading))
+            if h is not None:
+                h.add_heading(t, float(msg.heading))
         elif mtype == "LOCAL_POSITION_NED":
-            h.add_local_position(t, msg.x, msg.y, msg.z)
+            if h is not None:
+                h.add_local_position(t, msg.x, msg.y, msg.z)
             update.update(north_m=msg.x, east_m=msg.y, down_m=msg.z)
         elif mtype == "SYS_STATUS":
             if msg.voltage_battery != 65535:
@@ -204,10 +218,10 @@ class VehicleTelemetry:
         with self._changed:
             with self._lock:
                 self.messages += 1
-                self._latest = replace(self._latest, time=t, **update)
+                self._latest = replace(self._latest, time=arrival, **update)
             self._changed.notify_all()
 
-    def _depth(self, update: dict, t: float, arrival: float, source: str, depth: float) -> None:
+    def _depth(self, update: dict, t: float | None, arrival: float, source: str, depth: float) -> None:
         """Record depth from ``source`` unless a better source has spoken within the stale limit."""
         self._depth_seen[source] = arrival
         rank = DEPTH_SOURCES.index(source)
@@ -217,5 +231,7 @@ class VehicleTelemetry:
                 return
         if source == "vfr_hud" and depth == 0.0 and self._latest.lat is None:
             return  # VFR_HUD.alt is 0 without an EKF origin: no information
-        self.history.add_depth(t, depth, source)
+        if t is not None:
+            self.history.add_depth(t, depth, source)
         update.update(depth_m=depth, depth_source=source)
+
