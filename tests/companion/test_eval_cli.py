@@ -83,3 +83,40 @@ def test_auroc_of_the_visual_baseline_is_chance():
     out = json.loads(r.stdout)
     assert out["auroc"] == 0.5 and out["frames"] == 93 and out["positives"] == 60
     assert out["at_tau_ss"]["recall"] == 1.0 and out["at_tau_ss"]["false_pass"] == 1.0
+
+
+def test_summarize_with_the_visual_baseline_then_evaluate_its_summary_json(tmp_path):
+    video = shared_file("survey/survey_480x270.mp4")
+    csv = shared_file("survey/survey_480x270_labels.csv")
+    s = run_merlion("summarize", str(video), "--encoder", "visual", "--out", str(tmp_path / "sum"))
+    assert s.returncode == 0, s.stderr
+    doc = json.loads((tmp_path / "sum" / "summary.json").read_text())
+    assert doc["encoder"] == "visual" and len(doc["frames"]) == 6
+    assert all(f["score"] == 1.0 for f in doc["frames"])
+    r = run_merlion("eval", "labels", "--labels", str(csv), "--fps", "10", "--summary-json",
+                    str(tmp_path / "sum" / "summary.json"), "--json", "--report", str(tmp_path / "rep"))
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.splitlines()[0])
+    assert out["frames"] == sorted(f["index"] + 1 for f in doc["frames"])
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "summary_contact_sheet.png" in page and (tmp_path / "rep" / "summary_contact_sheet.png").is_file()
+
+
+@pytest.mark.slow
+def test_compare_merlion_and_the_visual_baseline_on_the_survey(tmp_path):
+    video = shared_file("survey/survey_480x270.mp4")
+    csv = shared_file("survey/survey_480x270_labels.csv")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("source:\n  fps: 1\nencoder:\n  input_size: 224\n")  # 10 frames keep the test short
+    r = run_merlion("eval", "compare", str(video), "--labels", str(csv), "--encoder", "imagenet", "--config",
+                    str(cfg), "--no-scores", "--json", "--out", str(tmp_path / "runs"), "--report",
+                    str(tmp_path / "rep"))
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.splitlines()[0])
+    merlion, baseline = out["runs"]["MERLION"], out["runs"]["visual baseline"]
+    assert merlion["encoder"].startswith("imagenet") and baseline["encoder"] == "visual"
+    # frames at 1 fps are 1, 11, 21, ...: the baseline keeps no-fish frames, the semantic filter drops them
+    assert all((f - 1) % 10 == 0 for f in merlion["frames"] + baseline["frames"])
+    assert merlion["precision"] > baseline["precision"]
+    assert (tmp_path / "runs" / "merlion" / "summary.json").is_file()
+    assert (tmp_path / "rep" / "visual_baseline_contact_sheet.png").is_file()
