@@ -97,7 +97,9 @@ def downscale_for(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     if scale >= 1.0:
         return image
     nw, nh = max(tw, round(w * scale)), max(th, round(h * scale))
-    return cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA)
+    # area averaging avoids aliasing on strong reductions; for mild ones bilinear is as good and ~6x cheaper
+    interp = cv2.INTER_AREA if scale < 0.5 else cv2.INTER_LINEAR
+    return cv2.resize(image, (nw, nh), interpolation=interp)
 
 
 class Pipeline:
