@@ -206,7 +206,8 @@ def read_summary_json(path: str | Path, label_fps: float | None = None) -> tuple
     Each entry's ``index`` is the 0-based frame of the source video *before* subsampling (companion.frame), so
     a summary taken at 5 fps from a 30 fps video still names source frames: label frame = index + 1. When the
     label file was made at another frame rate than the video (``label_fps``), the entry's ``time_s`` is used
-    instead: label frame = round(time_s x label_fps) + 1.
+    instead: label frame = round(time_s x label_fps) + 1. The on-board store's summary.json (companion.store)
+    is read the same way: its entries name the source frame ``frame_index`` and carry the pose tags.
     """
     p = Path(path)
     if p.is_dir():
@@ -226,7 +227,7 @@ def read_summary_json(path: str | Path, label_fps: float | None = None) -> tuple
             if label_fps is not None:
                 frames.append(round(float(entry["time_s"]) * label_fps) + 1)
             else:
-                frames.append(int(entry["index"]) + 1)
+                frames.append(int(entry["index"] if "index" in entry else entry["frame_index"]) + 1)
         except (KeyError, TypeError, ValueError):
             need = "time_s" if label_fps is not None else "index"
             raise MerlionError(f"{p}: frames[{n}] has no usable {need!r}") from None

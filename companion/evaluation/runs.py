@@ -24,7 +24,8 @@ def run_from_summary(name: str, summary: dict, base: Path, metrics: dict[str, ob
     for entry in summary.get("frames", []):
         t = float(entry.get("time_s", 0.0))
         run.frame_times.append(t)
-        run.frame_labels.append(f"#{entry.get('index', '?')} t={t:.1f}s s={float(entry.get('score', 0)):.2f}")
+        index = entry.get("index", entry.get("frame_index", "?"))
+        run.frame_labels.append(f"#{index} t={t:.1f}s s={float(entry.get('score', 0)):.2f}")
         run.frame_depths.append(_depth(entry))
         file = entry.get("file")
         if file:

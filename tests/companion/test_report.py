@@ -50,3 +50,26 @@ def test_run_from_summary_reads_pictures_and_depth_tags(tmp_path):
     assert len(run.images) == 2 and run.frame_depths == [3.2, None] and run.frame_times == [0.4, 0.9]
     page = write_report(tmp_path / "out", [run])
     assert (page.parent / "s_contact_sheet.png").is_file() and (page.parent / "s_depth.png").is_file()
+
+
+def test_store_summary_with_pose_tags_gives_a_depth_profile(tmp_path):
+    from companion.config import StoreConfig
+    from companion.evaluation.datasets import read_summary_json
+    from companion.events import SummaryEvent, SummaryFrame
+    from companion.store import Store
+    from vehicle.pose import Pose
+
+    store = Store(StoreConfig(), directory=tmp_path / "store")
+    held: list[int] = []
+    for n, (index, depth) in enumerate([(14, 2.0), (40, 3.5), (70, None)]):
+        pose = Pose(time=100.0 + n, age_s=0.05, stale=depth is None, depth_m=depth)
+        frame = SummaryFrame(image_index=n, frame_index=index, time_s=index / 10, capture_time=1.7e9 + n,
+                             score=0.8, image=_frame(n), feature=np.ones(4, np.float32) / 4, pose=pose)
+        held.append(n)
+        store.apply(SummaryEvent("added", frame, list(held)))
+    frames, doc = read_summary_json(tmp_path / "store" / "summary.json")
+    assert frames == [15, 41, 71]
+    run = run_from_summary("live", doc, tmp_path / "store", {"frames": frames})
+    assert run.frame_depths == [2.0, 3.5, None] and len(run.images) == 3
+    page = write_report(tmp_path / "rep", [run])
+    assert "live_depth.png" in page.read_text() and cv2.imread(str(tmp_path / "rep" / "live_depth.png")) is not None
