@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import urlparse
 
 import open_clip
 
@@ -121,6 +123,27 @@ def list_cached() -> list[tuple[str, str, Path]]:
     return out
 
 
+def _download_host(cfg: dict) -> str:
+    if cfg.get("hf_hub"):
+        from huggingface_hub import constants
+
+        return urlparse(constants.ENDPOINT).hostname or "huggingface.co"
+    return urlparse(cfg.get("url", "")).hostname or ""
+
+
+def _check_reachable(host: str, model: str, tag: str, timeout_s: float = 5.0) -> None:
+    """Fail in seconds, with one line, where there is no network (the hub client would retry for a minute)."""
+    if not host:
+        raise MerlionError(f"{model} ({tag}) has no download location in open_clip")
+    try:
+        socket.create_connection((host, 443), timeout=timeout_s).close()
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        raise MerlionError(f"cannot download {model} ({tag}): no network ({host}: {reason}); on a machine with a "
+                           f"network run `merlion models pull {model} --pretrained {tag}`, copy the file over "
+                           f"and pass --weights PATH") from None
+
+
 def pull(model: str, tag: str, cache_dir: str | None = None) -> Path:
     """Download a tag's checkpoint into open_clip's cache, verify it loads into the architecture, return its path.
 
@@ -128,7 +151,9 @@ def pull(model: str, tag: str, cache_dir: str | None = None) -> Path:
     rest (a truncated or wrong file fails there). No network: a one-line MerlionError, not a traceback.
     """
     cfg = pretrained_cfg(model, tag)
+    _check_reachable(_download_host(cfg), model, tag)
     log.info("downloading %s (%s) ...", model, tag)
+    logging.getLogger("huggingface_hub").setLevel(logging.ERROR)  # its per-retry warnings repeat our one line
     try:
         path = Path(open_clip.download_pretrained(cfg, cache_dir=cache_dir))
     except Exception as err:  # hub, urllib and OS errors all mean the same thing to the user

@@ -1,0 +1,66 @@
+"""``merlion score PATH...``: the semantic score of each image, one line per image (or JSON lines)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from companion.config import load_config
+
+
+def register(add_command) -> None:
+    p = add_command("score", "score images (files or folders) against the queries: one line per image")
+    p.add_argument("paths", metavar="PATH", nargs="+", help="image files or folders of images")
+    p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
+    p.add_argument("--negative", metavar="TEXT", action="append",
+                   help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores images")
+    p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
+    p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file (or open_clip model folder)")
+    p.add_argument("--pretrained", metavar="TAG", help="open_clip pretrained tag, used if already cached")
+    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], help="encoder precision")
+    p.add_argument("--batch", type=int, help="images encoded together (default 8)")
+    p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
+    p.add_argument("--json", action="store_true", help='JSON lines: {"file": ..., "score": ...}')
+    p.set_defaults(func=run)
+
+
+def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
+    """Only the options given, as a nested configuration override."""
+    over: dict[str, dict[str, Any]] = {}
+
+    def put(section: str, key: str, value: Any) -> None:
+        if value is not None:
+            over.setdefault(section, {})[key] = value
+
+    put("queries", "positive", args.query)
+    if args.negative is not None:
+        put("queries", "negatives", args.negative)
+    elif args.query is not None:
+        put("queries", "negatives", [])  # the default negative belongs to the default positive
+    put("encoder", "name", args.encoder)
+    put("encoder", "model", args.model)
+    put("encoder", "weights", args.weights)
+    put("encoder", "pretrained", args.pretrained)
+    put("encoder", "precision", args.precision)
+    put("encoder", "batch", args.batch)
+    return over
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.score_images import score_images
+
+    cfg = load_config(args.config, overrides=overrides_from(args))
+    failed = 0
+    for item in score_images(cfg, args.paths):
+        if item.score is None:
+            failed += 1
+            print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)
+            continue
+        if args.json:
+            print(json.dumps({"file": str(item.file), "score": round(item.score, 6)}), flush=True)
+        else:
+            print(f"{item.file}\t{item.score:.4f}", flush=True)
+    return 1 if failed else 0
