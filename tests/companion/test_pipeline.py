@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from companion.config import Config, EncoderConfig
-from companion.encoders.imagenet import CROPS, ImageNetEncoder
+from companion.encoders.imagenet import ImageNetEncoder
 from companion.enhancers.base import Enhancer
 from companion.frame_feed import FrameFeed
 from companion.pipeline import Pipeline, downscale_for
@@ -16,7 +16,7 @@ from tests.conftest import shared_file
 
 @pytest.fixture(scope="module")
 def encoder():
-    return ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), crops=CROPS[:1])
+    return ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), regions=False)
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from companion.config import EncoderConfig
-from companion.encoders.imagenet import CROPS, ImageNetEncoder
+from companion.encoders.imagenet import ImageNetEncoder
 from companion.errors import MerlionError, UsageError
 from companion.presampler import GENERIC_NEGATIVE, PreSampler, softmax_share
 from companion.sources.video import VideoSource
@@ -15,7 +15,7 @@ from tests.conftest import shared_file
 
 @pytest.fixture(scope="module")
 def encoder():
-    return ImageNetEncoder(EncoderConfig(name="imagenet"), crops=CROPS[:1])
+    return ImageNetEncoder(EncoderConfig(name="imagenet"), regions=False)
 
 
 def test_softmax_share_is_the_positive_share_at_scale_100():
