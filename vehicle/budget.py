@@ -92,11 +92,14 @@ class LinkBudget:
     # ---- queueing -------------------------------------------------------------------------------------------
 
     def submit(self, msg: mav.MAVLink_message, priority: Priority, *, tag: Any = None,
-               replace: bool = False) -> None:
-        """Queue ``msg``; ``replace`` drops queued messages with the same ``tag`` first (latest value wins)."""
+               replace: bool = False, unique: bool = False) -> bool:
+        """Queue ``msg``; False when ``unique`` and a message with the same ``tag`` is still queued (a reply to a
+        retransmitted request). ``replace`` drops queued messages with the same ``tag`` first (latest value wins)."""
         item = _Item(msg, wire_size(msg), tag)
         with self._cond:
             queue = self._queues[priority]
+            if unique and tag is not None and any(i.tag == tag for i in queue):
+                return False
             if replace and tag is not None:
                 kept = [i for i in queue if i.tag != tag]
                 self.dropped += len(queue) - len(kept)
@@ -107,6 +110,7 @@ class LinkBudget:
                 self.dropped += 1
             queue.append(item)
             self._cond.notify()
+            return True
 
     def drop(self, tag: Any) -> int:
         """Remove every queued message carrying ``tag`` (a thumbnail whose frame left the summary)."""

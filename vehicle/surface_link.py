@@ -27,6 +27,7 @@ from vehicle import status as st
 from vehicle.budget import LinkBudget, Priority
 from vehicle.camera import CameraComponent, CameraIdentity
 from vehicle.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
+from vehicle.ftp_protocol import Op
 from vehicle.ftp_server import FtpServer, VirtualTree
 from vehicle.image_push import push_messages
 from vehicle.params import ParamServer, ParamSpec
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 QUERIES_PATH = "/config/queries.txt"
 INDEX_PATH = "/summary/index.json"
 FULL_QUALITY = 90
+_FTP_BULK_OPS = frozenset({Op.READ_FILE, Op.BURST_READ_FILE, Op.LIST_DIRECTORY})
 _REQUEST_TYPES = ("COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET",
                   "FILE_TRANSFER_PROTOCOL")
 
@@ -197,7 +199,10 @@ class SurfaceLink:
             if self.cfg.push:
                 push = thumb if thumb.format == "jpeg" else make_thumbnail(
                     frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side)
-                for msg in push_messages(push.data, push.width, push.height, push.quality):
+                # the image protocol carries no image index: repeating the capture right before its handshake
+                # lets a receiver pair each push with the latest capture it saw, even if a trim line was lost
+                repeat = self.captures.get(idx)
+                for msg in [repeat, *push_messages(push.data, push.width, push.height, push.quality)]:
                     self.budget.submit(msg, Priority.THUMBNAIL, tag=("thumb", idx))
         else:
             with self._lock:
@@ -284,10 +289,18 @@ class SurfaceLink:
         if msg.target_system not in (0, self.link.system_id) or msg.target_component != self.link.component_id:
             return
         who = (msg.get_srcSystem(), msg.get_srcComponent())
-        for payload in self.ftp.handle(bytes(msg.payload), who):
-            self.budget.submit(mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload)),
-                               Priority.BULK)
-        self.budget.wake()
+        request = bytes(msg.payload)
+        replies = self.ftp.handle(request, who)
+        if not replies:
+            self.budget.wake()  # a burst may have started
+            return
+        # data replies are bulk; the small answers (open, close, CRC, write acks, refusals) are command answers
+        opcode = request[3] if len(request) > 3 else 0
+        prio = Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL
+        for payload in replies:
+            reply = mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload))
+            # a client retransmits while our answer still waits for budget: one copy in the queue is enough
+            self.budget.submit(reply, prio, tag=("ftp", who, bytes(payload[:12])), unique=True)
 
     def _next_burst(self) -> mav.MAVLink_message | None:
         got = self.ftp.next_burst()
