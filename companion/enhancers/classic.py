@@ -81,19 +81,29 @@ class ClassicEnhancer(Enhancer):
     def enhance(self, image: np.ndarray) -> np.ndarray:
         if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 HxWx3 image, got {image.dtype} {image.shape}")
-        img = image.astype(np.float32) * (1.0 / 255.0)
-        img = self._dehaze(img)
-        img = self._balance(img)
-        out = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        h, w = image.shape[:2]
+        scale = min(1.0, self.work_side / max(h, w))
+        small = image if scale == 1.0 else cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))),
+                                                      interpolation=cv2.INTER_AREA)
+        veil, t = self._transmission(small.astype(np.float32) * (1.0 / 255.0))
+        if scale != 1.0:
+            t = cv2.resize(t, (w, h), interpolation=cv2.INTER_LINEAR)
+        inv_t = 1.0 / np.maximum(t, self.min_transmission)
+        # Scene recovery J = (I - veil) / t + veil, in place on one float buffer (0-255 units).
+        veil255 = veil * 255.0
+        j = image.astype(np.float32)
+        j -= veil255
+        j *= inv_t[..., None]
+        j += veil255
+        np.clip(j, 0.0, 255.0, out=j)
+        j *= self._gains(j)
+        out = cv2.convertScaleAbs(j)  # rounds and saturates to uint8 (j >= 0, so abs changes nothing)
         lab = cv2.cvtColor(out, cv2.COLOR_BGR2LAB)
         lab[..., 0] = self._clahe.apply(np.ascontiguousarray(lab[..., 0]))
         return cv2.cvtColor(lab, cv2.COLOR_LAB2BGR)
 
-    def _dehaze(self, img: np.ndarray) -> np.ndarray:
-        h, w = img.shape[:2]
-        scale = min(1.0, self.work_side / max(h, w))
-        small = img if scale == 1.0 else cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))),
-                                                    interpolation=cv2.INTER_AREA)
+    def _transmission(self, small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Veil colour (BGR in 0-1) and the refined transmission map at the reduced resolution."""
         patch = max(3, int(round(15 * max(small.shape[:2]) / 480)) | 1)
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (patch, patch))
         # Underwater dark channel: green and blue only.
@@ -103,23 +113,19 @@ class ClassicEnhancer(Enhancer):
         n = max(1, flat.size // 1000)
         idx = np.argpartition(flat, flat.size - n)[-n:]
         veil = np.maximum(small.reshape(-1, 3)[idx].mean(axis=0), 0.05).astype(np.float32)
-        normed = small[..., :2] / veil[:2]
-        t = 1.0 - self.dehaze_strength * cv2.erode(np.minimum(normed[..., 0], normed[..., 1]), kernel)
+        normed = np.minimum(small[..., 0] / veil[0], small[..., 1] / veil[1])
+        t = 1.0 - self.dehaze_strength * cv2.erode(normed, kernel)
         guide = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
         t = guided_filter(guide, t.astype(np.float32), radius=max(2, 2 * patch), eps=1e-3)
-        if scale != 1.0:
-            t = cv2.resize(t, (w, h), interpolation=cv2.INTER_LINEAR)
-        t = np.maximum(t, self.min_transmission)[..., None]
-        return (img - veil) / t + veil
+        return veil, t
 
-    def _balance(self, img: np.ndarray) -> np.ndarray:
-        img = np.clip(img, 0.0, 1.0)
+    def _gains(self, img: np.ndarray) -> np.ndarray:
+        """Per-channel white-balance gains for a BGR float image in 0-255, clipped to [1/max_gain, max_gain]."""
         if self.white_balance == "gray-world":
-            means = img.reshape(-1, 3).mean(axis=0)
-            target = float(means.mean())
-            gains = target / np.maximum(means, 1e-3)
+            means = np.array(cv2.mean(img)[:3])
+            gains = means.mean() / np.maximum(means, 0.255)
         else:
-            tops = np.percentile(img.reshape(-1, 3)[:: max(1, img.size // 3 // 20000)], 99, axis=0)
-            gains = 1.0 / np.maximum(tops, 1e-3)
-        gains = np.clip(gains, 1.0 / self.max_gain, self.max_gain).astype(np.float32)
-        return img * gains
+            step = max(1, img.size // 3 // 20000)
+            tops = np.percentile(img.reshape(-1, 3)[::step], 99, axis=0)
+            gains = 255.0 / np.maximum(tops, 0.255)
+        return np.clip(gains, 1.0 / self.max_gain, self.max_gain).astype(np.float32)
