@@ -1,7 +1,8 @@
 """The semantic score of every frame of a video, for AUROC and for the score-over-time plot.
 
 Reads the file with OpenCV in source order (no subsampling: labels are per source frame) and scores in batches
-with whatever encoder the configuration picks, exactly as the pipeline scores frames.
+exactly as the pipeline does: the same downscale (``pipeline.downscale_for``) and the same pre-sampler
+(``companion.presampler``, which adds the generic negative when no negative query is given).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import numpy as np
 from companion.config import QueryConfig
 from companion.encoders.base import Encoder
 from companion.errors import MerlionError
+from companion.pipeline import downscale_for
+from companion.presampler import PreSampler
 
 
 @dataclass
@@ -35,14 +38,14 @@ def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch:
     if not cap.isOpened():
         raise MerlionError(f"{p}: OpenCV cannot open this video")
     fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
-    text = encoder.encode_texts([queries.positive, *queries.negatives])
+    presampler = PreSampler(encoder, queries.positive, queries.negatives, queries.tau_ss)
     indices: list[int] = []
     scores: list[np.ndarray] = []
     pending: list[np.ndarray] = []
 
     def flush() -> None:
         if pending:
-            scores.append(encoder.semantic_scores(encoder.encode_images(pending), text))
+            scores.append(presampler.scores(encoder.encode_images(pending)))
             pending.clear()
 
     try:
@@ -51,7 +54,7 @@ def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch:
             if not ok:
                 break
             indices.append(len(indices))
-            pending.append(img)
+            pending.append(downscale_for(img, encoder.input_size))
             if len(pending) >= batch:
                 flush()
         flush()
