@@ -38,6 +38,7 @@ _NOT_AUTOPILOT_TYPES = frozenset({
 })
 _SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
 _POLL_S = 0.1
+_MAGIC = (mavlink2.PROTOCOL_MARKER_V2, mavlink2.PROTOCOL_MARKER_V1)
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,7 @@ class MavLink:
         self.rx_bytes = 0
         self.rx_messages = 0
         self.rx_bad = 0
+        self.rx_unknown = 0
         self.tx_messages = 0
         self.reconnects = 0
         self.last_autopilot_heartbeat: MAVLinkMessage | None = None
@@ -230,7 +232,7 @@ class MavLink:
             "connection": str(self.endpoint), "system_id": self.system_id, "component_id": self.component_id,
             "autopilot": self.autopilot, "autopilot_alive": self.autopilot_alive, "tx_bytes": self.tx_bytes,
             "tx_messages": self.tx_messages, "rx_bytes": self.rx_bytes, "rx_messages": self.rx_messages,
-            "rx_bad": self.rx_bad, "reconnects": self.reconnects,
+            "rx_bad": self.rx_bad, "rx_unknown": self.rx_unknown, "reconnects": self.reconnects,
         }
 
     # ----------------------------------------------------------------------------------------------- internals
@@ -310,16 +312,27 @@ class MavLink:
         if not data:
             return True
         self.rx_bytes += len(data)
+        if scheme.startswith("udp") and self._rx.buf_len() > 0 and data[0] in _MAGIC:
+            # the last datagram left half a packet and this one starts a new packet: the half was truncated.
+            # Drop it, or the parser would read this packet as its tail and lose both.
+            self._count_bad("truncated packet")
+            self._rx = self._new_parser()
         try:
             msgs = self._rx.parse_buffer(bytes(data)) or []
         except Exception as err:  # the parser should not raise with robust parsing, but never let it kill us
-            self.rx_bad += 1
-            log.warning("%s: unparseable MAVLink input (%s)", self.name, err)
+            self._count_bad(f"parser error: {err}")
             self._rx = self._new_parser()
             return True
         for msg in msgs:
             self._dispatch(msg)
         return True
+
+    def _count_bad(self, reason: str) -> None:
+        """Count bad input and say so, without flooding the log when a link spews garbage."""
+        self.rx_bad += 1
+        if self.rx_bad == 1 or self.rx_bad % 100 == 0:
+            log.warning("%s: bad MAVLink input on %s (%s); %d bad so far", self.name, self.endpoint, reason,
+                        self.rx_bad)
 
     def _read_stream(self, conn: mavutil.mavfile) -> bytes | None:
         """Read a TCP socket ourselves, because pymavlink cannot tell "no data yet" from "peer gone"."""
@@ -349,8 +362,10 @@ class MavLink:
     def _dispatch(self, msg: MAVLinkMessage) -> None:
         mtype = msg.get_type()
         if mtype == "BAD_DATA":
-            self.rx_bad += 1
-            log.debug("%s: bad MAVLink data: %s", self.name, getattr(msg, "reason", ""))
+            self._count_bad(getattr(msg, "reason", "bad data"))
+            return
+        if mtype.startswith("UNKNOWN_"):  # a message id this dialect lacks (or noise that looked like one)
+            self.rx_unknown += 1
             return
         self.rx_messages += 1
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):

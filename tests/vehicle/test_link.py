@@ -88,11 +88,11 @@ def test_udpin_sends_nothing_before_a_peer_and_then_our_heartbeat_carries_the_ve
 def test_gcs_and_camera_heartbeats_are_not_the_autopilot(pair):
     comp, ap = pair
     got, event = _collector(comp, ["HEARTBEAT"])
+    done = threading.Event()
+    comp.subscribe(lambda m: done.set(), ["STATUSTEXT"])
     ap.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
     ap.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_CAMERA, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
     ap.send(mav2.MAVLink_statustext_message(6, b"end"))
-    done = threading.Event()
-    comp.subscribe(lambda m: done.set(), ["STATUSTEXT"])
     assert done.wait(5)
     assert len(got) == 2 and comp.autopilot is None and comp.system_id == 1
 
