@@ -10,7 +10,6 @@ import logging
 
 from companion.config import EncoderConfig
 from companion.encoders.base import Encoder
-from companion.encoders.weights import clip_weights_available
 
 log = logging.getLogger(__name__)
 
@@ -19,6 +18,8 @@ def make_encoder(cfg: EncoderConfig) -> Encoder:
     """The encoder ``cfg.name`` asks for (auto | clip | imagenet | visual); MerlionError when it cannot load."""
     name = cfg.name
     if name == "auto":
+        from companion.encoders.weights import clip_weights_available  # imports open_clip: only when needed
+
         ok, why_not = clip_weights_available(cfg.model, cfg.weights, cfg.pretrained)
         if ok:
             log.warning("encoder auto: using CLIP %s (weights found offline)", cfg.model)
