@@ -65,3 +65,28 @@ def test_unknown_positive_is_a_one_line_error(encoder):
     assert "bicycle" in str(err.value) and "\n" not in str(err.value)
     with pytest.raises(UsageError):
         PreSampler(encoder, "   ")
+
+
+@pytest.fixture(scope="module")
+def clip_encoder(tmp_path_factory):
+    """A real open_clip architecture (ViT-S-32) with random weights, saved and loaded through the weights path."""
+    open_clip = pytest.importorskip("open_clip")
+    import torch
+
+    from companion.encoders.factory import make_encoder
+
+    torch.manual_seed(0)
+    model = open_clip.create_model("ViT-S-32", pretrained=None)
+    path = tmp_path_factory.mktemp("clip") / "vit-s-32-random.pt"
+    torch.save(model.state_dict(), path)
+    del model
+    return make_encoder(EncoderConfig(name="clip", model="ViT-S-32", weights=str(path), precision="fp32"))
+
+
+def test_clip_ss_t_is_the_softmax_share_with_the_generic_negative(clip_encoder):
+    pre = PreSampler(clip_encoder, "underwater image with fish", tau_ss=0.5)
+    assert pre.queries == ["underwater image with fish", GENERIC_NEGATIVE]
+    frames = list(VideoSource(shared_file("survey/survey_480x270.mp4"), fps=1))[:4]
+    emb = clip_encoder.encode_images([f.image for f in frames])
+    want = softmax_share(emb, clip_encoder.encode_texts(pre.queries))
+    assert np.allclose(pre.scores(emb), want, atol=1e-5)
