@@ -113,6 +113,10 @@ def test_priorities_and_dropping_by_tag():
         budget.submit(status_text("a"), Priority.STATUS, tag="s", replace=True)
         budget.submit(status_text("b"), Priority.STATUS, tag="s", replace=True)
         assert budget.pending(Priority.STATUS) == 1  # a newer value replaces a queued one
+        ack = mav.MAVLink_command_ack_message(512, 0, 0, 0, 255, 190)
+        assert budget.submit(ack, Priority.CONTROL, tag="reply-7", unique=True)
+        assert not budget.submit(ack, Priority.CONTROL, tag="reply-7", unique=True)  # retransmission: one copy
+        assert budget.pending(Priority.CONTROL) == 1
         assert budget.in_use_bps(10) > 0
     finally:
         link.stop()
