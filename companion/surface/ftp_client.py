@@ -2,9 +2,9 @@
 
 pymavlink's ``mavftp`` reads the connection itself (``recv_match`` in its own loops), which would steal the
 captures and thumbnails the surface tool's one receive loop must see; so this client is a message-driven state
-machine instead: ``handle`` takes FTP replies, ``tick`` retransmits what the link lost. One request is in flight
-at a time (the companion paces FTP last in its byte budget, so a window would only queue duplicates there), and
-the retransmission timeout adapts to the measured round trip. Protocol: mavlink.io/en/services/ftp.html.
+machine instead: ``handle`` takes FTP replies, ``tick`` re-asks for what the link lost. One request is in flight
+at a time (the companion paces FTP last in its byte budget, so more would only queue duplicates there).
+Protocol: mavlink.io/en/services/ftp.html.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import struct
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 log = logging.getLogger("merlion.surface.ftp")
 
-OP_TERMINATE, OP_RESET, OP_OPEN_RO, OP_READ = 1, 2, 4, 5
+OP_TERMINATE, OP_RESET, OP_OPEN_RO, OP_READ, OP_BURST = 1, 2, 4, 5, 15
 OP_ACK, OP_NAK = 128, 129
 NAK_NAMES = {
     0: "none", 1: "fail", 2: "errno", 3: "invalid data size", 4: "invalid session", 5: "no sessions available",
@@ -65,29 +65,53 @@ class _Job:
     done: DoneFn
     session: int | None = None
     size: int | None = None
-    data: bytearray | None = None
+    """From the OpenFileRO ACK; None when the server did not say (then read to EOF)."""
+    chunks: dict[int, bytes] = field(default_factory=dict)
+    """Received data by offset (offsets are multiples of MAX_DATA: we only ask for those)."""
     error: str = ""
+
+    def contiguous(self) -> int:
+        n = 0
+        while n in self.chunks and self.chunks[n]:
+            n += len(self.chunks[n])
+        return n
+
+    def missing(self) -> list[int]:
+        assert self.size is not None
+        return [off for off in range(0, self.size, MAX_DATA) if off not in self.chunks]
+
+    def data(self) -> bytes:
+        return b"".join(self.chunks[k] for k in sorted(self.chunks))
 
 
 class FtpClient:
-    """Fetches whole files from one MAVLink FTP server, one after another, retransmitting lost requests."""
+    """Fetches whole files from one MAVLink FTP server, one after another, retransmitting what the link lost.
+
+    A file whose size the server told is read with BurstReadFile (the server streams it at the pace of its own
+    byte budget, no round trip per packet); the holes a lossy link leaves are filled with ReadFile (one or two)
+    or a new burst from the first hole. The retransmission timeout follows the measured round trip (RFC 6298
+    style, Karn's rule, doubling on each timeout), because the companion sends FTP last in its link budget and
+    a round trip there can take seconds while thumbnails drain.
+    """
 
     def __init__(self, send: SendFn, target: tuple[int, int], *, own: tuple[int, int] | None = None,
-                 clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 1.0,
-                 max_timeout_s: float = 10.0, max_tries: int = 8) -> None:
+                 clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 0.5,
+                 max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True) -> None:
         self._send = send
         self.target = target
         self._own = own
         self._clock = clock
         self._min_timeout, self._max_timeout, self._max_tries = min_timeout_s, max_timeout_s, max_tries
+        self._burst = burst
         self._queue: deque[_Job] = deque()
         self._job: _Job | None = None
         self._seq = 0
-        self._request: tuple[int, bytes] | None = None  # (opcode, payload) awaiting its reply
+        self._request: tuple[int, bytes, int] | None = None  # (opcode, payload, offset) awaiting its reply
         self._sent_at = 0.0
-        self._first_sent_at = 0.0
         self._tries = 0
+        self._sampled = False
         self._srtt: float | None = None
+        self._rttvar = 0.0
         self.started_wall = 0.0
         """Wall clock when the current (or, inside ``done``, the finished) download sent its open request:
         the server built the file after that moment."""
@@ -111,66 +135,83 @@ class FtpClient:
     def busy(self) -> bool:
         return self._job is not None
 
-    def retarget(self, target: tuple[int, int]) -> None:
-        self.target = target
-
     def handle(self, msg) -> None:
         """Feed a FILE_TRANSFER_PROTOCOL message; replies to others or to stale requests are ignored."""
-        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or self._request is None:
+        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or self._request is None or self._job is None:
             return
         if (msg.get_srcSystem(), msg.get_srcComponent()) != self.target:
             return
         if self._own is not None and (msg.target_system, msg.target_component) not in (self._own, (self._own[0], 0)):
             return
         reply = unpack(msg.payload)
-        opcode, _ = self._request
+        opcode, _, offset = self._request
         if reply.opcode not in (OP_ACK, OP_NAK) or reply.req_opcode != opcode:
+            return
+        if opcode == OP_BURST:
+            if reply.session != self._job.session:
+                return
+            self._sample()
+            self._on_burst(reply)
             return
         if reply.seq != (self._seq + 1) & 0xFFFF:
             return
-        rtt = self._clock() - self._sent_at
-        if self._tries == 1:  # Karn: only unambiguous samples
-            self._srtt = rtt if self._srtt is None else 0.8 * self._srtt + 0.2 * rtt
+        self._sample()
         self._request = None
-        self._seq = (self._seq + 2) & 0xFFFF
-        self._on_reply(opcode, reply)
+        self._seq = (reply.seq + 1) & 0xFFFF
+        self._on_reply(opcode, offset, reply)
 
     def tick(self) -> None:
-        """Call often: retransmits a request whose reply is overdue, gives up after ``max_tries``."""
-        if self._request is None:
+        """Call often: re-asks for what is overdue, gives up after ``max_tries`` silent timeouts in a row."""
+        if self._request is None or self._job is None:
             return
         if self._clock() - self._sent_at < self._timeout():
             return
-        opcode, payload = self._request
-        if self._tries >= self._max_tries and opcode == OP_TERMINATE:
-            self._request = None  # every byte is in; the server ends an idle session on its own
-            self._seq = (self._seq + 2) & 0xFFFF
-            self._complete()
-            return
+        opcode, payload, _ = self._request
+        self.retransmissions += 1
         if self._tries >= self._max_tries:
             self._request = None
-            self._seq = (self._seq + 2) & 0xFFFF
-            self._finish(None, f"no answer to {'open' if opcode == OP_OPEN_RO else 'request'} after "
-                               f"{self._tries} tries")
+            if opcode == OP_TERMINATE:
+                self._complete()  # every byte is in; the server ends an idle session on its own
+                return
+            what = {OP_OPEN_RO: "open", OP_TERMINATE: "close"}.get(opcode, "read")
+            self._finish(None, f"no answer to {what} after {self._tries} tries")
             return
-        self.retransmissions += 1
-        self._transmit(opcode, payload, retry=True)
+        if opcode == OP_BURST:
+            tries = self._tries
+            self._continue()  # ask again from the first hole (a new burst replaces the server's old one)
+            self._tries = tries + 1
+            return
+        self._transmit(opcode, payload, self._request[2], retry=True)
 
     # --- protocol ------------------------------------------------------------------------------------------
 
+    def _sample(self) -> None:
+        """One round-trip sample per request, and only from a request sent once (Karn's rule)."""
+        if self._sampled or self._tries != 1:
+            return
+        self._sampled = True
+        rtt = self._clock() - self._sent_at
+        if self._srtt is None:
+            self._srtt, self._rttvar = rtt, rtt / 2
+        else:
+            self._rttvar = 0.75 * self._rttvar + 0.25 * abs(self._srtt - rtt)
+            self._srtt = 0.875 * self._srtt + 0.125 * rtt
+
     def _timeout(self) -> float:
-        base = self._min_timeout if self._srtt is None else max(self._min_timeout, 3.0 * self._srtt)
+        base = self._min_timeout if self._srtt is None else self._srtt + max(0.05, 4 * self._rttvar)
+        base = min(self._max_timeout, max(self._min_timeout, base))
         return min(self._max_timeout, base * (2 ** max(0, self._tries - 1)))
 
-    def _transmit(self, opcode: int, payload: bytes, retry: bool = False) -> None:
-        self._request = (opcode, payload)
+    def _transmit(self, opcode: int, payload: bytes, offset: int = 0, retry: bool = False) -> None:
+        self._request = (opcode, payload, offset)
         self._tries = self._tries + 1 if retry else 1
+        self._sampled = False
         self._sent_at = self._clock()
         self._send(self.target[0], self.target[1], payload)
 
     def _request_op(self, opcode: int, *, session: int = 0, offset: int = 0, data: bytes = b"",
                     size: int | None = None) -> None:
-        self._transmit(opcode, pack(self._seq, session, opcode, offset, data, size))
+        self._transmit(opcode, pack(self._seq, session, opcode, offset, data, size), offset)
 
     def _next_job(self) -> None:
         if not self._queue:
@@ -184,40 +225,71 @@ class FtpClient:
             return
         self._request_op(OP_OPEN_RO, data=path + b"\0", size=len(path))
 
-    def _on_reply(self, opcode: int, reply: Reply) -> None:
+    def _on_reply(self, opcode: int, offset: int, reply: Reply) -> None:
         job = self._job
-        if job is None:
-            return
+        assert job is not None
         if opcode == OP_OPEN_RO:
             if reply.opcode == OP_NAK:
                 self._finish(None, f"open failed: {_nak(reply)}", terminate=False)
                 return
             job.session = reply.session
             job.size = struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None  # 0: read to EOF
-            job.data = bytearray()
-            self._read_more()
+            self._continue()
         elif opcode == OP_READ:
             if reply.opcode == OP_NAK:
                 if reply.data[:1] == bytes([NAK_EOF]):
-                    self._terminate()
+                    if job.size is None:
+                        job.size = job.contiguous()
+                    self._continue()
                 else:
-                    self._finish(None, f"read failed at {len(job.data or b'')}: {_nak(reply)}")
+                    self._finish(None, f"read failed at {offset}: {_nak(reply)}")
                 return
-            assert job.data is not None
-            if reply.offset == len(job.data):
-                job.data.extend(reply.data)
-                self.bytes_read += len(reply.data)
-            self._read_more()
+            self._store(offset, reply.data)
+            self._continue()
         elif opcode == OP_TERMINATE:
             self._complete()
 
-    def _read_more(self) -> None:
+    def _on_burst(self, reply: Reply) -> None:
         job = self._job
-        assert job is not None and job.data is not None and job.session is not None
-        if job.size is not None and len(job.data) >= job.size:
-            self._terminate()
+        assert job is not None
+        self._seq = (reply.seq + 1) & 0xFFFF
+        self._sent_at = self._clock()  # progress: the timeout counts from the latest packet
+        self._tries = 1
+        if reply.opcode == OP_NAK:
+            if reply.data[:1] != bytes([NAK_EOF]):
+                self._request = None
+                self._finish(None, f"burst read failed: {_nak(reply)}")
+                return
+        else:
+            self._store(reply.offset, reply.data)
+        if reply.opcode == OP_NAK or reply.burst_complete or not job.missing():
+            self._request = None
+            self._continue()
+
+    def _store(self, offset: int, data: bytes) -> None:
+        job = self._job
+        assert job is not None
+        if offset % MAX_DATA or offset in job.chunks or not data:
             return
-        self._request_op(OP_READ, session=job.session, offset=len(job.data), size=MAX_DATA)
+        if job.size is not None and offset >= job.size:
+            return
+        job.chunks[offset] = data
+        self.bytes_read += len(data)
+
+    def _continue(self) -> None:
+        """Ask for what is still missing, or close the session when nothing is."""
+        job = self._job
+        assert job is not None and job.session is not None
+        if job.size is None:
+            self._request_op(OP_READ, session=job.session, offset=job.contiguous(), size=MAX_DATA)
+            return
+        missing = job.missing()
+        if not missing:
+            self._terminate()
+        elif len(missing) <= 2 or not self._burst:
+            self._request_op(OP_READ, session=job.session, offset=missing[0], size=MAX_DATA)
+        else:
+            self._request_op(OP_BURST, session=job.session, offset=missing[0], size=MAX_DATA)
 
     def _terminate(self) -> None:
         job = self._job
@@ -230,7 +302,7 @@ class FtpClient:
         if job.error:
             self._finish(None, job.error, terminate=False)
             return
-        data = bytes(job.data or b"")
+        data = job.data()
         if job.size is not None and len(data) != job.size:
             self._finish(None, f"got {len(data)} of {job.size} bytes", terminate=False)
             return
@@ -246,6 +318,7 @@ class FtpClient:
             self._terminate()
             return
         self._job = None
+        self._request = None
         try:
             job.done(job.path, data, error)
         except Exception:  # a caller's bug must not stall the queue

@@ -41,6 +41,7 @@ class _Transfer:
     height: int
     started: float
     handshake_no: int
+    last_progress: float = 0.0
     buffer: bytearray = field(default_factory=bytearray)
     received: set[int] = field(default_factory=set)
 
@@ -80,6 +81,18 @@ class ImageReceiver:
         t = self._transfers.get(source)
         return None if t is None else (t.handshake_no, len(t.received), t.packets)
 
+    def expire(self, idle_s: float) -> list[Abandoned]:
+        """Give up on images that made no progress for ``idle_s``: the last push of a burst of summary changes
+        has no next handshake to abandon it, and its frame should not wait for one."""
+        now = self._clock()
+        gone = []
+        for source, t in list(self._transfers.items()):
+            if now - t.last_progress > idle_s:
+                del self._transfers[source]
+                self.abandoned += 1
+                gone.append(Abandoned(source, t.handshake_no, len(t.received), t.packets))
+        return gone
+
     def _handshake(self, msg) -> Abandoned | None:
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         previous = self._transfers.pop(source, None)
@@ -97,6 +110,7 @@ class ImageReceiver:
         self._transfers[source] = _Transfer(
             size=msg.size, packets=msg.packets, payload=msg.payload, kind=IMAGE_TYPES.get(msg.type, "bin"),
             width=msg.width, height=msg.height, started=self._clock(), handshake_no=number,
+            last_progress=self._clock(),
             buffer=bytearray(msg.packets * msg.payload),
         )
         return gone
@@ -111,6 +125,7 @@ class ImageReceiver:
         t.buffer[start : start + len(data)] = data
         if msg.seqnr not in t.received:
             t.received.add(msg.seqnr)
+            t.last_progress = self._clock()
             self.bytes_received += len(data)
         if len(t.received) < t.packets:
             return None

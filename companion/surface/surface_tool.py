@@ -100,7 +100,8 @@ class SurfaceTool:
         self._ftp: FtpClient | None = None
         self._cameras: set[tuple[int, int]] = set()
         self._waiting: deque[tuple[int, float]] = deque()  # captures waiting for a push: (image index, since)
-        self._early: deque[int] = deque()  # handshakes that came before their capture (handshake numbers)
+        self._early: deque[int] = deque(maxlen=16)  # handshakes that came before their capture (their numbers)
+        self._expected: dict[int, int] = {}  # thumbnail bytes by image index, from index.json (JPEG only)
         self._bound: dict[int, int] = {}  # handshake number -> image index
         self._orphans: dict[int, PushedImage] = {}  # finished pushes not yet paired
         self._lost_push: set[int] = set()  # handshake numbers abandoned before pairing
@@ -146,6 +147,8 @@ class SurfaceTool:
         now = self._clock()
         if self._ftp is not None:
             self._ftp.tick()
+        for stalled in self.images.expire(self.options.push_timeout_s):
+            self._on_push_result(stalled)
         while self._waiting and now - self._waiting[0][1] > self.options.push_timeout_s:
             index, _ = self._waiting.popleft()
             log.info("no push for capture %d after %.0f s: fetching it by FTP", index, self.options.push_timeout_s)
@@ -259,13 +262,20 @@ class SurfaceTool:
         if progress is None:
             return
         handshake_no = progress[0]
-        while self._waiting:
-            index, _ = self._waiting.popleft()
+        live = []
+        for index, since in self._waiting:
             cap = self.gallery.get(index)
             if cap is not None and cap.in_summary and cap.thumbnail is None:
-                self._bind(handshake_no, index)
-                return
-        self._early.append(handshake_no)
+                live.append((index, since))
+        # the oldest waiting capture whose thumbnail size (from index.json) matches, else the oldest of unknown size
+        pick = next((i for i, _ in live if self._expected.get(i) == msg.size), None)
+        if pick is None:
+            pick = next((i for i, _ in live if i not in self._expected), None)
+        self._waiting = deque((i, t) for i, t in live if i != pick)
+        if pick is None:
+            self._early.append(handshake_no)
+        else:
+            self._bind(handshake_no, pick)
 
     def _bind(self, handshake_no: int, index: int) -> None:
         self._bound[handshake_no] = index
@@ -294,6 +304,12 @@ class SurfaceTool:
                 self._fetch_thumbnail(index)
 
     def _store_push(self, index: int, image: PushedImage) -> None:
+        expected = self._expected.get(index)
+        if expected is not None and expected != len(image.data):
+            log.warning("push of %d bytes paired with capture %d, which has %d: fetching it by FTP instead",
+                        len(image.data), index, expected)
+            self._fetch_thumbnail(index)
+            return
         ext = "jpg" if image.kind == "jpeg" else image.kind
         self.gallery.add_thumbnail(index, image.data, ext=ext, via="push")
         with self.lock:
@@ -371,6 +387,8 @@ class SurfaceTool:
         self._waiting = deque((i, t) for i, t in self._waiting if i not in gone)
         waiting = {i for i, _ in self._waiting}
         for cap in captures:
+            if cap.thumbnail_bytes is not None and (cap.file_url or "").endswith(".jpg"):
+                self._expected[cap.image_index] = cap.thumbnail_bytes  # pushes are JPEG: comparable
             tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
                                                  "score", "file_url")}
             self.gallery.update_tags(cap.image_index, **tags)

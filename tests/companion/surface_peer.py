@@ -130,14 +130,69 @@ class CompanionPeer:
                     continue
                 self.ftp_requests += 1
                 requester = (msg.get_srcSystem(), msg.get_srcComponent())
-                for reply in self.ftp.handle(bytes(msg.payload), requester):
+                replies = [(requester, r) for r in self.ftp.handle(bytes(msg.payload), requester)]
+                while (burst := self.ftp.next_burst()) is not None:  # no budget here: the whole burst at once
+                    replies.append(burst)
+                for (system, component), reply in replies:
                     self.ftp_replies += 1
                     if self.drop_ftp_reply(self.ftp_replies):
                         continue
-                    self.send(mav.MAVLink_file_transfer_protocol_message(0, requester[0], requester[1],
-                                                                          list(reply)))
+                    self.send(mav.MAVLink_file_transfer_protocol_message(0, system, component, list(reply)))
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2)
         self.sock.close()
+
+
+class LossyRelay:
+    """A UDP relay between a companion (sending to ``port``) and the surface tool at ``target``, dropping every
+    datagram for which ``drop(n)`` is True (n counts datagrams in both directions): a lossy radio or tether."""
+
+    def __init__(self, target_port: int, drop: Callable[[int], bool]) -> None:
+        self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the companion's side
+        self.front.bind(("127.0.0.1", 0))
+        self.back = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the surface tool's side
+        self.back.bind(("127.0.0.1", 0))
+        for s in (self.front, self.back):
+            s.settimeout(0.05)
+        self.port = self.front.getsockname()[1]
+        self.target = ("127.0.0.1", target_port)
+        self.drop = drop
+        self.count = 0
+        self.dropped = 0
+        self._companion: tuple[str, int] | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._threads = [threading.Thread(target=self._pump, args=(self.front, True), daemon=True),
+                         threading.Thread(target=self._pump, args=(self.back, False), daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    def _pump(self, sock: socket.socket, upward: bool) -> None:
+        while not self._stop.is_set():
+            try:
+                data, who = sock.recvfrom(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            with self._lock:
+                self.count += 1
+                lose = self.drop(self.count)
+                self.dropped += lose
+            if upward:
+                self._companion = who
+            if lose:
+                continue
+            if upward:
+                self.back.sendto(data, self.target)
+            elif self._companion is not None:
+                self.front.sendto(data, self._companion)
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(2)
+        self.front.close()
+        self.back.close()

@@ -5,6 +5,8 @@ from __future__ import annotations
 import threading
 import time
 
+import pytest
+
 from companion.commands.surface import serve
 from companion.surface.gallery import Gallery
 from companion.surface.surface_tool import SurfaceOptions
@@ -61,3 +63,50 @@ def test_gallery_mirrors_the_companion_summary_with_push_and_ftp_fallback(tmp_pa
         thread.join(10)
         peer.close()
     assert not thread.is_alive()
+
+
+@pytest.mark.slow
+def test_every_thumbnail_arrives_intact_through_a_lossy_link_from_the_real_surface_link(tmp_path):
+    """The companion's own SurfaceLink (at 4,000 B/s to keep the test short), one datagram in 8 lost each way."""
+    from companion.config import MavlinkConfig, SurfaceConfig
+    from companion.events import SummaryEvent
+    from tests.companion.surface_peer import LossyRelay
+    from vehicle.link import MavLink
+    from vehicle.surface_link import SurfaceLink
+
+    port = free_udp_port()
+    stop = threading.Event()
+    options = SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", push_timeout_s=4.0, index_refresh_s=2.0)
+    thread = threading.Thread(target=serve, args=(options, str(tmp_path)), kwargs={"stop": stop}, daemon=True)
+    thread.start()
+    relay = LossyRelay(port, drop=lambda n: n % 8 == 5)
+    link = MavLink(f"udpout:127.0.0.1:{relay.port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
+    link.start()
+    surface = SurfaceLink(link, SurfaceConfig(budget_bytes_per_s=4000))
+    surface.start()
+    try:
+        frames = [summary_frame(i, depth=5.0 + i, yaw_deg=20 * i, score=0.5 + i / 20) for i in range(1, 6)]
+        held: list[int] = []
+        for f in frames:
+            held.append(f.image_index)
+            surface.publish(SummaryEvent("added", f, summary=list(held)))
+        held.remove(2)
+        surface.publish(SummaryEvent("removed", frames[1], summary=list(held)))
+
+        def settled() -> bool:
+            g = Gallery(tmp_path)
+            caps = {c.image_index: c for c in g.summary()}
+            return set(caps) == set(held) and all(c.thumbnail and c.score is not None for c in caps.values())
+
+        assert _wait(settled, 60), Gallery(tmp_path).captures()
+        gallery = Gallery(tmp_path)
+        for cap in gallery.summary():
+            assert (tmp_path / cap.thumbnail).read_bytes() == surface.tree.read(f"/summary/{cap.image_index}.jpg")
+            assert abs(cap.depth_m - (5.0 + cap.image_index)) < 1e-6
+        assert relay.dropped > 10
+    finally:
+        stop.set()
+        thread.join(10)
+        surface.stop()
+        link.stop()
+        relay.close()
