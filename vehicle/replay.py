@@ -143,6 +143,7 @@ class TlogReplay:
         duration_s: float | None = None,
         include_gcs: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        wait: Callable[[float], bool] | None = None,
     ) -> None:
         if speed <= 0:
             raise MerlionError(f"replay speed must be > 0, got {speed}")
@@ -156,6 +157,8 @@ class TlogReplay:
         self.log_stats = TlogStats()
         self.stats = ReplayStats()
         self._stop = threading.Event()
+        self._wait = wait or self._stop.wait
+        """``wait(seconds)`` sleeps and says whether to stop; a test gives a virtual clock's."""
 
     def stop(self) -> None:
         self._stop.set()
@@ -180,7 +183,9 @@ class TlogReplay:
                 continue
             due = wall0 + (log_s - self.start_s) / self.speed
             wait = due - self.clock()
-            if wait > 0.001 and self._stop.wait(wait):
+            if wait > 0.001 and self._wait(wait):
+                break
+            if self._stop.is_set():
                 break
             written = self.link.send_raw(rec.packet)
             if written:
