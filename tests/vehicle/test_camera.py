@@ -48,6 +48,10 @@ def test_every_command_for_us_is_acknowledged(camera):
     assert cam.handle(_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 259, target=(2, 100))) == []  # another vehicle's
     assert cam.handle(_cmd(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, target=(1, 0))) == []  # broadcast, not ours
     assert len(cam.handle(_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 259, target=(1, 0)))) == 2  # broadcast discovery
+    as_int = mav.MAVLink_command_int_message(1, 100, 0, mav.MAV_CMD_REQUEST_MESSAGE, 0, 0, 262, NAN, NAN, NAN,
+                                             0, 0, NAN)
+    as_int._header = mav.MAVLink_header(as_int.id, srcSystem=255, srcComponent=190)
+    assert [m.get_type() for m in cam.handle(as_int)] == ["COMMAND_ACK", "CAMERA_CAPTURE_STATUS"]
 
 
 def test_captures_are_answerable_by_index(camera):

@@ -178,6 +178,11 @@ def test_uploading_queries_changes_them_live(companion, tmp_path):
         assert changed == [("underwater image with a crab", ["underwater image of sand", "underwater image of rocks"])]
         assert _get(client, "/config/queries.txt", tmp_path / "back.txt")
         assert "with a crab" in (tmp_path / "back.txt").read_text()
+        local.write_text("only a positive query\n")  # a query file needs a negative too: refused, nothing changes
+        client.cmd_put([str(local), "/config/queries.txt"])
+        client.process_ftp_reply("put", timeout=10)
+        assert len(changed) == 1
+        assert b"with a crab" in surface.tree.read("/config/queries.txt")
     finally:
         gcs.close()
 
