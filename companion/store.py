@@ -171,11 +171,15 @@ class Store:
     def _open(self) -> None:
         try:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            if not self.frames_dir.is_dir():
+                self._degrade(err)
+                return
+        try:
             self._clean_temp_files()
             self._check_writable()
         except OSError as err:
-            self._degrade(err)
-            return
+            self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
 
     def _check_writable(self) -> None:

@@ -28,7 +28,9 @@ def run(args: argparse.Namespace) -> int:
     overrides = cli_overrides(source=args.source, mavlink=args.mavlink, store=args.store, loop=args.loop)
     cfg = build(args.config, overrides, os.environ)
     report = run_companion(cfg, environ=os.environ, duration=args.duration)
+    store = report["store"]
+    mode = f"memory-only ({store.get('reason')})" if store.get("memory_only") else "on disk"
     print(f"merlion run: seen {report['frames_seen']}, passed {report['frames_passed']}, "
           f"dropped {report['frames_dropped']}, summary {report['summary']}, sent {report['bytes_sent']} bytes, "
-          f"store {report['store'].get('dir')}", flush=True)
+          f"bad MAVLink {report['rx_bad']}, store {store.get('dir')} {mode}", flush=True)
     return 0

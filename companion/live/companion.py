@@ -213,7 +213,7 @@ class LiveCompanion:
 
         if state == "retrying":
             self.surface.event(*st.camera_text(False))
-        elif state == "running" and self.source is not None and self.source.opens > 1:
+        elif state == "running" and self.source is not None and self.source.failures:
             self.surface.event(*st.camera_text(True))
         elif state == "ended":
             self.surface.event("Source ended; still serving", st.NOTICE)

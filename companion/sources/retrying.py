@@ -69,9 +69,9 @@ class RetryingSource(FrameSource):
                     if self._stop.is_set():
                         break
                     if produced == 0:
-                        self._set("running", self.name)
-                        if self.opens > 1:
+                        if self.state in ("retrying", "ended"):
                             log.warning("source %s: back after %d failure(s)", self.name, self.failures)
+                        self._set("running", self.name)
                         delay = self.initial_s
                     produced += 1
                     last_index, last_time = frame.index, frame.time_s
