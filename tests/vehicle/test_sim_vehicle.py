@@ -13,8 +13,10 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.config import MavlinkConfig
+from companion.errors import MerlionError
 from tests.conftest import REPO, free_udp_port, run_merlion
 from tests.vehicle.sim_env import FAST_LINK, Transitions, companion_and_sim, quick_dive, wait_until
+from vehicle.dive_profile import compile_profile, load_profile
 from vehicle.link import MavLink
 from vehicle.message_rates import RateKeeper
 from vehicle.telemetry import VehicleTelemetry
@@ -170,3 +172,12 @@ def test_profile_keyframes_match_hand_computed_dive():
     s = profile.state(0.5 + 3.0 + 4.0 + 1.0)  # halfway across the 2 m step east
     assert (s.north, s.east) == pytest.approx((4.0, 1.0)) and math.degrees(s.yaw) == pytest.approx(90.0)
     assert s.lat == pytest.approx(1.25 + math.degrees(4.0 / 6378137.0))
+
+
+def test_shipped_survey_profile_loads_and_dives():
+    profile = load_profile(REPO / "config" / "dive" / "survey.yaml")
+    depths = [profile.state(t).depth for t in range(0, int(profile.duration), 5)]
+    assert max(depths) == pytest.approx(12.0) and depths[0] == 0.0
+    assert profile.state(profile.duration - 1).mode == "SURFACE"
+    with pytest.raises(MerlionError, match="unknown kind 'spiral'"):
+        compile_profile({"legs": [{"spiral": {"turns": 3}}]})
