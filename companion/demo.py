@@ -53,11 +53,15 @@ class DemoOptions:
     quiet: bool = False
 
 
-def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
-    source = opts.source or DEMO_SOURCE
+def check_source(opts: DemoOptions) -> None:
     if opts.source and not opts.source.startswith(("synthetic://", "rtsp://", "udp://", "/dev/")):
         if not Path(opts.source).expanduser().exists():
             raise UsageError(f"--source {opts.source}: no such file or folder")
+
+
+def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
+    check_source(opts)
+    source = opts.source or DEMO_SOURCE
     tau = opts.tau_ss if opts.tau_ss is not None else (DEMO_TAU_SS if source.startswith("synthetic://") else None)
     data: dict[str, Any] = {
         "source": {"uri": source, "fps": opts.fps, "realtime": opts.realtime, "loop": bool(opts.source)},
@@ -120,6 +124,7 @@ def _gallery_counts(surface_dir: Path) -> tuple[int, int, int]:
 def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str, Any]:
     """Run the demo; returns the report (also written to DIR/report.json)."""
     stop = stop or threading.Event()
+    check_source(opts)
     out = opts.out
     (out / "surface").mkdir(parents=True, exist_ok=True)
     (out / "store").mkdir(parents=True, exist_ok=True)

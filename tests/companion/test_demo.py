@@ -1,0 +1,42 @@
+"""`merlion demo`, the README's first command, end to end: three programs on loopback, a summary at the surface."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tests.conftest import run_merlion
+
+
+def test_short_demo_leaves_gallery_store_and_report(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    # the packaged encoder (what a fresh machine has), a quick dive, and a low threshold so a short run fills
+    # the summary whatever the machine's speed
+    done = run_merlion("demo", "--duration", "20", "--out", str(out), "--source", "synthetic://dive?seconds=2",
+                       "--tau-ss", "0.1", "--encoder", "imagenet", timeout=240)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "merlion demo: done" in done.stdout
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames_seen"] > 0 and report["frames_passed"] > 0
+    assert report["summary"] and report["bytes_sent"] > 0
+    # the store holds the summary on board ...
+    store = json.loads((out / "store" / "summary.json").read_text())
+    assert store["summary"] == report["summary"]
+    for index in store["summary"]:
+        assert (out / "store" / "frames" / f"{index:06d}.jpg").is_file()
+    # ... and the surface tool received it over MAVLink: captures with depth, thumbnails on disk
+    gallery = json.loads((out / "surface" / "gallery.json").read_text())
+    assert set(gallery["summary"]) == set(store["summary"])
+    with_thumbs = [c for c in gallery["captures"] if c["in_summary"] and c["thumbnail"]]
+    assert with_thumbs and report["thumbnails_delivered"] >= len(with_thumbs)
+    for cap in with_thumbs:
+        assert (out / "surface" / cap["thumbnail"]).stat().st_size > 0
+    assert any(c["depth_m"] is not None for c in gallery["captures"])
+    assert f"thumbnails         {report['thumbnails_delivered']} delivered" in done.stdout
+
+
+def test_demo_refuses_a_missing_source(tmp_path: Path) -> None:
+    done = run_merlion("demo", "--duration", "5", "--out", str(tmp_path / "d"), "--source",
+                       str(tmp_path / "nope.mp4"), timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines()[-1] == f"merlion: error: --source {tmp_path / 'nope.mp4'}: no such file or folder"
