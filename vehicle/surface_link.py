@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -72,11 +73,20 @@ def _frame_tags(frame: SummaryFrame) -> dict[str, Any]:
         "image_index": frame.image_index, "frame_index": frame.frame_index, "time_s": round(frame.time_s, 3),
         "capture_time": frame.capture_time,
         "utc": datetime.fromtimestamp(frame.capture_time, timezone.utc).isoformat(timespec="milliseconds"),
-        "score": round(float(frame.score), 4), "enhanced": frame.enhanced,
+        "score": _json_safe(round(float(frame.score), 4)), "enhanced": bool(frame.enhanced),
     }
     if pose is not None:
-        tags["pose"] = {k: v for k, v in pose.to_dict().items() if v is not None}
+        tags["pose"] = {k: _json_safe(v) for k, v in pose.to_dict().items() if v is not None}
     return tags
+
+
+def _json_safe(value: Any) -> Any:
+    """Strict JSON has no NaN or Infinity (a browser's JSON.parse rejects them): unknown becomes null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
 
 
 class SurfaceLink:
@@ -255,7 +265,7 @@ class SurfaceLink:
                 tags["raw"] = f"/summary/raw/{idx}.jpg"
             items.append(tags)
         body = {"image_count": self.captures.image_count, "summary": items}
-        return json.dumps(body, separators=(",", ":")).encode()
+        return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
 
     def event(self, text: str, severity: int = st.INFO) -> None:
         """One STATUSTEXT line (cut to 50 characters)."""

@@ -38,7 +38,8 @@ def scene(seed: int, width: int = 480, height: int = 270) -> np.ndarray:
 
 
 def summary_frame(index: int, *, depth: float | None = 12.5, lat: float | None = None) -> SummaryFrame:
-    pose = Pose(time=1_700_000_000.0 + index, age_s=0.05, stale=False, depth_m=depth,
+    # image 5's pose has an infinite age, as one with no telemetry sample yet: index.json must stay strict JSON
+    pose = Pose(time=1_700_000_000.0 + index, age_s=float("inf") if index == 5 else 0.05, stale=False, depth_m=depth,
                 depth_source="global_position_int", roll=0.01, pitch=-0.02, yaw=1.2,
                 q=(0.8253, 0.0, 0.0, 0.5646), heading_deg=68.8, lat=lat, lon=None if lat is None else 103.8)
     return SummaryFrame(image_index=index, frame_index=10 * index, time_s=2.0 * index,

@@ -18,6 +18,10 @@ from vehicle.surface_link import SurfaceLink
 WHO = (255, 190)
 
 
+def _strict(name: str):
+    raise ValueError(f"{name} is not JSON a browser accepts")
+
+
 def _req(op: int, seq: int = 10, *, session: int = 0, offset: int = 0, data: bytes = b"", size=None) -> bytes:
     pkt = FtpPacket(seq, session, op, offset=offset, data=data)
     if size is not None:
@@ -154,7 +158,7 @@ def test_mavftp_lists_and_downloads(companion, tmp_path):
         assert _get(client, "/summary/4.jpg", tmp_path / "4.jpg")
         assert (tmp_path / "4.jpg").read_bytes() == surface.tree.read("/summary/4.jpg")
         assert _get(client, "/summary/index.json", tmp_path / "index.json")
-        index = json.loads((tmp_path / "index.json").read_text())
+        index = json.loads((tmp_path / "index.json").read_text(), parse_constant=_strict)
         assert [e["image_index"] for e in index["summary"]] == [5, 4, 3]
         assert index["summary"][0]["pose"]["depth_m"] == 12.5
         assert _get(client, "/summary/full/5.jpg", tmp_path / "full5.jpg")
