@@ -19,10 +19,12 @@ def run(args: argparse.Namespace) -> int:
     live = eb.live_size(cfg)
     result: dict = {"method": enhancer.name, "enhancer": enhancer.describe(),
                     "images": len(loaded) or "synthetic", "live_size": list(live)}
-    result["fps_256"] = round(eb.measure_fps(enhancer, frames, (256, 256), seconds=args.seconds), 2)
-    print(f"{enhancer.name}: {result['fps_256']:.1f} frames/s at 256x256", flush=True)
-    result["fps_live"] = round(eb.measure_fps(enhancer, frames, live, seconds=args.seconds), 2)
-    print(f"{enhancer.name}: {result['fps_live']:.1f} frames/s at {live[0]}x{live[1]} (live)", flush=True)
+    for key, size in (("256", (256, 256)), ("live", live)):
+        fps, cpu_ms = eb.measure_speed(enhancer, frames, size, seconds=args.seconds)
+        result[f"fps_{key}"] = round(fps, 2)
+        result[f"cpu_ms_{key}"] = round(cpu_ms, 2)
+        print(f"{enhancer.name}: {fps:.1f} frames/s at {size[0]}x{size[1]}{' (live)' if key == 'live' else ''}, "
+              f"{cpu_ms:.1f} ms CPU per frame", flush=True)
     if loaded:
         result["no_reference"] = eb.no_reference_report(enhancer, frames)
         nr = result["no_reference"]

@@ -87,6 +87,7 @@ def test_bench_enhance_json_and_quality(tmp_path):
     assert result.returncode == 0, result.stderr
     last = json.loads(result.stdout.strip().splitlines()[-1])
     assert last["fps_256"] > 0 and last["fps_live"] > 0
+    assert last["cpu_ms_256"] > 0 and last["cpu_ms_live"] > 0
     assert last["live_size"] == [640, 480] and last["method"] == "classic"
     assert last["quality"]["pairs"] == 2
     assert last["no_reference"]["images"] == 2
