@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import socket
 import threading
 
-from companion.errors import UsageError
+from companion.errors import MerlionError, UsageError
 from companion.surface.gallery import Gallery
 from companion.surface.surface_tool import SurfaceOptions, SurfaceTool
 from companion.surface.web import WebServer
+from vehicle.link import parse_connection
 
 log = logging.getLogger("merlion.surface")
 
@@ -54,9 +56,28 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--duration {args.duration}: must be positive")
     if args.push_timeout <= 0:
         raise UsageError(f"--push-timeout {args.push_timeout}: must be positive")
+    check_port_free(args.connect)
     options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
                              companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp)
     return serve(options, args.out, web_port=args.web, web_host=args.web_host, duration=args.duration)
+
+
+def check_port_free(connect: str) -> None:
+    """A ``udpin`` port someone else holds (QGroundControl on 14550) would only get part of the traffic, or none:
+    say so before starting, instead of a half-working tool."""
+    endpoint = parse_connection(connect)
+    if endpoint.scheme != "udpin":
+        return
+    host, _, port = endpoint.address.rpartition(":")
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind((host, int(port)))
+    except OSError as err:
+        raise MerlionError(f"--connect {connect}: UDP port {port} is taken ({err.strerror}); beside "
+                           f"QGroundControl use a second routed port, e.g. udpin:0.0.0.0:14560 "
+                           f"(docs/surface-tool.md)") from None
+    finally:
+        probe.close()
 
 
 def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "0.0.0.0",

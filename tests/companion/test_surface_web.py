@@ -7,6 +7,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -17,7 +18,7 @@ import pytest
 from companion.config import MavlinkConfig, SurfaceConfig
 from companion.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
-from tests.conftest import REPO, free_udp_port
+from tests.conftest import REPO, free_udp_port, run_merlion
 from vehicle.link import MavLink
 from vehicle.surface_link import SurfaceLink
 
@@ -113,3 +114,16 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
     assert proc.returncode == 0, stderr
     assert "2 frames in the summary, 2 with thumbnails" in stdout
     assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6]
+
+
+def test_bad_arguments_are_one_line_errors_before_anything_is_created(tmp_path):
+    out = tmp_path / "never"
+    bad = run_merlion("surface", "--connect", "bogus:1", "--out", str(out), timeout=60)
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].startswith("merlion: error: mavlink connection")
+    assert not out.exists()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:  # e.g. QGroundControl on the port
+        held.bind(("127.0.0.1", 0))
+        port = held.getsockname()[1]
+        busy = run_merlion("surface", "--connect", f"udpin:127.0.0.1:{port}", "--out", str(out), timeout=60)
+    assert busy.returncode == 1 and f"UDP port {port} is taken" in busy.stderr
+    assert len(busy.stderr.strip().splitlines()) == 1
