@@ -33,6 +33,8 @@ NAME_LINK = "MRL_LINKBS"
 NAME_DEPTH = "MRL_DEPTH"
 """Depth in metres (positive down) of the latest pose; NaN when unknown."""
 VALUE_NAMES = (NAME_FPS, NAME_SCORE, NAME_SUMMARY, NAME_LINK, NAME_DEPTH)
+NAME_PUSH = "MRL_PUSH"
+"""NAMED_VALUE_INT sent right before each pushed image's handshake: the image index of the frame that follows."""
 
 
 def status_text(text: str, severity: int = INFO) -> mav.MAVLink_statustext_message:
@@ -47,6 +49,12 @@ def named_value(name: str, value: float, time_boot_ms: int) -> mav.MAVLink_named
     if len(name) > NAME_MAX or name in RESERVED_NAMES:
         raise ValueError(f"NAMED_VALUE_FLOAT name {name!r} is too long or already used by QGroundControl")
     return mav.MAVLink_named_value_float_message(time_boot_ms & 0xFFFFFFFF, name.encode("ascii"), float(value))
+
+
+def push_marker(image_index: int, time_boot_ms: int) -> mav.MAVLink_named_value_int_message:
+    """Pairs the next DATA_TRANSMISSION_HANDSHAKE with its capture (the image protocol has no index field)."""
+    return mav.MAVLink_named_value_int_message(time_boot_ms & 0xFFFFFFFF, NAME_PUSH.encode("ascii"),
+                                               int(image_index))
 
 
 # ---- event lines --------------------------------------------------------------------------------------------

@@ -209,10 +209,10 @@ class SurfaceLink:
             if self.cfg.push:
                 push = thumb if thumb.format == "jpeg" else make_thumbnail(
                     frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side)
-                # the image protocol carries no image index: repeating the capture right before its handshake
-                # lets a receiver pair each push with the latest capture it saw, even if a trim line was lost
-                repeat = self.captures.get(idx)
-                for msg in [repeat, *push_messages(push.data, push.width, push.height, push.quality)]:
+                # the image protocol carries no image index: a NAMED_VALUE_INT right before the handshake says
+                # which frame follows (a repeated CAMERA_IMAGE_CAPTURED would put a second QGC map marker down)
+                marker = st.push_marker(idx, self.captures.time_boot_ms())
+                for msg in [marker, *push_messages(push.data, push.width, push.height, push.quality)]:
                     self.budget.submit(msg, Priority.THUMBNAIL, tag=("thumb", idx))
         else:
             with self._lock:

@@ -13,14 +13,22 @@ from vehicle.image_push import CHUNK, PushReassembler, push_messages
 from vehicle.surface_link import SurfaceLink
 
 
-def _receive_images(gcs, count: int, timeout: float = 10.0) -> list[tuple[object, bytes]]:
-    """Handshake, then chunk ``seqnr`` written at ``seqnr * payload``; an image is done when every packet came."""
-    done: list[tuple[object, bytes]] = []
+def _receive_images(gcs, count: int, timeout: float = 10.0) -> list[tuple[int, object, bytes]]:
+    """Handshake, then chunk ``seqnr`` written at ``seqnr * payload``; an image is done when every packet came.
+    The MRL_PUSH value just before a handshake names the frame (image index) the image belongs to."""
+    done: list[tuple[int, object, bytes]] = []
     hs, buf, got = None, None, set()
+    marker = index = None
     while len(done) < count:
-        msg = wait_for(gcs, ["DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA"], timeout=timeout)
+        msg = wait_for(gcs, ["DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA", "NAMED_VALUE_INT"],
+                       timeout=timeout)
         assert msg is not None, f"only {len(done)} of {count} images arrived"
+        if msg.get_type() == "NAMED_VALUE_INT":
+            marker = msg.value
+            continue
         if msg.get_type() == "DATA_TRANSMISSION_HANDSHAKE":
+            assert marker is not None, "a handshake came with no MRL_PUSH marker before it"
+            index, marker = marker, None
             hs, buf, got = msg, bytearray(msg.packets * msg.payload), set()
             continue
         if hs is None:
@@ -29,7 +37,7 @@ def _receive_images(gcs, count: int, timeout: float = 10.0) -> list[tuple[object
         buf[start:start + hs.payload] = bytes(msg.data)[: hs.payload]
         got.add(msg.seqnr)
         if len(got) == hs.packets:
-            done.append((hs, bytes(buf[: hs.size])))
+            done.append((index, hs, bytes(buf[: hs.size])))
             hs = None
     return done
 
@@ -59,8 +67,9 @@ def test_receiver_reassembles_every_pushed_thumbnail_over_udp():
         for i in (1, 2, 3):
             surface.publish(added(i, [1, 2, 3][:i]))
         images = _receive_images(gcs, 3)
-        for (hs, data), i in zip(images, (1, 2, 3), strict=True):
-            assert data == surface.tree.read(f"/summary/{i}.jpg")
+        assert [index for index, _, _ in images] == [1, 2, 3]
+        for index, hs, data in images:
+            assert data == surface.tree.read(f"/summary/{index}.jpg")
             assert len(data) <= 2000
             img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
             assert img.shape[:2] == (hs.height, hs.width)
