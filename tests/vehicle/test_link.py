@@ -156,3 +156,28 @@ def test_tcp_client_reconnects_with_backoff():
             server.stop()
     assert comp.reconnects >= 1
     comp.stop()
+
+
+def test_serial_link_on_a_pty():
+    """A pseudo-terminal stands in for the autopilot's USB serial port."""
+    import os
+    import select
+
+    master, slave = os.openpty()
+    try:
+        link = MavLink(f"{os.ttyname(slave)},115200", MavlinkConfig(**FAST))
+        link.start()
+        assert link.wait_open(5)
+        packer = mav2.MAVLink(None, srcSystem=4, srcComponent=1)
+        os.write(master, _sub_heartbeat().pack(packer))
+        assert link.wait_autopilot(5) and link.system_id == 4
+        data = b""
+        while len(data) < 21:  # our heartbeat comes back over the "wire"
+            assert select.select([master], [], [], 5)[0], "no heartbeat on the serial line"
+            data += os.read(master, 64)
+        parsed = mav2.MAVLink(None).parse_buffer(data)
+        assert parsed and (parsed[0].get_srcSystem(), parsed[0].get_srcComponent(), parsed[0].type) == (4, 100, 30)
+        link.stop()
+    finally:
+        os.close(master)
+        os.close(slave)
