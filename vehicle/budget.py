@@ -198,7 +198,12 @@ class LinkBudget:
 
     def _send(self, prio: Priority, msg: mav.MAVLink_message) -> None:
         sent = self.link.send(msg)
-        self._last_tx = self.link.tx_bytes
+        tx = self.link.tx_bytes
+        foreign = tx - self._last_tx - sent  # a heartbeat that slipped in since the last look counts too
+        self._last_tx = tx
+        if foreign > 0:
+            self._level -= foreign
+            self._note(self._clock(), foreign)
         self._level -= sent
         self.sent_bytes += sent
         self.sent_by_priority[prio] += sent
