@@ -120,3 +120,13 @@ def test_compare_merlion_and_the_visual_baseline_on_the_survey(tmp_path):
     assert merlion["precision"] > baseline["precision"]
     assert (tmp_path / "runs" / "merlion" / "summary.json").is_file()
     assert (tmp_path / "rep" / "visual_baseline_contact_sheet.png").is_file()
+
+
+def test_table_reports_a_value_that_does_not_match(tmp_path):
+    data = json.loads(shared_file("srum/powellscay_low.json").read_text())
+    data["paper_table"]["ROST"] = 0.1111  # ours is 0.110907
+    (tmp_path / "powellscay_low.json").write_text(json.dumps(data))
+    r = run_merlion("eval", "table", "--data", str(tmp_path))
+    assert r.returncode == 1
+    assert "mismatch" in r.stdout and r.stderr.strip().endswith("0.110907 vs 0.1111")
+    assert r.stderr.count("\n") == 1 and "powellscay_low ROST" in r.stderr
