@@ -7,6 +7,7 @@ import logging
 from typing import Any
 
 from companion.config import Config, load_config
+from companion.errors import UsageError
 
 log = logging.getLogger("merlion.enhance")
 
@@ -31,8 +32,6 @@ def enhancer_config(args: argparse.Namespace) -> Config:
     if args.input_size:
         parts = args.input_size.lower().split("x")
         if len(parts) != 2 or not all(s.isdigit() for s in parts):
-            from companion.errors import UsageError
-
             raise UsageError(f"--input-size: {args.input_size!r} is not WIDTHxHEIGHT")
         over["model_input_size"] = [int(parts[0]), int(parts[1])]
     if args.value_range:
