@@ -1,0 +1,25 @@
+"""`merlion doctor`: check the camera, MAVLink, autopilot, encoder weights, CUDA, disk and config."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+
+def register(add_command) -> None:
+    p = add_command("doctor", "check camera, MAVLink endpoint, autopilot heartbeat, encoder weights, CUDA, disk "
+                    "space and the config; say how to fix what is wrong")
+    p.add_argument("--config", metavar="FILE", help="the configuration to check (default: the built-in defaults)")
+    p.add_argument("--wait", type=float, default=5.0, metavar="S", help="how long to wait for an autopilot "
+                   "heartbeat (default 5)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.doctor import FAIL, run_checks
+
+    results = run_checks(args.config, dict(os.environ), heartbeat_wait_s=args.wait,
+                         emit=lambda c: print(c.line(), flush=True))
+    failed = [c for c in results if c.status == FAIL]
+    print(f"merlion doctor: {len(failed)} problem(s)" if failed else "merlion doctor: all checks passed", flush=True)
+    return 1 if failed else 0
