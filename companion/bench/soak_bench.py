@@ -1,0 +1,176 @@
+"""The soak benchmark: the whole live companion for N minutes at a speed-up, watched from the outside.
+
+The companion runs in this process exactly as ``merlion run`` does (capture, inference, store, surface link),
+fed by the generated dive at a higher frame rate than a camera would give, against the simulated ArduSub on a
+UDP hub. A ground-station socket on the hub receives what the surface would. Reported:
+
+- frames/s actually scored, and frames dropped at the input because inference was busy;
+- peak RSS and RSS growth from the end of the first minute (warm-up: model, caches, allocator) to the end
+  (target: at most 5%); with runs of a minute or less the first quarter counts as warm-up;
+- latency from capture (the frame's wall-clock time, which CAMERA_IMAGE_CAPTURED carries as time_utc) to
+  the moment the surface received that message, p50 and p95.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import tempfile
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import psutil
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.config import build_config
+from companion.live.companion import LiveCompanion, LiveOptions
+from companion.live.udp_hub import UdpHub
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SoakResult:
+    minutes: float
+    encoder: str
+    source_fps: float
+    frames_seen: int = 0
+    frames_scored: int = 0
+    frames_dropped: int = 0
+    scored_fps: float = 0.0
+    summary_added: int = 0
+    captures_received: int = 0
+    rss_start_mb: float = 0.0
+    rss_after_warmup_mb: float = 0.0
+    rss_end_mb: float = 0.0
+    peak_rss_mb: float = 0.0
+    rss_growth_pct: float = 0.0
+    warmup_s: float = 60.0
+    latency_p50_s: float | None = None
+    latency_p95_s: float | None = None
+    inference_errors: int = 0
+    rss_samples: list[tuple[float, float]] = field(default_factory=list)
+
+
+class _Surface:
+    """Receives CAMERA_IMAGE_CAPTURED on the hub and records capture -> arrival latency."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.parser = mav.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.latencies: list[float] = []
+        self.seen: set[int] = set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="soak-surface", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65535)
+            except (TimeoutError, OSError):
+                continue
+            now = time.time()
+            try:
+                msgs = self.parser.parse_buffer(data) or []
+            except mav.MAVError:
+                continue
+            for m in msgs:
+                if m.get_type() == "CAMERA_IMAGE_CAPTURED" and m.image_index not in self.seen:
+                    self.seen.add(m.image_index)  # re-sent captures are not new latencies
+                    self.latencies.append(now - m.time_utc / 1e6)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.sock.close()
+
+
+def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_dir: str | None = None,
+             progress=None) -> SoakResult:
+    from vehicle.sim_vehicle import SimVehicle
+
+    duration = minutes * 60.0
+    warmup = 60.0 if duration > 90.0 else duration / 4
+    surface = _Surface()
+    hub = UdpHub(outputs=[("127.0.0.1", surface.port)]).start()
+    sim = SimVehicle(hub.url)
+    sim.start()
+    tmp = None
+    if store_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="merlion-soak-")
+        store_dir = tmp.name
+    cfg = build_config({
+        "source": {"uri": "synthetic://dive?seconds=4", "fps": fps, "realtime": True},
+        "encoder": {"name": encoder},
+        "queries": {"tau_ss": 0.3},
+        "mavlink": {"connection": hub.url},
+        "surface": {"budget_bytes_per_s": 8000},
+        "store": {"dir": str(Path(store_dir))},
+        "health": {"stall_after_s": 120.0},
+    }, origin="soak")
+    proc = psutil.Process()
+    result = SoakResult(minutes=minutes, encoder=encoder, source_fps=fps, warmup_s=round(warmup, 1))
+    result.rss_start_mb = proc.memory_info().rss / 2**20
+    companion = LiveCompanion(cfg, LiveOptions())
+    try:
+        companion.start()
+        result.encoder = getattr(companion.encoder, "name", encoder)
+        t0 = time.monotonic()
+        after_warmup = None
+        while True:
+            elapsed = time.monotonic() - t0
+            if elapsed >= duration:
+                break
+            rss = proc.memory_info().rss / 2**20
+            result.rss_samples.append((round(elapsed, 1), round(rss, 1)))
+            result.peak_rss_mb = max(result.peak_rss_mb, rss)
+            if after_warmup is None and elapsed >= warmup:
+                after_warmup = rss
+            if progress is not None:
+                progress(elapsed, duration, companion.status_line())
+            time.sleep(min(1.0, max(0.0, duration - elapsed)))
+        companion.stop_pipeline()
+        end_rss = proc.memory_info().rss / 2**20
+        result.rss_end_mb = end_rss
+        result.peak_rss_mb = max(result.peak_rss_mb, end_rss)
+        result.rss_after_warmup_mb = after_warmup or end_rss
+        companion.drain(10.0)
+        time.sleep(0.5)
+    finally:
+        companion.stop()
+        sim.stop()
+        hub.stop()
+        surface.close()
+        if tmp is not None:
+            tmp.cleanup()
+    report = companion.report()
+    result.frames_seen = report["frames_seen"]
+    result.frames_scored = report["frames_scored"]
+    result.frames_dropped = report["frames_dropped"]
+    result.summary_added = report["summary_added"]
+    result.inference_errors = report["inference_errors"]
+    result.scored_fps = round(report["frames_scored"] / duration, 2)
+    result.captures_received = len(surface.latencies)
+    result.rss_growth_pct = round(100.0 * (result.rss_end_mb - result.rss_after_warmup_mb)
+                                  / max(result.rss_after_warmup_mb, 1e-6), 2)
+    if surface.latencies:
+        lat = np.array(surface.latencies)
+        result.latency_p50_s = round(float(np.percentile(lat, 50)), 3)
+        result.latency_p95_s = round(float(np.percentile(lat, 95)), 3)
+    for key in ("rss_start_mb", "rss_after_warmup_mb", "rss_end_mb", "peak_rss_mb"):
+        setattr(result, key, round(getattr(result, key), 1))
+    return result
+
+
+def summary_dict(result: SoakResult) -> dict:
+    out = asdict(result)
+    out.pop("rss_samples")
+    return out

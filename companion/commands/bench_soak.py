@@ -1,0 +1,46 @@
+"""`merlion bench soak`: the live companion for N minutes at a speed-up; fps, drops, RSS growth, latency."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def register(add_command) -> None:
+    p = add_command("soak", "run the live companion (simulated vehicle, generated dive at a speed-up) for N "
+                    "minutes: frames/s, dropped frames, peak RSS and growth, capture-to-surface latency",
+                    group="bench")
+    p.add_argument("--minutes", type=float, default=5.0, help="length of the run (default 5)")
+    p.add_argument("--fps", type=float, default=15.0, help="frames/s the generated camera delivers (default 15, "
+                   "three times the vehicle's 5)")
+    p.add_argument("--encoder", default="auto", choices=["auto", "clip", "imagenet", "visual"])
+    p.add_argument("--json", action="store_true", help="last line: one JSON object with every figure")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.bench.soak_bench import run_soak, summary_dict
+    from companion.errors import UsageError
+
+    if args.minutes <= 0 or args.fps <= 0:
+        raise UsageError("--minutes and --fps must be positive")
+    last = [-1]
+
+    def progress(elapsed: float, total: float, status: str) -> None:
+        if int(elapsed) // 30 != last[0]:  # a line every 30 s: long runs show they are alive
+            last[0] = int(elapsed) // 30
+            print(f"soak {elapsed:5.0f}/{total:.0f} s: {status}", file=sys.stderr, flush=True)
+
+    result = run_soak(args.minutes, encoder=args.encoder, fps=args.fps, progress=progress)
+    d = summary_dict(result)
+    print(f"encoder           {d['encoder']}, generated camera at {d['source_fps']:g} fps, {d['minutes']:g} min")
+    print(f"frames            seen {d['frames_seen']}, scored {d['frames_scored']} ({d['scored_fps']} /s), "
+          f"dropped at the input {d['frames_dropped']}")
+    print(f"summary           {d['summary_added']} frames added; {d['captures_received']} captures at the surface")
+    print(f"memory            peak RSS {d['peak_rss_mb']} MB; {d['rss_after_warmup_mb']} MB after {d['warmup_s']:g} s "
+          f"warm-up -> {d['rss_end_mb']} MB at the end: growth {d['rss_growth_pct']}% (target <= 5%)")
+    print(f"latency           capture -> CAMERA_IMAGE_CAPTURED p50 {d['latency_p50_s']} s, p95 {d['latency_p95_s']} s")
+    if args.json:
+        print(json.dumps(d))
+    return 0
