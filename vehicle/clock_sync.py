@@ -3,8 +3,9 @@
 Every sample gives ``offset = arrival_time - time_boot``: the true offset plus a transport delay that is never
 negative. The smallest offset over a sliding window is therefore the best estimate (jitter only ever makes a
 packet late), and the window lets slow drift between the two clocks through. A reboot shows as ``time_boot``
-going backwards (or, after a long silence, as every new offset sitting far above the estimate): the window is
-then cleared and the mapping starts again from the new boot.
+going backwards: the window is cleared and the mapping starts again from the new boot. A run of samples all far
+later than the estimate (a reboot after a silence longer than the last uptime, or a link that started buffering)
+restarts the mapping too, counted as a resync.
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ class BootClock:
         self.reboot_tolerance_s = reboot_tolerance_s
         self.jump_samples = jump_samples
         self.reboots = 0
+        """Reboots seen as time_boot_ms going backwards."""
+        self.resyncs = 0
+        """Mapping restarts after a run of samples far later than the estimate."""
         self.samples = 0
         self._window: deque[tuple[float, float]] = deque()  # (arrival, offset), offsets increasing (min-queue)
         self._last_boot_s: float | None = None
@@ -38,22 +42,20 @@ class BootClock:
         """Take one sample; True when it revealed an autopilot reboot (the mapping was restarted)."""
         boot_s = time_boot_ms / 1000.0
         offset = arrival - boot_s
-        rebooted = False
-        if self._last_boot_s is not None and boot_s < self._last_boot_s - self.reboot_tolerance_s:
-            rebooted = True
+        rebooted = self._last_boot_s is not None and boot_s < self._last_boot_s - self.reboot_tolerance_s
+        if rebooted:
+            self.reboots += 1
+            self._restart()
         elif self._window and offset > self._window[0][1] + self.reboot_tolerance_s:
-            # far later than expected: one late packet is jitter, a run of them means the boot clock restarted
+            # far later than expected: one late packet is jitter, a run of them means the mapping moved (a reboot
+            # after a silence longer than the last uptime, or a link that now buffers): start again from here
             self._above += 1
-            if self._above >= self.jump_samples:
-                rebooted = True
-            else:
+            if self._above < self.jump_samples:
                 return False
+            self.resyncs += 1
+            self._restart()
         else:
             self._above = 0
-        if rebooted:
-            self._window.clear()
-            self._above = 0
-            self.reboots += 1
         self._last_boot_s = boot_s
         self.samples += 1
         while self._window and self._window[-1][1] >= offset:
@@ -62,6 +64,10 @@ class BootClock:
         while len(self._window) > 1 and self._window[0][0] < arrival - self.window_s:
             self._window.popleft()
         return rebooted
+
+    def _restart(self) -> None:
+        self._window.clear()
+        self._above = 0
 
     def to_local(self, time_boot_ms: int) -> float | None:
         """The companion time of an autopilot timestamp (None until synced)."""
