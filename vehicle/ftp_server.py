@@ -120,8 +120,11 @@ class _Session:
 class FtpServer:
     """MAVLink FTP over a ``VirtualTree``: read-only unless ``writable``; ``max_sessions`` open files at once.
 
-    When every session is taken the oldest is closed for the new open rather than refusing it: on a lossy link a
-    client's TerminateSession is easily lost, and a stuck server is worse than a stale session.
+    Sessions are kept per client, and an open is granted the session number the client asked with: pymavlink's
+    mavftp adopts whatever the ACK says, but MAVSDK 4 keeps using its own number, so echoing it serves both. An
+    open on a number the same client still holds replaces that session (the client has abandoned it). When every
+    session is taken the oldest is closed rather than the open refused: on a lossy link a TerminateSession is
+    easily lost, and a server that locks clients out is worse than one that forgets a stale session.
     """
 
     def __init__(self, tree: VirtualTree, *, writable: bool = False, max_sessions: int = 4) -> None:
@@ -129,8 +132,7 @@ class FtpServer:
         self.writable = writable
         self.max_sessions = max_sessions
         self._lock = threading.Lock()
-        self._sessions: OrderedDict[int, _Session] = OrderedDict()
-        self._next_session = 0
+        self._sessions: OrderedDict[tuple[Requester, int], _Session] = OrderedDict()
         self._recent: OrderedDict[tuple, list[bytes]] = OrderedDict()
         self.requests = 0
         self.retransmits_answered = 0
@@ -164,8 +166,8 @@ class FtpServer:
         if op == Op.NONE:
             return [ack(req)]
         if op == Op.RESET_SESSIONS:
-            for sid in [s for s, v in self._sessions.items() if v.requester == who]:
-                del self._sessions[sid]
+            for key in [k for k in self._sessions if k[0] == who]:
+                del self._sessions[key]
             return [ack(req)]
         if op == Op.TERMINATE_SESSION:
             return [self._terminate(req, who)]
@@ -186,25 +188,22 @@ class FtpServer:
         return [nak(req, FtpErr.UNKNOWN_COMMAND)]
 
     def _session(self, req: FtpPacket, who: Requester) -> _Session | None:
-        sess = self._sessions.get(req.session)
-        return sess if sess is not None and sess.requester == who else None
+        return self._sessions.get((who, req.session))
 
-    def _new_session(self, who: Requester, path: str, data: bytes, writing: bool) -> int:
+    def _new_session(self, req: FtpPacket, who: Requester, path: str, data: bytes, writing: bool) -> int:
+        key = (who, req.session)
+        self._sessions.pop(key, None)
         while len(self._sessions) >= self.max_sessions:
             old, _ = self._sessions.popitem(last=False)
-            log.info("FTP: all %d sessions taken, closing the oldest (%d)", self.max_sessions, old)
-        sid = self._next_session
-        while sid in self._sessions:
-            sid = (sid + 1) % 256
-        self._next_session = (sid + 1) % 256
-        self._sessions[sid] = _Session(who, path, bytearray(data), writing)
-        return sid
+            log.info("FTP: all %d sessions taken, closing the oldest (%s)", self.max_sessions, old)
+        self._sessions[key] = _Session(who, path, bytearray(data), writing)
+        return req.session
 
     def _terminate(self, req: FtpPacket, who: Requester) -> FtpPacket:
         sess = self._session(req, who)
         if sess is None:
             return nak(req, FtpErr.INVALID_SESSION)
-        del self._sessions[req.session]
+        del self._sessions[(who, req.session)]
         if sess.writing:
             target = self.tree.upload_target(sess.path)
             try:
@@ -238,7 +237,7 @@ class FtpServer:
         data = None if path is None else self.tree.read(path)
         if data is None:
             return nak(req, FtpErr.FILE_NOT_FOUND)
-        sid = self._new_session(who, path, data, writing=False)
+        sid = self._new_session(req, who, path, data, writing=False)
         return ack(req, session=sid, data=struct.pack("<I", len(data)))
 
     def _read(self, req: FtpPacket, who: Requester) -> FtpPacket:
@@ -298,7 +297,7 @@ class FtpServer:
                 return nak(req, FtpErr.FAIL)
             return ack(req)
         start = b"" if op == Op.CREATE_FILE else current
-        sid = self._new_session(who, path, start, writing=True)
+        sid = self._new_session(req, who, path, start, writing=True)
         return ack(req, session=sid)
 
     # ---- bursts ---------------------------------------------------------------------------------------------

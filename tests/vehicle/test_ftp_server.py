@@ -70,6 +70,19 @@ def test_retransmitted_open_gets_the_same_session(tree):
     assert first.session == again.session and server.retransmits_answered == 1
 
 
+def test_sessions_are_per_client_and_numbered_as_asked(tree):
+    server = FtpServer(tree)
+    a = _one(server, _req(Op.OPEN_FILE_RO, 1, session=0, data=b"/summary/1.jpg"), who=(255, 190))
+    b = _one(server, _req(Op.OPEN_FILE_RO, 1, session=0, data=b"/summary/index.json"), who=(254, 190))
+    c = _one(server, _req(Op.OPEN_FILE_RO, 5, session=7, data=b"/summary/index.json"), who=(255, 190))
+    assert (a.session, b.session, c.session) == (0, 0, 7)  # MAVSDK 4 keeps using the number it asked with
+    read_a = _one(server, _req(Op.READ_FILE, 2, session=0, size=4), who=(255, 190))
+    read_b = _one(server, _req(Op.READ_FILE, 2, session=0, size=4), who=(254, 190))
+    assert (read_a.data, read_b.data) == (bytes(range(4)), b'{"su')
+    assert _one(server, _req(Op.READ_FILE, 3, session=1, size=4), who=(255, 190)).data == bytes(
+        [FtpErr.INVALID_SESSION])
+
+
 def test_burst_streams_the_file_with_advancing_seq(tree):
     server = FtpServer(tree)
     opened = _one(server, _req(Op.OPEN_FILE_RO, 1, data=b"/summary/1.jpg"))
