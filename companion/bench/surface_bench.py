@@ -76,6 +76,8 @@ class _Receiver:
     rx: PushReassembler = field(default_factory=PushReassembler)
     stop: threading.Event = field(default_factory=threading.Event)
 
+    arrivals: list = field(default_factory=list)
+
     def run(self) -> None:
         while not self.stop.is_set():
             msg = self.gcs.recv_match(blocking=True, timeout=0.1)
@@ -83,6 +85,7 @@ class _Receiver:
                 continue
             size = len(msg.get_msgbuf())
             self.wire_bytes += size
+            self.arrivals.append((time.monotonic(), size))
             kind = msg.get_type()
             if kind in ("DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA"):
                 self.push_wire_bytes += size
@@ -180,6 +183,48 @@ def measure_pull(images: list[np.ndarray], *, budget: int, thumbnail_bytes: int,
     finally:
         for handler in logging.getLogger().handlers:
             handler.removeFilter(quiet)
+        surface.stop()
+        gcs.close()
+        link.stop()
+
+
+def measure_window(images: list[np.ndarray], *, budget: int, thumbnail_bytes: int, seconds: float = 25.0,
+                   window_s: float = 10.0) -> dict:
+    """Keep the link saturated with new summary frames for ``seconds`` and report the wire rate over every
+    ``window_s`` window the receiver saw (stepped by 0.1 s): the budget must hold over any of them."""
+    link, surface, gcs = _companion(budget, thumbnail_bytes, push=True)
+    recv = _Receiver(gcs)
+    thread = threading.Thread(target=recv.run, daemon=True)
+    try:
+        surface.start()
+        thread.start()
+        time.sleep(1.0)
+        start = time.monotonic()
+        index = 1
+        held: list[int] = []
+        while time.monotonic() - start < seconds:
+            if surface.budget.pending() < 40:  # keep a thumbnail queued at all times
+                frame = summary_events([images[index % len(images)]])[0].frame
+                frame.image_index = index
+                held = (held + [index])[-6:]
+                surface.publish(SummaryEvent("added", frame, summary=list(held)))
+                index += 1
+            time.sleep(0.05)
+        end = time.monotonic()
+        recv.stop.set()
+        thread.join(timeout=2)
+        arrivals = [(t, n) for t, n in recv.arrivals if start + 1.0 <= t <= end]
+        rates = []
+        t = start + 1.0
+        while t + window_s <= end:
+            rates.append(sum(n for when, n in arrivals if t <= when < t + window_s) / window_s)
+            t += 0.1
+        return {"budget_bytes_per_s": budget, "window_s": window_s, "windows": len(rates),
+                "max_bytes_per_s": round(max(rates)) if rates else None,
+                "min_bytes_per_s": round(min(rates)) if rates else None,
+                "max_over_budget": round(max(rates) / budget - 1, 4) if rates else None}
+    finally:
+        recv.stop.set()
         surface.stop()
         gcs.close()
         link.stop()

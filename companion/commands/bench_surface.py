@@ -32,6 +32,13 @@ def run(args: argparse.Namespace) -> int:
         result["pull"] = pull
         print(f"pull (mavftp): {pull['intact']}/{pull['frames']} thumbnails intact in {pull['seconds_to_surface']} s",
               flush=True)
+    if args.window:
+        win = sb.measure_window(images, budget=args.budget, thumbnail_bytes=args.thumbnail_bytes,
+                                seconds=args.window)
+        result["window"] = win
+        print(f"budget: {win['windows']} windows of {win['window_s']:.0f} s while saturated: "
+              f"{win['min_bytes_per_s']}-{win['max_bytes_per_s']} B/s on the wire for a {args.budget} B/s budget "
+              f"({win['max_over_budget']:+.1%} at most)", flush=True)
     if args.json:
         print(json.dumps(result))
     return 0 if push["intact"] else 1
@@ -45,5 +52,7 @@ def register(add_command) -> None:
     p.add_argument("--thumbnail-bytes", type=int, default=2500, help="thumbnail byte budget (default 2500)")
     p.add_argument("--source", default="synthetic://dive", help="frames from this source (default synthetic://dive)")
     p.add_argument("--no-pull", action="store_true", help="skip the MAVLink FTP download measurement")
+    p.add_argument("--window", type=float, default=0, metavar="S",
+                   help="also saturate the link for S seconds (>= 11) and report the wire rate over every 10 s window")
     p.add_argument("--json", action="store_true", help="print the result as one JSON line at the end")
     p.set_defaults(func=run)
