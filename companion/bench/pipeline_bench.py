@@ -43,6 +43,10 @@ class PipelineBench:
     sampler_ms_k6: float
     sampler_ms_k64: float
     peak_rss_mb: float
+    load_peak_rss_mb: float
+    """Peak RSS right after the encoder was built: how much of the peak is the weights' loading."""
+    rss_end_mb: float
+    """Resident memory at the end of the run (steady state, after loading transients are gone)."""
     stage_ms: dict
     decode_ms: float
     passed: int
@@ -50,7 +54,8 @@ class PipelineBench:
     def as_json(self) -> dict:
         return {"end_to_end_fps": round(self.end_to_end_fps, 2), "encoder_fps": round(self.encoder_fps, 2),
                 "sampler_ms_k6": round(self.sampler_ms_k6, 4), "sampler_ms_k64": round(self.sampler_ms_k64, 4),
-                "peak_rss_mb": round(self.peak_rss_mb, 1), "frames": self.frames, "batch": self.batch,
+                "peak_rss_mb": round(self.peak_rss_mb, 1), "load_peak_rss_mb": round(self.load_peak_rss_mb, 1),
+                "rss_end_mb": round(self.rss_end_mb, 1), "frames": self.frames, "batch": self.batch,
                 "encoder": self.encoder, "source": self.source,
                 "stage_ms_per_frame": {k: round(v, 3) for k, v in self.stage_ms.items()},
                 "decode_ms_per_frame": round(self.decode_ms, 3)}
@@ -64,7 +69,8 @@ class PipelineBench:
             ("encoder only", f"{self.encoder_fps:.1f} frames/s"),
             ("sampler K=6", f"{self.sampler_ms_k6:.3f} ms/frame"),
             ("sampler K=64", f"{self.sampler_ms_k64:.3f} ms/frame"),
-            ("peak RSS", f"{self.peak_rss_mb:.0f} MB"),
+            ("peak RSS", f"{self.peak_rss_mb:.0f} MB ({self.load_peak_rss_mb:.0f} MB peak after loading the "
+                         f"encoder, {self.rss_end_mb:.0f} MB resident at the end)"),
             ("stages", ", ".join(f"{k} {v:.2f}" for k, v in self.stage_ms.items()) + " ms/frame"),
             ("decode thread", f"{self.decode_ms:.2f} ms/frame"),
         ]
@@ -75,6 +81,12 @@ def peak_rss_mb() -> float:
     """Peak resident set of this process (Linux reports KiB, macOS bytes)."""
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
+
+
+def rss_now_mb() -> float:
+    import psutil
+
+    return psutil.Process().memory_info().rss / (1024.0 * 1024.0)
 
 
 def sampler_ms_per_frame(k: int, dim: int, frames: int = SAMPLER_FRAMES, distance: str = "js",
@@ -102,6 +114,7 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
         from companion.encoders.factory import make_encoder
 
         encoder = make_encoder(cfg.encoder)
+    load_peak = peak_rss_mb()
     batch = cfg.encoder.batch
     looped = _looped(cfg)
     pipeline = Pipeline.from_config(looped, encoder)
@@ -142,5 +155,5 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
         end_to_end_fps=end_to_end, encoder_fps=encoder_only,
         sampler_ms_k6=sampler_ms_per_frame(6, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
         sampler_ms_k64=sampler_ms_per_frame(64, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
-        peak_rss_mb=peak_rss_mb(), stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed,
+        peak_rss_mb=peak_rss_mb(), load_peak_rss_mb=load_peak, rss_end_mb=rss_now_mb(), stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed,
     )
