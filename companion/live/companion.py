@@ -79,6 +79,7 @@ class LiveCompanion:
         self._last_ping = 0.0
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
+        self._stuck: list[str] = []
 
     # ---- start-up -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -225,9 +226,13 @@ class LiveCompanion:
             stuck = self.health.stuck()
             if stuck:
                 self.watchdog_withheld += 1
-                log.warning("stage(s) %s stuck for over %.0f s: no watchdog ping", ", ".join(stuck),
-                            self.health.stall_after_s)
-            elif time.monotonic() - self._last_ping >= ping_every:
+                if stuck != self._stuck:
+                    log.warning("stage(s) %s stuck for over %.0f s: no watchdog ping until it moves again",
+                                ", ".join(stuck), self.health.stall_after_s)
+            elif self._stuck:
+                log.warning("stage(s) %s moving again: watchdog pings resume", ", ".join(self._stuck))
+            self._stuck = stuck
+            if not stuck and time.monotonic() - self._last_ping >= ping_every:
                 self.notifier.watchdog()
                 self.watchdog_pings += 1
                 self._last_ping = time.monotonic()

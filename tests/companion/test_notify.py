@@ -76,3 +76,60 @@ def test_health_flags_a_stuck_stage_and_recovers() -> None:
     now[0] += 11
     health.forget("capture")
     assert health.stuck() == ["inference"]
+
+
+def run_with_notify(tmp_path: Path, source: str, stall_after_s: float):
+    from tests.companion.live_harness import Companion, write_config
+
+    sock, path = listener(tmp_path)
+    cfg = write_config(tmp_path / "c.yaml", source={"uri": source}, mavlink={"connection": None},
+                       health={"stall_after_s": stall_after_s}, store={"dir": str(tmp_path / "store")})
+    companion = Companion("--config", str(cfg), env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "1000000"})
+    return sock, companion
+
+
+def receive(sock: socket.socket) -> list[str]:
+    out = []
+    sock.settimeout(0.05)
+    while True:
+        try:
+            out.extend(sock.recv(4096).decode().split("\n"))
+        except TimeoutError:
+            return out
+
+
+def test_companion_sends_ready_watchdog_and_status_to_systemd(tmp_path: Path) -> None:
+    from tests.companion.live_harness import wait_until
+
+    sock, companion = run_with_notify(tmp_path, "synthetic://dive?seconds=1&width=160&height=96", 30)
+    got: list[str] = []
+    try:
+        wait_until(lambda: got.extend(receive(sock)) or got.count("WATCHDOG=1") >= 2, 60, "two watchdog pings")
+        assert "READY=1" in got and got.index("READY=1") < got.index("WATCHDOG=1")
+        assert any(line.startswith("STATUS=") and "summary" in line for line in got)
+        assert companion.terminate() == 0
+        got.extend(receive(sock))
+        assert "STOPPING=1" in got
+    finally:
+        companion.kill()
+        sock.close()
+
+
+def test_a_stuck_stage_stops_the_watchdog_pings(tmp_path: Path) -> None:
+    from tests.companion.live_harness import wait_until
+    from tests.conftest import free_udp_port
+
+    # an RTP stream nobody sends: the capture stage blocks inside the decoder, as a wedged camera driver would
+    sock, companion = run_with_notify(tmp_path, f"udp://127.0.0.1:{free_udp_port()}", 2)
+    got: list[str] = []
+    try:
+        wait_until(lambda: got.extend(receive(sock)) or "READY=1" in got, 60, "READY=1")
+        companion.wait_for("capture stuck", 60)
+        receive(sock)  # what was sent before the monitor saw it stuck
+        later: list[str] = []
+        wait_until(lambda: later.extend(receive(sock)) or sum(x.startswith("STATUS=") for x in later) >= 3, 60,
+                   "three status updates while stuck")
+        assert "WATCHDOG=1" not in later
+    finally:
+        companion.kill()
+        sock.close()
