@@ -194,7 +194,9 @@ class SurfaceLink:
                                    fmt=self.cfg.thumbnail_format)
             with self._lock:
                 self._held[idx] = _Held(frame, thumb)
-                self._prune(event.summary)
+                gone = self._prune(event.summary)
+            for old in gone:
+                self._forget(old)
             self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
             self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
             if frame.raw_image is not None:
@@ -217,18 +219,22 @@ class SurfaceLink:
         else:
             with self._lock:
                 self._held.pop(idx, None)
-                self._prune(event.summary)
-            self._forget(idx)
+                gone = self._prune(event.summary)
+            for old in [idx, *gone]:
+                self._forget(old)
             self.event(trimmed_text(frame, len(event.summary)))
         self.status.update(summary=len(self._held))
 
-    def _prune(self, summary: list[int]) -> None:
-        """Drop frames the event's summary list no longer holds (called with the lock held)."""
+    def _prune(self, summary: list[int]) -> list[int]:
+        """Drop frames the event's summary list no longer holds; called with the lock held, so it only
+        returns them: their files and queued pushes are forgotten after the lock is released (the FTP server
+        reads the tree, which takes this lock, while holding its own)."""
         if not summary:
-            return
-        for old in [i for i in self._held if i not in summary]:
+            return []
+        gone = [i for i in self._held if i not in summary]
+        for old in gone:
             self._held.pop(old)
-            self._forget(old)
+        return gone
 
     def _forget(self, idx: int) -> None:
         self.tree.remove(thumbnail_path(idx, self.ext))
