@@ -190,6 +190,9 @@ class SurfaceLink:
         frame = event.frame
         idx = frame.image_index
         if event.kind == "added":
+            ident = self.camera.identity
+            if not ident.width and frame.image is not None:  # CAMERA_INFORMATION reports what frames really are
+                ident.height, ident.width = frame.image.shape[:2]
             thumb = make_thumbnail(frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side,
                                    fmt=self.cfg.thumbnail_format)
             with self._lock:

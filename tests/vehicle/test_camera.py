@@ -104,6 +104,7 @@ def test_ground_station_discovers_the_camera_and_sees_captures_over_udp():
         info = wait_for(gcs, "CAMERA_INFORMATION")
         assert info.get_srcSystem() == 1 and info.get_srcComponent() == 100
         surface.publish(added(6, [6]))
+        assert surface.camera.information().resolution_h == 480  # learnt from the frames
         cap = wait_for(gcs, "CAMERA_IMAGE_CAPTURED")
         assert (cap.image_index, cap.relative_alt, cap.file_url) == (6, -12500, "mftp://summary/6.jpg")
         text = wait_for(gcs, "STATUSTEXT", cond=lambda m: "#6" in m.text)
