@@ -123,20 +123,24 @@ def list_cached() -> list[tuple[str, str, Path]]:
     return out
 
 
-def _download_host(cfg: dict) -> str:
+def _download_host(cfg: dict) -> tuple[str, int]:
+    """(host, port) the download will contact: the Hugging Face endpoint (HF_ENDPOINT honoured) or the URL's."""
     if cfg.get("hf_hub"):
         from huggingface_hub import constants
 
-        return urlparse(constants.ENDPOINT).hostname or "huggingface.co"
-    return urlparse(cfg.get("url", "")).hostname or ""
+        url = urlparse(constants.ENDPOINT)
+    else:
+        url = urlparse(cfg.get("url", ""))
+    return url.hostname or "", url.port or (80 if url.scheme == "http" else 443)
 
 
-def _check_reachable(host: str, model: str, tag: str, timeout_s: float = 5.0) -> None:
+def _check_reachable(where: tuple[str, int], model: str, tag: str, timeout_s: float = 5.0) -> None:
     """Fail in seconds, with one line, where there is no network (the hub client would retry for a minute)."""
+    host, port = where
     if not host:
         raise MerlionError(f"{model} ({tag}) has no download location in open_clip")
     try:
-        socket.create_connection((host, 443), timeout=timeout_s).close()
+        socket.create_connection((host, port), timeout=timeout_s).close()
     except OSError as err:
         reason = err.strerror or type(err).__name__
         raise MerlionError(f"cannot download {model} ({tag}): no network ({host}: {reason}); on a machine with a "

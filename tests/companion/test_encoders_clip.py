@@ -1,0 +1,200 @@
+"""The CLIP encoder with real open_clip architectures built with random weights and saved to a checkpoint.
+
+No CLIP weights can be had here, so every test builds the real architecture, saves it, and loads it back through
+the same code a vehicle uses (--weights). Two models loaded from the same file must agree exactly, while a model
+that silently ignored the file would be a different random draw: that is what proves the loading code.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import cv2
+import numpy as np
+import open_clip
+import pytest
+import torch
+
+from companion.config import EncoderConfig
+from companion.encoders.clip import ClipEncoder
+from companion.encoders.factory import make_encoder
+from companion.encoders.torch_runtime import cpu_has_native_bf16, pick_dtype
+from companion.errors import MerlionError
+from tests.conftest import free_tcp_port, run_merlion, shared_file
+
+SMALL = "ViT-S-32-alt"
+
+
+def _save_random(model: str, path) -> str:
+    torch.manual_seed(0)
+    net = open_clip.create_model(model, pretrained=None)
+    # fp16 halves the file; loading copies it into the fp32 parameters, so both sides see the same numbers.
+    torch.save({k: v.half() for k, v in net.state_dict().items()}, path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def small_ckpt(tmp_path_factory) -> str:
+    return _save_random(SMALL, tmp_path_factory.mktemp("clip") / "small.pt")
+
+
+@pytest.fixture(scope="module")
+def small_fp32(small_ckpt) -> ClipEncoder:
+    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32", batch=3))
+
+
+@pytest.fixture(scope="module")
+def b32_ckpt(tmp_path_factory) -> str:
+    return _save_random("ViT-B-32", tmp_path_factory.mktemp("clip") / "vit_b32.pt")
+
+
+@pytest.fixture(scope="module")
+def images() -> list[np.ndarray]:
+    """Real frames of several shapes: 4:3, near-square, 16:9, portrait, and one smaller than the model input."""
+    suim = cv2.imread(str(shared_file("suim/images/f_r_1965_.jpg")))
+    square = cv2.imread(str(shared_file("suim/images/d_r_47_.jpg")))
+    wide = cv2.imread(str(shared_file("aquarium_fish/frames/000001.jpg")))
+    return [suim, square, wide, np.ascontiguousarray(wide[:, 300:600]), cv2.resize(suim, (160, 120))]
+
+
+def _spread_queries(encoder: ClipEncoder, images: list[np.ndarray]) -> np.ndarray:
+    """Random towers give near-identical text embeddings; other images' embeddings make scores that vary."""
+    return encoder.encode_images(images[::-1])
+
+
+def test_score_cli_loads_the_checkpoint_given_with_weights(small_ckpt, small_fp32, images):
+    files = [shared_file("suim/images/f_r_1965_.jpg"), shared_file("suim/images/n_l_12_.jpg")]
+    proc = run_merlion("score", *map(str, files), "--encoder", "clip", "--model", SMALL, "--weights", small_ckpt,
+                       "--precision", "fp32", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rows = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert [r["file"] for r in rows] == list(map(str, files))
+
+    enc = small_fp32
+    texts = enc.encode_texts(["underwater image with fish", "underwater image without fish"])
+    ims = [cv2.imread(str(f)) for f in files]
+    expected = enc.semantic_scores(enc.encode_images(ims), texts)
+    np.testing.assert_allclose([r["score"] for r in rows], expected, atol=1e-5)
+
+    torch.manual_seed(1)  # a model that ignored the file would be another random draw: its embeddings differ
+    other = open_clip.create_model(SMALL, pretrained=None).eval()
+    with torch.inference_mode():
+        x = torch.stack([enc.preprocess(ims[0])])
+        theirs = torch.nn.functional.normalize(other.encode_image(x), dim=-1).numpy()
+    assert float(theirs[0] @ enc.encode_images(ims[:1])[0]) < 0.99
+
+
+def test_fast_preprocessing_matches_open_clip_own_transform(small_fp32, images):
+    enc = small_fp32
+    fast = enc.encode_images(images)
+    with torch.inference_mode():
+        ref = torch.stack([enc.preprocess.reference(img) for img in images])
+        slow = torch.nn.functional.normalize(enc._model.encode_image(ref), dim=-1).numpy()
+    assert np.min(np.sum(fast * slow, axis=1)) > 0.999
+    queries = _spread_queries(enc, images)
+    slow_scores = enc.semantic_scores(slow, queries)
+    assert np.std(slow_scores) > 0.05, "queries too alike to test anything"
+    np.testing.assert_allclose(enc.semantic_scores(fast, queries), slow_scores, atol=0.01)
+
+
+def test_vit_b32_through_the_cli_agrees_with_open_clip_itself(b32_ckpt, images, tmp_path):
+    for i, img in enumerate(images):
+        cv2.imwrite(str(tmp_path / f"img{i}.png"), img)  # PNG: lossless, so the CLI sees the same pixels
+    proc = run_merlion("score", str(tmp_path), "--encoder", "clip", "--weights", b32_ckpt, "--precision", "fp32",
+                       "--json")
+    assert proc.returncode == 0, proc.stderr
+    cli_scores = [json.loads(line)["score"] for line in proc.stdout.splitlines()]
+    assert len(cli_scores) == len(images)
+
+    # The reference: open_clip's own model, transform (PIL) and tokenizer, with nothing of ours in between.
+    model, _, transform = open_clip.create_model_and_transforms("ViT-B-32", pretrained=b32_ckpt)
+    tokenizer = open_clip.get_tokenizer("ViT-B-32")
+    with torch.inference_mode():
+        from PIL import Image
+
+        x = torch.stack([transform(Image.fromarray(img[:, :, ::-1].copy())) for img in images])
+        v = torch.nn.functional.normalize(model.eval().encode_image(x), dim=-1).double()
+        t = torch.nn.functional.normalize(model.encode_text(tokenizer(
+            ["underwater image with fish", "underwater image without fish"])), dim=-1).double()
+        want = (100 * v @ t.T).softmax(dim=-1)[:, 0].numpy()
+    np.testing.assert_allclose(cli_scores, want, atol=0.01)
+
+
+@pytest.mark.parametrize("precision", ["bf16", "fp16"])
+def test_reduced_precision_keeps_scores_within_0_01(small_ckpt, small_fp32, images, precision):
+    ref = small_fp32
+    low = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision=precision))
+    assert low.describe()["precision"] == precision
+    queries = _spread_queries(ref, images)
+    want = ref.semantic_scores(ref.encode_images(images), queries)
+    got = low.semantic_scores(low.encode_images(images), queries)
+    assert np.std(want) > 0.05, "queries too alike to test anything"
+    np.testing.assert_allclose(got, want, atol=0.01)
+    texts = ["underwater image with fish", "underwater image without fish"]
+    np.testing.assert_allclose(low.encode_texts(texts), ref.encode_texts(texts), atol=0.02)
+
+
+def test_batches_give_the_same_embeddings_as_single_frames(small_fp32, images):
+    batched = small_fp32.encode_images(images)  # batch=3: a full batch and a partial one
+    single = np.concatenate([small_fp32.encode_images([img]) for img in images])
+    np.testing.assert_allclose(batched, single, atol=1e-4)
+    assert small_fp32.encode_images([]).shape == (0, 256)
+
+
+def test_semantic_score_is_softmax_of_100_cosine():
+    enc = ClipEncoder.__new__(ClipEncoder)  # scoring needs no model: check the formula on hand-made vectors
+    img = np.array([[1.0, 0.0], [0.6, 0.8]], dtype=np.float32)
+    txt = np.array([[1.0, 0.0], [0.0, 1.0], [0.8, 0.6]], dtype=np.float32)
+    logits = 100 * img.astype(np.float64) @ txt.T.astype(np.float64)
+    want = 1.0 / np.exp(logits - logits[:, :1]).sum(axis=1)
+    np.testing.assert_allclose(enc.semantic_scores(img, txt), want, rtol=1e-5)
+
+
+def test_auto_takes_clip_when_weights_exist_and_says_so(small_ckpt, caplog):
+    with caplog.at_level(logging.WARNING):
+        enc = make_encoder(EncoderConfig(name="auto", model=SMALL, weights=small_ckpt))
+    assert enc.name == f"clip:{SMALL}"
+    assert any("using CLIP" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)
+
+
+def test_auto_falls_back_to_the_packaged_encoder_loudly(caplog):
+    with caplog.at_level(logging.WARNING):
+        enc = make_encoder(EncoderConfig(name="auto", weights=None, pretrained=None))
+    assert enc.name == "imagenet:efficientnet-lite0"
+    assert any("packaged imagenet" in r.getMessage() and "--weights" in r.getMessage() for r in caplog.records)
+
+
+def test_missing_weights_file_is_a_one_line_error(tmp_path):
+    with pytest.raises(MerlionError, match=r"no such file; run `merlion models pull ViT-B-32"):
+        make_encoder(EncoderConfig(name="clip", weights=str(tmp_path / "nope.pt")))
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(MerlionError, match="do not load into ViT-B-32"):
+        make_encoder(EncoderConfig(name="clip", weights=str(junk)))
+
+
+def test_uncached_tag_and_offline_pull_fail_in_one_line(tmp_path):
+    image = shared_file("suim/images/f_r_1965_.jpg")
+    env = {"HOME": str(tmp_path), "HF_HOME": str(tmp_path / "hf"), "HF_HUB_CACHE": str(tmp_path / "hf" / "hub"),
+           "XDG_CACHE_HOME": str(tmp_path / "cache"), "HF_ENDPOINT": f"http://127.0.0.1:{free_tcp_port()}"}
+    proc = run_merlion("score", str(image), "--encoder", "clip", env=env)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("merlion: error: no CLIP weights for ViT-B-32")
+    assert "merlion models pull" in lines[0] and "--weights PATH" in lines[0]
+
+    proc = run_merlion("models", "pull", "--cache-dir", str(tmp_path / "dl"), env=env)
+    assert proc.returncode == 1
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert errors == [proc.stderr.strip().splitlines()[-1]] and "no network" in errors[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_precision_auto_follows_the_cpu():
+    assert pick_dtype("auto", torch.device("cuda")) == torch.float16
+    want = torch.bfloat16 if cpu_has_native_bf16() else torch.float32
+    assert pick_dtype("auto", torch.device("cpu")) == want
+    assert cpu_has_native_bf16("flags\t: fpu sse avx2 amx_bf16 amx_tile\n")
+    assert cpu_has_native_bf16("flags\t: fpu avx512f avx512_bf16\n")
+    assert not cpu_has_native_bf16("flags\t: fpu sse avx2 fma\n")
