@@ -12,6 +12,7 @@ directly, so the wire version never depends on the environment or on which modul
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -39,6 +40,8 @@ _NOT_AUTOPILOT_TYPES = frozenset({
 _SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
 _POLL_S = 0.1
 _MAGIC = (mavlink2.PROTOCOL_MARKER_V2, mavlink2.PROTOCOL_MARKER_V1)
+_UDP_BURST = 64
+_UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
 
 
 @dataclass(frozen=True)
@@ -257,7 +260,13 @@ class MavLink:
             return mavutil.mavlink_connection(ep.address, baud=ep.baud, **kwargs)
         if ep.scheme == "tcp":
             return mavutil.mavlink_connection(f"tcp:{ep.address}", retries=0, **kwargs)
-        return mavutil.mavlink_connection(f"{ep.scheme}:{ep.address}", **kwargs)
+        conn = mavutil.mavlink_connection(f"{ep.scheme}:{ep.address}", **kwargs)
+        if ep.scheme.startswith("udp"):
+            try:
+                conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF)
+            except OSError as err:  # the kernel caps it at net.core.rmem_max; a smaller buffer still works
+                log.debug("%s: SO_RCVBUF: %s", self.name, err)
+        return conn
 
     def _close(self) -> None:
         with self._send_lock:
@@ -307,10 +316,21 @@ class MavLink:
             data = self._read_stream(conn)
             if data is None:
                 return False
-        else:
-            data = conn.recv() if scheme.startswith("udp") else conn.recv(4096)
-        if not data:
+        elif scheme.startswith("udp"):
+            for _ in range(_UDP_BURST):  # drain what is queued: one select per burst, not per datagram
+                data = conn.recv()
+                if not data:
+                    break
+                self._feed(data, scheme)
             return True
+        else:
+            data = conn.recv(4096)
+        if data:
+            self._feed(data, scheme)
+        return True
+
+    def _feed(self, data: bytes, scheme: str) -> None:
+        """Parse received bytes and dispatch the messages in them."""
         self.rx_bytes += len(data)
         if scheme.startswith("udp") and self._rx.buf_len() > 0 and data[0] in _MAGIC:
             # the last datagram left half a packet and this one starts a new packet: the half was truncated.
@@ -322,10 +342,9 @@ class MavLink:
         except Exception as err:  # the parser should not raise with robust parsing, but never let it kill us
             self._count_bad(f"parser error: {err}")
             self._rx = self._new_parser()
-            return True
+            return
         for msg in msgs:
             self._dispatch(msg)
-        return True
 
     def _count_bad(self, reason: str) -> None:
         """Count bad input and say so, without flooding the log when a link spews garbage."""
