@@ -148,20 +148,35 @@ class FtpServer:
             return []
         if req.opcode in (Op.ACK, Op.NAK):
             return []
+        pre = self._prefetch(req)  # outside the lock: a file may be produced on demand (a full frame's JPEG)
+        key = (requester, req.seq, req.opcode, req.session, req.offset, req.size)
         with self._lock:
             self.requests += 1
-            key = (requester, req.seq, req.opcode, req.session, req.offset, req.size)
             if req.opcode != Op.BURST_READ_FILE and key in self._recent:
                 self.retransmits_answered += 1
                 return list(self._recent[key])
-            replies = [p.pack() for p in self._dispatch(req, requester)]
-            if req.opcode != Op.BURST_READ_FILE:
+            upload = self._finished_upload(req, requester)
+            if upload is None:
+                replies = [p.pack() for p in self._dispatch(req, requester, pre)]
+        if upload is not None:  # the receiver of an upload may take its time (new queries are encoded)
+            replies = [self._commit(req, upload).pack()]
+        if req.opcode != Op.BURST_READ_FILE:
+            with self._lock:
                 self._recent[key] = replies
                 while len(self._recent) > 64:
                     self._recent.popitem(last=False)
-            return replies
+        return replies
 
-    def _dispatch(self, req: FtpPacket, who: Requester) -> list[FtpPacket]:
+    def _prefetch(self, req: FtpPacket) -> object:
+        """What the tree holds for a request that reads it: bytes, a listing, or None (not there / no such op)."""
+        if req.opcode not in (Op.LIST_DIRECTORY, Op.OPEN_FILE_RO, Op.CALC_FILE_CRC32):
+            return None
+        path = clean_path(req.path())
+        if path is None:
+            return None
+        return self.tree.listdir(path) if req.opcode == Op.LIST_DIRECTORY else self.tree.read(path)
+
+    def _dispatch(self, req: FtpPacket, who: Requester, pre: object = None) -> list[FtpPacket]:
         op = req.opcode
         if op == Op.NONE:
             return [ack(req)]
@@ -172,15 +187,15 @@ class FtpServer:
         if op == Op.TERMINATE_SESSION:
             return [self._terminate(req, who)]
         if op == Op.LIST_DIRECTORY:
-            return [self._list(req)]
+            return [self._list(req, pre)]
         if op == Op.OPEN_FILE_RO:
-            return [self._open_ro(req, who)]
+            return [self._open_ro(req, who, pre)]
         if op == Op.READ_FILE:
             return [self._read(req, who)]
         if op == Op.BURST_READ_FILE:
             return self._burst_start(req, who)
         if op == Op.CALC_FILE_CRC32:
-            return [self._crc(req)]
+            return [self._crc(req, pre)]
         if op in (Op.CREATE_FILE, Op.OPEN_FILE_WO, Op.WRITE_FILE, Op.TRUNCATE_FILE, Op.REMOVE_FILE):
             if not self.writable:
                 return [nak(req, FtpErr.FILE_PROTECTED)]
@@ -200,24 +215,34 @@ class FtpServer:
         return req.session
 
     def _terminate(self, req: FtpPacket, who: Requester) -> FtpPacket:
-        sess = self._session(req, who)
-        if sess is None:
+        if self._session(req, who) is None:
             return nak(req, FtpErr.INVALID_SESSION)
         del self._sessions[(who, req.session)]
-        if sess.writing:
-            target = self.tree.upload_target(sess.path)
-            try:
-                if target is None:
-                    raise ValueError("not uploadable")
-                target(bytes(sess.data))
-            except ValueError as err:
-                log.warning("FTP: upload to %s refused: %s", sess.path, err)
-                return nak(req, FtpErr.FAIL)
         return ack(req)
 
-    def _list(self, req: FtpPacket) -> FtpPacket:
-        path = clean_path(req.path())
-        entries = None if path is None else self.tree.listdir(path)
+    def _finished_upload(self, req: FtpPacket, who: Requester) -> _Session | None:
+        """A TerminateSession that closes a written file: the session, taken out (called with the lock held)."""
+        if req.opcode != Op.TERMINATE_SESSION:
+            return None
+        sess = self._session(req, who)
+        if sess is None or not sess.writing:
+            return None
+        del self._sessions[(who, req.session)]
+        return sess
+
+    def _commit(self, req: FtpPacket, sess: _Session) -> FtpPacket:
+        """Hand a closed upload to its receiver (without the lock held); its refusal is the client's NAK."""
+        target = self.tree.upload_target(sess.path)
+        try:
+            if target is None:
+                raise ValueError("not uploadable")
+            target(bytes(sess.data))
+        except ValueError as err:
+            log.warning("FTP: upload to %s refused: %s", sess.path, err)
+            return nak(req, FtpErr.FAIL)
+        return ack(req)
+
+    def _list(self, req: FtpPacket, entries) -> FtpPacket:
         if entries is None:
             return nak(req, FtpErr.FILE_NOT_FOUND)
         if req.offset >= len(entries):
@@ -232,12 +257,10 @@ class FtpServer:
             return nak(req, FtpErr.FAIL)
         return ack(req, data=out)
 
-    def _open_ro(self, req: FtpPacket, who: Requester) -> FtpPacket:
-        path = clean_path(req.path())
-        data = None if path is None else self.tree.read(path)
+    def _open_ro(self, req: FtpPacket, who: Requester, data) -> FtpPacket:
         if data is None:
             return nak(req, FtpErr.FILE_NOT_FOUND)
-        sid = self._new_session(req, who, path, data, writing=False)
+        sid = self._new_session(req, who, clean_path(req.path()) or "", data, writing=False)
         return ack(req, session=sid, data=struct.pack("<I", len(data)))
 
     def _read(self, req: FtpPacket, who: Requester) -> FtpPacket:
@@ -262,9 +285,7 @@ class FtpServer:
         sess.burst_session = req.session
         return []
 
-    def _crc(self, req: FtpPacket) -> FtpPacket:
-        path = clean_path(req.path())
-        data = None if path is None else self.tree.read(path)
+    def _crc(self, req: FtpPacket, data) -> FtpPacket:
         if data is None:
             return nak(req, FtpErr.FILE_NOT_FOUND)
         return ack(req, data=struct.pack("<I", crc32_ardupilot(data)))
