@@ -59,7 +59,7 @@ def receive_rate(log: Path, speed: float, *, start_s: float, duration_s: float) 
             "offered_msg_s": round(sent["sent"] / wall, 1), "received_msg_s": round(link.rx_messages / wall, 1)}
 
 
-def pose_lookup_us(samples_hz: float = 10.0, history_s: float = 30.0, lookups: int = 20000) -> float:
+def pose_lookup_us(samples_hz: float = 10.0, history_s: float = 30.0, lookups: int = 5000) -> float:
     """Microseconds per ``PoseHistory.pose_at`` with a full history (depth, attitude, position at ``samples_hz``)."""
     from vehicle.pose_history import PoseHistory, euler_to_quaternion
 

@@ -151,3 +151,15 @@ def test_replay_refuses_a_missing_or_foreign_file(tmp_path):
     assert result.returncode == 1
     assert result.stderr.strip().splitlines()[-1] == (
         f"merlion: error: {notlog}: not a MAVLink telemetry log (.tlog): no valid record found")
+
+
+@pytest.mark.slow
+def test_bench_link_reports_receive_share_and_pose_cost():
+    path = shared_file(LOG)
+    result = run_merlion("bench", "link", str(path), "--speeds", "4", "--start", "40", "--duration", "8", "--json",
+                         timeout=180)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    (one,) = report["replay"]
+    assert one["speed"] == 4.0 and one["sent"] > 500 and 0 < one["received"] <= one["sent"]
+    assert report["pose_at_us"] > 0
