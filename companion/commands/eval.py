@@ -28,6 +28,13 @@ def _summary_options(p: argparse.ArgumentParser, runs: bool = False) -> None:
                    help="map summary.json entries by time_s at this rate instead of by source index")
 
 
+def _report_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--report", metavar="DIR", help="write an HTML report here")
+    p.add_argument("--video", help="with --report and --summary-json: score every frame of this video with the "
+                                   "summary's encoder and queries, for the score-over-time plot")
+    p.add_argument("--config", help="YAML configuration for --video (encoder settings)")
+
+
 def register(add_command) -> None:
     p = add_command("srum", "SRUM of a summary against human summaries (the paper's metric)", group=GROUP,
                     group_help=GROUP_HELP)
@@ -37,7 +44,7 @@ def register(add_command) -> None:
                                     "(default for a data set JSON: its paper_table_human_ids)")
     _srum_options(p, "default: the data set's, else 30")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--report", metavar="DIR", help="write an HTML report here")
+    _report_options(p)
     p.set_defaults(func=_cmd_srum)
 
     p = add_command("table", "recompute the paper's Table I beside its printed values", group=GROUP)
@@ -53,7 +60,7 @@ def register(add_command) -> None:
     p.add_argument("--k", type=int, help="oracle summary size (default: the summary's size)")
     _srum_options(p, "default: 30; the survey video is 10")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--report", metavar="DIR", help="write an HTML report here")
+    _report_options(p)
     p.set_defaults(func=_cmd_labels)
 
     p = add_command("auroc", "how well the semantic score ranks labelled positive frames over negatives",
@@ -133,20 +140,25 @@ def _cmd_srum(args: argparse.Namespace) -> int:
         print(f"SRUM {value:.4f}  {versus}  "
               f"({len(humans)} human summaries; alpha {params.alpha:g}, tau {params.tau_s:g} s, fps {params.fps:g})")
     if args.report:
-        _report(args.report, "SRUM", summary, base, frames, result)
+        _report(args, "SRUM", summary, base, result)
     return 0
 
 
-def _report(out: str, name: str, summary: dict | None, base: Path | None, frames: list[int], metrics: dict) -> None:
+def _report(args: argparse.Namespace, name: str, summary: dict | None, base: Path | None, metrics: dict) -> None:
     from companion.evaluation.report import ReportRun, write_report
-    from companion.evaluation.runs import run_from_summary
+    from companion.evaluation.runs import attach_scores, run_from_summary, summary_config
 
     shown = {k: v for k, v in metrics.items() if not isinstance(v, dict)}
     if summary is not None and base is not None:
         run = run_from_summary(name, summary, base, shown)
+        if args.video:
+            cfg = summary_config(summary, _config(args, None))
+            attach_scores(run, args.video, cfg, make_encoder(cfg))
     else:
+        if args.video:
+            raise UsageError("--video needs --summary-json (the encoder and queries come from it)")
         run = ReportRun(name=name, metrics=shown)
-    page = write_report(out, [run], title=f"MERLION evaluation: {name}")
+    page = write_report(args.report, [run], title=f"MERLION evaluation: {name}")
     print(f"report: {page}")
 
 
@@ -191,7 +203,7 @@ def _cmd_labels(args: argparse.Namespace) -> int:
               f"({result['positive_segments']} positive segments)  label coverage {result['label_coverage']:.3f}  "
               f"SRUM vs oracle {result['srum_oracle']:.4f}  (query {query or 'any label'}; oracle {result['oracle']})")
     if args.report:
-        _report(args.report, "summary", summary, base, frames, result)
+        _report(args, "summary", summary, base, result)
     return 0
 
 

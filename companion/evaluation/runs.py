@@ -6,6 +6,9 @@ from pathlib import Path
 
 import cv2
 
+from companion.config import Config, build_config
+from companion.encoders.base import Encoder
+from companion.evaluation.frame_scores import score_video
 from companion.evaluation.report import ReportRun
 
 
@@ -35,3 +38,29 @@ def run_from_summary(name: str, summary: dict, base: Path, metrics: dict[str, ob
     if len(run.images) != len(run.frame_times):
         run.images = []
     return run
+
+
+ENCODER_NAMES = ("clip", "imagenet", "visual")
+
+
+def summary_config(summary: dict, cfg: Config) -> Config:
+    """``cfg`` with the encoder family and the queries a summary.json says it was made with, so re-scoring a
+    video reproduces that run's scores (a CLIP run keeps the configured weights and architecture)."""
+    data = cfg.model_dump()
+    family = str(summary.get("encoder", "")).split(":", 1)[0]
+    if family in ENCODER_NAMES:
+        data["encoder"]["name"] = family
+    params = summary.get("params") or {}
+    if params.get("query"):
+        data["queries"]["positive"] = params["query"]
+    if isinstance(params.get("negatives"), list):
+        data["queries"]["negatives"] = [n for n in params["negatives"] if isinstance(n, str)]
+    if isinstance(params.get("tau_ss"), int | float):
+        data["queries"]["tau_ss"] = params["tau_ss"]
+    return build_config(data, origin="summary.json")
+
+
+def attach_scores(run: ReportRun, video: str | Path, cfg: Config, encoder: Encoder) -> None:
+    """Scores every frame of ``video`` for the run's score-over-time plot."""
+    vs = score_video(video, encoder, cfg.queries, cfg.encoder.batch)
+    run.score_times, run.scores, run.tau = vs.times, [float(s) for s in vs.scores], cfg.queries.tau_ss

@@ -94,12 +94,14 @@ def test_summarize_with_the_visual_baseline_then_evaluate_its_summary_json(tmp_p
     assert doc["encoder"] == "visual" and len(doc["frames"]) == 6
     assert all(f["score"] == 1.0 for f in doc["frames"])
     r = run_merlion("eval", "labels", "--labels", str(csv), "--fps", "10", "--summary-json",
-                    str(tmp_path / "sum" / "summary.json"), "--json", "--report", str(tmp_path / "rep"))
+                    str(tmp_path / "sum" / "summary.json"), "--json", "--report", str(tmp_path / "rep"),
+                    "--video", str(video))
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout.splitlines()[0])
     assert out["frames"] == sorted(f["index"] + 1 for f in doc["frames"])
     page = (tmp_path / "rep" / "index.html").read_text()
-    assert "summary_contact_sheet.png" in page and (tmp_path / "rep" / "summary_contact_sheet.png").is_file()
+    for png in ("summary_contact_sheet.png", "summary_score.png"):  # the score plot from re-scoring --video
+        assert png in page and (tmp_path / "rep" / png).is_file()
 
 
 @pytest.mark.slow
