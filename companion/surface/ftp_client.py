@@ -63,25 +63,51 @@ def unpack(payload: bytes | list[int]) -> Reply:
 class _Job:
     path: str
     done: DoneFn
+    known: dict[int, bytes] = field(default_factory=dict)
+    """Bytes the caller already has, by offset (what a stalled push delivered): only the rest is read."""
+    known_size: int | None = None
+    """Size of the file ``known`` came from; the known bytes are used only if the server's file has this size."""
     session: int | None = None
     size: int | None = None
     """From the OpenFileRO ACK; None when the server did not say (then read to EOF)."""
-    chunks: dict[int, bytes] = field(default_factory=dict)
-    """Received data by offset (offsets are multiples of MAX_DATA: we only ask for those)."""
+    buf: bytearray = field(default_factory=bytearray)
+    have: bytearray = field(default_factory=bytearray)
+    """One byte per file byte: 1 where ``buf`` holds data received."""
     error: str = ""
 
-    def contiguous(self) -> int:
-        n = 0
-        while n in self.chunks and self.chunks[n]:
-            n += len(self.chunks[n])
-        return n
+    def start(self, size: int | None) -> None:
+        self.size = size
+        if size is None:
+            return
+        self.buf, self.have = bytearray(size), bytearray(size)
+        if self.known and self.known_size == size:
+            for offset, data in self.known.items():
+                data = data[: max(0, size - offset)]
+                self.buf[offset : offset + len(data)] = data
+                self.have[offset : offset + len(data)] = b"\1" * len(data)
 
-    def missing(self) -> list[int]:
-        assert self.size is not None
-        return [off for off in range(0, self.size, MAX_DATA) if off not in self.chunks]
+    def hole(self) -> tuple[int, int] | None:
+        """The first run of missing bytes as (offset, length), or None when the file is complete."""
+        start = self.have.find(0)
+        if start < 0:
+            return None
+        stop = self.have.find(1, start)
+        return start, (len(self.have) if stop < 0 else stop) - start
 
-    def data(self) -> bytes:
-        return b"".join(self.chunks[k] for k in sorted(self.chunks))
+    def store(self, offset: int, data: bytes) -> int:
+        """Keep ``data`` at ``offset``; returns how many bytes were new."""
+        if self.size is None:  # size unknown: only the next bytes in order
+            if offset != len(self.buf) or not data:
+                return 0
+            self.buf.extend(data)
+            return len(data)
+        data = data[: max(0, self.size - offset)]
+        if not data:
+            return 0
+        new = self.have[offset : offset + len(data)].count(0)
+        self.buf[offset : offset + len(data)] = data
+        self.have[offset : offset + len(data)] = b"\1" * len(data)
+        return new
 
 
 class FtpClient:
@@ -121,9 +147,14 @@ class FtpClient:
 
     # --- public --------------------------------------------------------------------------------------------
 
-    def fetch(self, path: str, done: DoneFn) -> None:
-        """Queue a download of ``path`` (e.g. ``/summary/3.jpg``); ``done`` hears the outcome exactly once."""
-        self._queue.append(_Job(path, done))
+    def fetch(self, path: str, done: DoneFn, *, known: dict[int, bytes] | None = None,
+              known_size: int | None = None) -> None:
+        """Queue a download of ``path`` (e.g. ``/summary/3.jpg``); ``done`` hears the outcome exactly once.
+
+        ``known`` (offset -> bytes of a file of ``known_size`` bytes, e.g. the packets of a stalled push) are
+        not read again when the server's file has that size: on a lossy link that saves most of the transfer.
+        """
+        self._queue.append(_Job(path, done, known=dict(known or {}), known_size=known_size))
         if self._job is None:
             self._next_job()
 
@@ -233,13 +264,16 @@ class FtpClient:
                 self._finish(None, f"open failed: {_nak(reply)}", terminate=False)
                 return
             job.session = reply.session
-            job.size = struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None  # 0: read to EOF
+            job.start(struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None)  # 0: read to EOF
             self._continue()
         elif opcode == OP_READ:
             if reply.opcode == OP_NAK:
                 if reply.data[:1] == bytes([NAK_EOF]):
-                    if job.size is None:
-                        job.size = job.contiguous()
+                    if job.size is not None:
+                        self._finish(None, f"file ended at {offset}, before its announced {job.size} bytes")
+                        return
+                    job.size = len(job.buf)  # the end of a file of unknown size: what we have is all
+                    job.have = bytearray(b"\1" * job.size)
                     self._continue()
                 else:
                     self._finish(None, f"read failed at {offset}: {_nak(reply)}")
@@ -256,40 +290,36 @@ class FtpClient:
         self._sent_at = self._clock()  # progress: the timeout counts from the latest packet
         self._tries = 1
         if reply.opcode == OP_NAK:
-            if reply.data[:1] != bytes([NAK_EOF]):
+            if reply.data[:1] != bytes([NAK_EOF]) or job.hole() is not None:
                 self._request = None
                 self._finish(None, f"burst read failed: {_nak(reply)}")
                 return
         else:
             self._store(reply.offset, reply.data)
-        if reply.opcode == OP_NAK or reply.burst_complete or not job.missing():
+        if reply.opcode == OP_NAK or reply.burst_complete or job.hole() is None:
             self._request = None
             self._continue()
 
     def _store(self, offset: int, data: bytes) -> None:
         job = self._job
         assert job is not None
-        if offset % MAX_DATA or offset in job.chunks or not data:
-            return
-        if job.size is not None and offset >= job.size:
-            return
-        job.chunks[offset] = data
-        self.bytes_read += len(data)
+        self.bytes_read += job.store(offset, data)
 
     def _continue(self) -> None:
         """Ask for what is still missing, or close the session when nothing is."""
         job = self._job
         assert job is not None and job.session is not None
         if job.size is None:
-            self._request_op(OP_READ, session=job.session, offset=job.contiguous(), size=MAX_DATA)
+            self._request_op(OP_READ, session=job.session, offset=len(job.buf), size=MAX_DATA)
             return
-        missing = job.missing()
-        if not missing:
+        hole = job.hole()
+        if hole is None:
             self._terminate()
-        elif len(missing) <= 2 or not self._burst:
-            self._request_op(OP_READ, session=job.session, offset=missing[0], size=MAX_DATA)
+        elif job.have.count(0) <= 2 * MAX_DATA or not self._burst:
+            offset, length = hole
+            self._request_op(OP_READ, session=job.session, offset=offset, size=min(MAX_DATA, length))
         else:
-            self._request_op(OP_BURST, session=job.session, offset=missing[0], size=MAX_DATA)
+            self._request_op(OP_BURST, session=job.session, offset=hole[0], size=MAX_DATA)
 
     def _terminate(self) -> None:
         job = self._job
@@ -302,7 +332,7 @@ class FtpClient:
         if job.error:
             self._finish(None, job.error, terminate=False)
             return
-        data = job.data()
+        data = bytes(job.buf)
         if job.size is not None and len(data) != job.size:
             self._finish(None, f"got {len(data)} of {job.size} bytes", terminate=False)
             return

@@ -45,6 +45,15 @@ class _Transfer:
     buffer: bytearray = field(default_factory=bytearray)
     received: set[int] = field(default_factory=set)
 
+    def abandoned(self, source: tuple[int, int]) -> Abandoned:
+        chunks = {}
+        for seq in sorted(self.received):
+            start = seq * self.payload
+            piece = bytes(self.buffer[start : min(start + self.payload, self.size)])
+            if piece:
+                chunks[start] = piece
+        return Abandoned(source, self.handshake_no, len(self.received), self.packets, self.size, self.kind, chunks)
+
 
 @dataclass
 class Abandoned:
@@ -54,6 +63,17 @@ class Abandoned:
     handshake_no: int
     received_packets: int
     packets: int
+    size: int = 0
+    kind: str = "jpeg"
+    chunks: dict[int, bytes] = field(default_factory=dict)
+    """What did arrive, by byte offset: a pull of the same file needs only the rest."""
+
+
+@dataclass
+class LostHandshake:
+    """Packets of a new image arrived without its handshake: that image cannot be reassembled at all."""
+
+    source: tuple[int, int]
 
 
 class ImageReceiver:
@@ -63,11 +83,12 @@ class ImageReceiver:
         self._clock = clock
         self._transfers: dict[tuple[int, int], _Transfer] = {}
         self._handshakes: dict[tuple[int, int], int] = {}
+        self._headless: set[tuple[int, int]] = set()  # sources sending packets of an image we saw no handshake of
         self.completed = 0
         self.abandoned = 0
         self.bytes_received = 0
 
-    def handle(self, msg) -> PushedImage | Abandoned | None:
+    def handle(self, msg) -> PushedImage | Abandoned | LostHandshake | None:
         """Process one message (others are ignored); say what, if anything, it finished or abandoned."""
         kind = msg.get_type()
         if kind == "DATA_TRANSMISSION_HANDSHAKE":
@@ -82,24 +103,28 @@ class ImageReceiver:
         return None if t is None else (t.handshake_no, len(t.received), t.packets)
 
     def expire(self, idle_s: float) -> list[Abandoned]:
-        """Give up on images that made no progress for ``idle_s``: the last push of a burst of summary changes
-        has no next handshake to abandon it, and its frame should not wait for one."""
+        """Give up on images that made no progress for ``idle_s``, or for four times the usual gap between
+        their packets on a slow link: the last push of a burst of summary changes has no next handshake to
+        abandon it, and its frame should not wait for one."""
         now = self._clock()
         gone = []
         for source, t in list(self._transfers.items()):
-            if now - t.last_progress > idle_s:
+            arrived = len(t.received)
+            usual_gap = (t.last_progress - t.started) / arrived if arrived else 0.0
+            if now - t.last_progress > max(idle_s, 4.0 * usual_gap):
                 del self._transfers[source]
                 self.abandoned += 1
-                gone.append(Abandoned(source, t.handshake_no, len(t.received), t.packets))
+                gone.append(t.abandoned(source))
         return gone
 
     def _handshake(self, msg) -> Abandoned | None:
         source = (msg.get_srcSystem(), msg.get_srcComponent())
+        self._headless.discard(source)
         previous = self._transfers.pop(source, None)
         gone = None
         if previous is not None and len(previous.received) < previous.packets:
             self.abandoned += 1
-            gone = Abandoned(source, previous.handshake_no, len(previous.received), previous.packets)
+            gone = previous.abandoned(source)
         # A handshake with nothing to send (size or packets 0) is how some senders answer a request: no image.
         if msg.size <= 0 or msg.packets <= 0 or msg.payload <= 0:
             return gone
@@ -115,10 +140,17 @@ class ImageReceiver:
         )
         return gone
 
-    def _chunk(self, msg) -> PushedImage | None:
+    def _chunk(self, msg) -> PushedImage | LostHandshake | None:
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         t = self._transfers.get(source)
-        if t is None or not 0 <= msg.seqnr < t.packets:
+        if t is None:
+            # the first packets of an image with no handshake before them: its handshake was lost
+            if msg.seqnr <= 1 and source not in self._headless:
+                self._headless.add(source)
+                self.abandoned += 1
+                return LostHandshake(source)
+            return None
+        if not 0 <= msg.seqnr < t.packets:
             return None
         start = msg.seqnr * t.payload
         data = bytes(msg.data)[: t.payload]

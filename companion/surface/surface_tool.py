@@ -26,7 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.config import MavlinkConfig
 from companion.surface.ftp_client import FtpClient
 from companion.surface.gallery import Capture, Gallery
-from companion.surface.image_receiver import Abandoned, ImageReceiver, PushedImage
+from companion.surface.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
 from companion.surface.messages import capture_from_message, mftp_path, parse_index, parse_statustext
 from vehicle.link import MavLink, is_autopilot_heartbeat
 
@@ -47,6 +47,8 @@ class SurfaceOptions:
     """(system, component) of the companion; None: the camera component that sends captures or pushes images."""
     push_timeout_s: float = 30.0
     """A capture with no pushed thumbnail after this long is fetched by FTP."""
+    push_stall_s: float = 3.0
+    """A push that received nothing for this long (longer on a slow link) is given up: the rest comes by FTP."""
     index_refresh_s: float = 10.0
     """Pull index.json at most this often, and only after the summary changed."""
     ftp: bool = True
@@ -104,7 +106,7 @@ class SurfaceTool:
         self._expected: dict[int, int] = {}  # thumbnail bytes by image index, from index.json (JPEG only)
         self._bound: dict[int, int] = {}  # handshake number -> image index
         self._orphans: dict[int, PushedImage] = {}  # finished pushes not yet paired
-        self._lost_push: set[int] = set()  # handshake numbers abandoned before pairing
+        self._lost_push: dict[int, Abandoned] = {}  # pushes abandoned before pairing, by handshake number
         self._fetching: set[int] = set()
         self._index_due: float | None = None
         self._index_pulled_at = -1e9
@@ -147,7 +149,7 @@ class SurfaceTool:
         now = self._clock()
         if self._ftp is not None:
             self._ftp.tick()
-        for stalled in self.images.expire(self.options.push_timeout_s):
+        for stalled in self.images.expire(self.options.push_stall_s):
             self._on_push_result(stalled)
         while self._waiting and now - self._waiting[0][1] > self.options.push_timeout_s:
             index, _ = self._waiting.popleft()
@@ -282,11 +284,21 @@ class SurfaceTool:
         if handshake_no in self._orphans:
             self._store_push(index, self._orphans.pop(handshake_no))
         elif handshake_no in self._lost_push:
-            self._lost_push.discard(handshake_no)
-            self._fetch_thumbnail(index)
+            self._fetch_thumbnail(index, partial=self._lost_push.pop(handshake_no))
 
-    def _on_push_result(self, result: PushedImage | Abandoned | None) -> None:
-        if isinstance(result, PushedImage):
+    def _on_push_result(self, result: PushedImage | Abandoned | LostHandshake | None) -> None:
+        if isinstance(result, LostHandshake):
+            # a push whose handshake was lost: it was for the oldest capture still waiting, which must come by FTP
+            with self.lock:
+                self.status.pushed_lost += 1
+            while self._waiting:
+                index, _ = self._waiting.popleft()
+                cap = self.gallery.get(index)
+                if cap is not None and cap.in_summary and cap.thumbnail is None:
+                    log.info("push for capture %d lost its handshake: FTP fallback", index)
+                    self._fetch_thumbnail(index)
+                    break
+        elif isinstance(result, PushedImage):
             index = self._bound.pop(result.handshake_no, None)
             if index is None:
                 self._orphans[result.handshake_no] = result
@@ -299,9 +311,9 @@ class SurfaceTool:
             log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
                      result.received_packets, result.packets)
             if index is None:
-                self._lost_push.add(result.handshake_no)
+                self._lost_push[result.handshake_no] = result
             else:
-                self._fetch_thumbnail(index)
+                self._fetch_thumbnail(index, partial=result)
 
     def _store_push(self, index: int, image: PushedImage) -> None:
         expected = self._expected.get(index)
@@ -315,7 +327,8 @@ class SurfaceTool:
         with self.lock:
             self.status.pushed_ok += 1
 
-    def _fetch_thumbnail(self, index: int, *, replace: bool = False) -> None:
+    def _fetch_thumbnail(self, index: int, *, replace: bool = False, partial: Abandoned | None = None) -> None:
+        """Pull the thumbnail by FTP; with the ``partial`` push it came from, only the packets the push lost."""
         cap = self.gallery.get(index)
         if cap is None or not cap.in_summary or index in self._fetching:
             return
@@ -339,9 +352,12 @@ class SurfaceTool:
             now_cap = self.gallery.get(index)
             if now_cap is not None and (replace or now_cap.thumbnail is None):
                 ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
-                self.gallery.add_thumbnail(index, data, ext=ext, via="ftp")
+                self.gallery.add_thumbnail(index, data, ext=ext, via="push+ftp" if known else "ftp")
 
-        self._ftp.fetch(path, done)
+        known, known_size = {}, None
+        if partial is not None and partial.kind == "jpeg" and path.endswith(".jpg"):
+            known, known_size = partial.chunks, partial.size  # the same JPEG file: fill in only the holes
+        self._ftp.fetch(path, done, known=known, known_size=known_size)
 
     # --- status and index ----------------------------------------------------------------------------------
 

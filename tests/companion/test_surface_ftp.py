@@ -37,8 +37,13 @@ class _Client:
     def fetch(self, *paths: str, timeout: float = 20.0) -> dict[str, tuple[bytes | None, str]]:
         for p in paths:
             self.ftp.fetch(p, lambda path, data, err: self.results.__setitem__(path, (data, err)))
+        self.pump(lambda: len(self.results) >= len(paths), timeout)
+        return self.results
+
+    def pump(self, until, timeout: float = 20.0) -> None:
+        """Be the receive loop: feed replies to the client and let it retransmit, until ``until()``."""
         end = time.monotonic() + timeout
-        while len(self.results) < len(paths) and time.monotonic() < end:
+        while not until() and time.monotonic() < end:
             try:
                 data = self.sock.recv(4096)
                 for msg in self.rx.parse_buffer(data) or []:
@@ -46,7 +51,6 @@ class _Client:
             except TimeoutError:
                 pass
             self.ftp.tick()
-        return self.results
 
     def close(self) -> None:
         self.peer.close()
@@ -81,3 +85,21 @@ def test_every_byte_arrives_when_the_link_drops_a_third_of_the_replies(burst):
     assert c.ftp.retransmissions >= 1
     if not burst:
         assert c.peer.ftp.retransmits_answered >= 1  # a lost reply was asked for again with the same request
+
+
+def test_only_the_bytes_a_stalled_push_lost_are_read():
+    c = _Client()
+    try:
+        sent = c.peer.add(summary_frame(8), push=False)
+        known = {off: sent[off:off + 253] for off in range(0, len(sent), 253) if off != 253}  # chunk 1 lost
+        stale = {0: b"\0" * 253}
+        results = {}
+        c.ftp.fetch("/summary/8.jpg", lambda p, d, e: results.__setitem__("partial", (d, e)),
+                    known=known, known_size=len(sent))
+        c.ftp.fetch("/summary/8.jpg", lambda p, d, e: results.__setitem__("other size", (d, e)),
+                    known=stale, known_size=len(sent) + 1)  # from a different file: not used
+        c.pump(lambda: len(results) == 2)
+    finally:
+        c.close()
+    assert results["partial"] == (sent, "") and results["other size"] == (sent, "")
+    assert c.ftp.bytes_read == 253 + len(sent)  # the lost chunk, then the whole file for the second fetch

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.surface.image_receiver import Abandoned, ImageReceiver, PushedImage
+from companion.surface.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
 from companion.surface.messages import (
     capture_from_message,
     heading_from_q,
@@ -121,3 +121,18 @@ def test_index_json_in_the_shapes_we_accept():
     assert (c.image_index, c.score, c.depth_m, c.heading_deg) == (3, 0.5, 4.0, 10.0)
     assert c.time_utc == 1700000000.0 and c.file_url == "mftp://summary/3.jpg"
     assert [c.image_index for c in parse_index(b'[{"index": 1}, {"index": 2}]')] == [1, 2]
+
+
+def test_packets_without_their_handshake_are_reported_once():
+    sock, peer = _pair()
+    try:
+        thumb = make_thumbnail(summary_frame(9).image)
+        peer.push(thumb.data, thumb.width, thumb.height, drop_chunks={-1})  # -1: the handshake itself
+        receiver = ImageReceiver()
+        got = _receive(sock, receiver, 1)
+        more = _receive(sock, receiver, 1, timeout=0.5)  # the image's other packets: nothing more to say
+    finally:
+        peer.close()
+        sock.close()
+    assert [type(g) for g in got] == [LostHandshake]
+    assert got[0].source == (1, 100) and more == []
