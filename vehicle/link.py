@@ -41,6 +41,7 @@ _SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
 _POLL_S = 0.1
 _MAGIC = (mavlink2.PROTOCOL_MARKER_V2, mavlink2.PROTOCOL_MARKER_V1)
 _UDP_BURST = 64
+_SERIAL_WRITE_TIMEOUT_S = 0.2
 _UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
 
 
@@ -257,7 +258,9 @@ class MavLink:
         ep = self.endpoint
         kwargs = {"source_system": self.system_id, "source_component": self.component_id}
         if ep.scheme == "serial":
-            return mavutil.mavlink_connection(ep.address, baud=ep.baud, **kwargs)
+            conn = mavutil.mavlink_connection(ep.address, baud=ep.baud, **kwargs)
+            conn.port.write_timeout = _SERIAL_WRITE_TIMEOUT_S  # a stalled port must not hold up a sender
+            return conn
         if ep.scheme == "tcp":
             return mavutil.mavlink_connection(f"tcp:{ep.address}", retries=0, **kwargs)
         conn = mavutil.mavlink_connection(f"{ep.scheme}:{ep.address}", **kwargs)

@@ -19,6 +19,7 @@ from tests.vehicle.sim_env import FAST_LINK, Transitions, companion_and_sim, qui
 from vehicle.dive_profile import compile_profile, load_profile
 from vehicle.link import MavLink
 from vehicle.message_rates import RateKeeper
+from vehicle.sim_vehicle import SimVehicle, run_sim_vehicle
 from vehicle.telemetry import VehicleTelemetry
 
 
@@ -186,3 +187,23 @@ def test_shipped_survey_profile_loads_and_dives():
     assert profile.state(profile.duration - 1).mode == "SURFACE"
     with pytest.raises(MerlionError, match="unknown kind 'spiral'"):
         compile_profile({"legs": [{"spiral": {"turns": 3}}]})
+
+
+def test_scheduled_silence_and_a_listening_sim():
+    """``--silence-at/--silence-for`` as run_sim_vehicle does them, with the sim listening (udpin) this time."""
+    port = free_udp_port()
+    sim = SimVehicle(f"udpin:127.0.0.1:{port}", quick_dive(), rates={"HEARTBEAT": 5.0})
+    link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))  # our heartbeat lets the sim answer
+    seen = Transitions(link)
+    stop = threading.Event()
+    runner = threading.Thread(target=lambda: run_sim_vehicle(sim, silence_at=1.0, silence_for=1.5, stop=stop))
+    runner.start()
+    link.start()
+    try:
+        assert seen.wait([True, False, True], 15)
+        assert sim.link.autopilot is None  # the sim never took our camera heartbeat for an autopilot
+    finally:
+        stop.set()
+        runner.join(10)
+        link.stop()
+    assert not runner.is_alive()
