@@ -128,3 +128,17 @@ def test_contact_sheet_grid_and_labels():
     assert (band > 200).any()  # label text drawn under the first tile
     empty = contact_sheet([])
     assert empty.ndim == 3 and empty.size > 0
+
+
+def test_truncated_video_is_summarized_and_the_loss_reported(tmp_path):
+    from tests.companion.test_sources import faststart
+
+    whole = faststart(shared_file(SURVEY).read_bytes())
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(whole[: int(len(whole) * 0.6)])
+    proc = run_merlion("summarize", str(cut), "--out", str(tmp_path / "out"), "--encoder", "visual", "--fps", "2")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "out" / "summary.json").read_text())
+    stats = doc["params"]["stats"]
+    assert stats["frames_lost"] > 0 and stats["frames_seen"] > 0
+    assert f"{stats['frames_lost']} lost" in proc.stdout
