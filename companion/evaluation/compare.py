@@ -85,7 +85,7 @@ def compare(
         for name, run_cfg in plans:
             encoder = encoder_factory(run_cfg)
             where = root / ("merlion" if name == MERLION else "visual")
-            summarize(run_cfg, where, force=True, encoder=encoder, progress=False)
+            summarize(run_cfg, where, force=True, encoder=encoder)  # progress bar on a terminal
             frames, document = read_summary_json(where)
             metrics = {"encoder": encoder.name, **_metrics(table, frames, query, cfg.sampler.k)}
             report = run_from_summary(name, document, where, {})

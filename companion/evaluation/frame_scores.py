@@ -7,11 +7,13 @@ exactly as the pipeline does: the same downscale (``pipeline.downscale_for``) an
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from companion.config import QueryConfig
 from companion.encoders.base import Encoder
@@ -48,6 +50,8 @@ def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch:
             scores.append(presampler.scores(encoder.encode_images(pending)))
             pending.clear()
 
+    total = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) or None
+    bar = tqdm(total=total, unit="frame", desc="score", file=sys.stderr, disable=not sys.stderr.isatty())
     try:
         while True:
             ok, img = cap.read()
@@ -57,9 +61,11 @@ def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch:
             pending.append(downscale_for(img, encoder.input_size))
             if len(pending) >= batch:
                 flush()
+                bar.update(batch)
         flush()
     finally:
         cap.release()
+        bar.close()
     if not indices:
         raise MerlionError(f"{p}: no frames could be decoded")
     return VideoScores(indices, [i / fps for i in indices], np.concatenate(scores).astype(np.float64), fps)
