@@ -144,7 +144,10 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
         companion.start()
         _say(opts, f"merlion demo: companion running on {cfg.source.uri} with {companion.encoder.name}; "
                    f"simulated ArduSub and surface tool on loopback; {opts.duration:.0f} s (Ctrl-C ends it early)")
-        companion.run(duration=opts.duration, stop=stop)
+        deadline = time.monotonic() + opts.duration
+        while not stop.is_set() and time.monotonic() < deadline:  # a progress line every 10 s
+            companion.run(duration=min(10.0, max(0.0, deadline - time.monotonic())), stop=stop)
+            _say(opts, f"  {opts.duration - max(0.0, deadline - time.monotonic()):4.0f} s  {companion.status_line()}")
         for proc, name in ((sim, "sim-vehicle"), (surface, "surface")):
             if proc.poll() is not None:
                 log.warning("%s exited early (code %s); see %s", name, proc.returncode, logs / f"{name}.log")

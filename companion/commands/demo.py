@@ -23,7 +23,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import logging
+
     from companion.demo import DemoOptions, main
 
+    if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
+        logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,
                             encoder=args.encoder))
