@@ -169,7 +169,7 @@ class MavLink:
         return self._opened.wait(timeout)
 
     def wait_autopilot(self, timeout: float) -> bool:
-        """True once an autopilot heartbeat has been seen (for start-up and tests; the link never needs it)."""
+        """True as soon as the autopilot's heartbeat is current (for start-up and tests; the link never needs it)."""
         return self._found.wait(timeout)
 
     # ----------------------------------------------------------------------------------------------- pub/sub
