@@ -58,8 +58,21 @@ def gstreamer_pipeline(port: int) -> str:
     )
 
 
+OPEN_TIMEOUT_MS = 30000
+"""Waiting for the first frame of a stream: RTP carries SPS/PPS with key frames, which may be seconds apart."""
+READ_TIMEOUT_MS = 2500
+"""A stream silent this long counts as a failed read; two in a row and it is reopened."""
+
+
+def _ffmpeg_capture(target: str) -> cv2.VideoCapture:
+    return cv2.VideoCapture(target, cv2.CAP_FFMPEG, [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS,
+                                                     cv2.CAP_PROP_READ_TIMEOUT_MSEC, READ_TIMEOUT_MS])
+
+
 class StreamSource(CaptureSource):
     """RTSP or RTP/UDP H.264, kept at ``cfg.fps``."""
+
+    max_failed_reads = 2
 
     def __init__(self, cfg: SourceConfig) -> None:
         self.uri = cfg.uri
@@ -76,13 +89,13 @@ class StreamSource(CaptureSource):
                 self._sdp = Path(name)
                 opener = self._open_sdp
         else:
-            opener = lambda: cv2.VideoCapture(cfg.uri, cv2.CAP_FFMPEG)  # noqa: E731
+            opener = lambda: _ffmpeg_capture(cfg.uri)  # noqa: E731
         super().__init__(cfg.uri, opener, fps=cfg.fps)
 
     def _open_sdp(self) -> cv2.VideoCapture:
         # FFmpeg refuses to follow an SDP file to UDP/RTP unless those protocols are whitelisted
         os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "protocol_whitelist;file,udp,rtp")
-        return cv2.VideoCapture(str(self._sdp), cv2.CAP_FFMPEG)
+        return _ffmpeg_capture(str(self._sdp))
 
     def close(self) -> None:
         super().close()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 import threading
 
 import cv2
@@ -13,7 +15,7 @@ from companion.errors import UsageError
 from companion.sources.base import FrameSource
 from companion.sources.capture import SourceLost
 from companion.sources.retrying import RetryingSource
-from companion.sources.stream import parse_udp, rtp_h264_sdp
+from companion.sources.stream import StreamSource, parse_udp, rtp_h264_sdp
 from companion.sources.synthetic import (
     FISH_SEGMENTS,
     SEGMENTS,
@@ -22,6 +24,7 @@ from companion.sources.synthetic import (
     segment_at,
 )
 from companion.sources.v4l2 import V4L2Source, is_v4l2
+from tests.conftest import free_udp_port, shared_file
 
 
 def take(source, n: int) -> list:
@@ -178,3 +181,57 @@ def test_udp_rtp_source_description() -> None:
         parse_udp("udp://@:notaport")
     sdp = rtp_h264_sdp(5600)
     assert "m=video 5600 RTP/AVP 96" in sdp and "H264/90000" in sdp
+
+
+def stream_rtp(path, port: int) -> subprocess.Popen:
+    """ffmpeg sending RTP/H.264 to a UDP port, as a BlueROV2 camera pipeline sends to port 5600."""
+    return subprocess.Popen(
+        ["ffmpeg", "-loglevel", "error", "-re", "-stream_loop", "-1", "-i", str(path), "-an", "-c:v", "libx264",
+         "-preset", "ultrafast", "-tune", "zerolatency", "-g", "10", "-f", "rtp", "-payload_type", "96",
+         f"rtp://127.0.0.1:{port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed (apt-get install ffmpeg)")
+def test_rtp_h264_stream_is_received_lost_and_reopened() -> None:
+    clip = shared_file("aquarium_fish/fish.mp4")
+    port = free_udp_port()
+    states: list[str] = []
+    frames: list = []
+    seen = threading.Condition()
+
+    def on_state(state: str, detail: str) -> None:
+        with seen:
+            states.append(state)
+            seen.notify_all()
+
+    cfg = SourceConfig(uri=f"udp://127.0.0.1:{port}", fps=5)
+    source = RetryingSource(lambda: StreamSource(cfg), name=cfg.uri, live=True, initial_s=0.2, max_s=0.5,
+                            on_state=on_state)
+
+    def drain() -> None:
+        for frame in source:
+            with seen:
+                frames.append(frame)
+                seen.notify_all()
+
+    sender = stream_rtp(clip, port)
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        with seen:
+            assert seen.wait_for(lambda: len(frames) >= 3, 60), "no frames from the RTP stream"
+        assert frames[0].image.shape == (360, 640, 3)
+        sender.terminate()
+        sender.wait(10)
+        with seen:
+            assert seen.wait_for(lambda: "retrying" in states, 60), "the lost stream was not noticed"
+            before = len(frames)
+        sender = stream_rtp(clip, port)
+        with seen:
+            assert seen.wait_for(lambda: len(frames) > before + 2, 60), "the stream did not come back"
+        assert states[-1] == "running"
+    finally:
+        source.close()
+        sender.kill()
+        sender.wait(10)
+        reader.join(30)
