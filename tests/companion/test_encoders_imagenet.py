@@ -42,6 +42,7 @@ def test_fish_images_outscore_no_fish_images_on_suim(encoder, suim):
     assert auroc(scores, fish) >= 0.75
 
 
+@pytest.mark.slow
 def test_survey_video_fish_frames_separate_from_no_fish(encoder):
     video = shared_file("survey/survey_480x270.mp4")
     labels = [int(r["fish_present"]) for r in csv.DictReader(
