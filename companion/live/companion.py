@@ -146,6 +146,7 @@ class LiveCompanion:
         self.source = RetryingSource(
             lambda: open_source(cfg), name=cfg.uri, live=is_live_uri(cfg.uri), loop=False,
             initial_s=cfg.retry_initial_s, max_s=cfg.retry_max_s, on_state=self._on_source_state,
+            beat=lambda: self.health.beat("capture"),
         )
         self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event)
         self.inference = InferenceLoop(

@@ -36,6 +36,7 @@ class CaptureSource(FrameSource):
         self._open_capture = open_capture
         self._cap: cv2.VideoCapture | None = None
         self._closed = False
+        self._iterating = False
 
     def open(self) -> cv2.VideoCapture:
         cap = self._open_capture()
@@ -48,6 +49,15 @@ class CaptureSource(FrameSource):
 
     def __iter__(self) -> Iterator[Frame]:
         cap = self._cap or self.open()
+        self._iterating = True
+        try:
+            yield from self._frames(cap)
+        finally:
+            # released by the thread that reads: releasing under a running read() crashes FFmpeg
+            self._iterating = False
+            self._release()
+
+    def _frames(self, cap: cv2.VideoCapture) -> Iterator[Frame]:
         period = 1.0 / self.fps
         start = time.monotonic()
         next_due = start
@@ -56,6 +66,8 @@ class CaptureSource(FrameSource):
         while not self._closed:
             ok, image = cap.read()
             now = time.monotonic()
+            if self._closed:
+                return
             if not ok or image is None:
                 failed += 1
                 if failed >= self.max_failed_reads:
@@ -69,8 +81,13 @@ class CaptureSource(FrameSource):
             next_due = max(next_due + period, now - period)
             yield Frame(image=image, index=index - 1, time_s=now - start, capture_time=time.time())
 
+    def _release(self) -> None:
+        cap, self._cap = self._cap, None
+        if cap is not None:
+            cap.release()
+
     def close(self) -> None:
+        """Safe from any thread: a reading thread releases the device itself when it sees the flag."""
         self._closed = True
-        if self._cap is not None:
-            self._cap.release()
-            self._cap = None
+        if not self._iterating:
+            self._release()

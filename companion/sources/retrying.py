@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterator
 
 from companion.errors import MerlionError
@@ -25,7 +26,8 @@ class RetryingSource(FrameSource):
 
     def __init__(self, open_source: Callable[[], FrameSource], *, name: str, live: bool, loop: bool = False,
                  initial_s: float = 1.0, max_s: float = 30.0,
-                 on_state: Callable[[str, str], None] | None = None) -> None:
+                 on_state: Callable[[str, str], None] | None = None,
+                 beat: Callable[[], None] | None = None) -> None:
         self.name = name
         self.live = live
         self.loop = loop
@@ -39,6 +41,8 @@ class RetryingSource(FrameSource):
         self.last_error = ""
         self._open = open_source
         self._on_state = on_state
+        self._beat = beat
+        """Called at least every second while waiting to retry: waiting for a camera is not being stuck."""
         self._current: FrameSource | None = None
         self._stop = threading.Event()
         self._index_offset = 0
@@ -57,7 +61,7 @@ class RetryingSource(FrameSource):
                 source = self._open()
             except Exception as err:  # noqa: BLE001 - every failure is retried, never fatal
                 self._failed(err, delay)
-                if self._stop.wait(delay):
+                if self._wait(delay):
                     break
                 delay = min(delay * 2, self.max_s)
                 continue
@@ -85,7 +89,7 @@ class RetryingSource(FrameSource):
                 self._index_offset += last_index + 1
                 self._time_offset += last_time
                 self._failed(err, delay)
-                if self._stop.wait(delay):
+                if self._wait(delay):
                     break
                 delay = min(delay * 2, self.max_s)
                 continue
@@ -96,7 +100,7 @@ class RetryingSource(FrameSource):
                 break
             if self.live:
                 self._failed(MerlionError("stream ended"), delay)
-                if self._stop.wait(delay):
+                if self._wait(delay):
                     break
                 delay = min(delay * 2, self.max_s)
                 continue
@@ -109,6 +113,18 @@ class RetryingSource(FrameSource):
             self._set("ended", "end of source")
             return
         self._set("closed")
+
+    def _wait(self, delay: float) -> bool:
+        """Back-off that close() interrupts; True when closed."""
+        end = time.monotonic() + delay
+        while True:
+            if self._beat is not None:
+                self._beat()
+            left = end - time.monotonic()
+            if left <= 0:
+                return self._stop.is_set()
+            if self._stop.wait(min(1.0, left)):
+                return True
 
     def _failed(self, err: BaseException, delay: float) -> None:
         self.failures += 1

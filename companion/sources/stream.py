@@ -58,8 +58,9 @@ def gstreamer_pipeline(port: int) -> str:
     )
 
 
-OPEN_TIMEOUT_MS = 30000
-"""Waiting for the first frame of a stream: RTP carries SPS/PPS with key frames, which may be seconds apart."""
+OPEN_TIMEOUT_MS = 8000
+"""Waiting for a stream to start (RTP carries SPS/PPS with key frames, a second or two apart on a BlueROV2).
+Kept under health.stall_after_s (10 s) so that an absent stream is retried, not taken for a stuck process."""
 READ_TIMEOUT_MS = 2500
 """A stream silent this long counts as a failed read; two in a row and it is reopened."""
 

@@ -79,9 +79,12 @@ def write_clip(path: Path, frames: int = 20) -> Path:
 def test_source_missing_then_returning_then_ending_keeps_the_process_up(tmp_path: Path, vehicle) -> None:
     hub, sim, listener = vehicle
     clip = tmp_path / "camera.avi"
-    cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(tmp_path / "store")})
+    cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(tmp_path / "store")},
+                       source={"retry_initial_s": 1.0, "retry_max_s": 2.5}, health={"stall_after_s": 1.5})
     companion = Companion("--config", str(cfg), "--source", str(clip))
-    companion.wait_for("retrying in")
+    companion.wait_for("retrying in 2.0 s")
+    companion.wait_for("retrying in 2.5 s")
+    assert "stuck" not in companion.output, "waiting for a camera must not stop the watchdog"
     write_clip(tmp_path / "partial.avi").rename(clip)  # appears whole, as a camera coming back
     companion.wait_for("back after")
     companion.wait_for("ended after")
