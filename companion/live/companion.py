@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from companion import __version__
-from companion.config import Config
+from companion.config import Config, build_config
 from companion.events import SummaryEvent
 from companion.frame import Frame
 from companion.live.health import Health
@@ -75,6 +75,8 @@ class LiveCompanion:
         self.source: RetryingSource | None = None
         self.capture: CaptureLoop | None = None
         self.inference: InferenceLoop | None = None
+        self.selective = None
+        self.enhance_worker = None
         self._monitor: threading.Thread | None = None
         self._last_ping = 0.0
         self.watchdog_pings = 0
@@ -105,7 +107,24 @@ class LiveCompanion:
         if factory is None:
             from companion.encoders.factory import make_encoder as factory
         self.encoder = factory(self.cfg.encoder)
-        self.pipeline = Pipeline.from_config(self.cfg, self.encoder, first_image_index=resume.next_image_index)
+        cfg = self.cfg
+        if cfg.enhance.mode == "selective":
+            # the pipeline samples enhanced frames behind a tau_ses gate; tau_ss is applied before the worker
+            from companion.enhancers.factory import make_enhancer
+            from companion.live.enhance_worker import SelectiveStage
+            from companion.presampler import PreSampler
+
+            data = cfg.model_dump()
+            data["enhance"]["mode"] = "none"
+            data["queries"]["tau_ss"] = cfg.enhance.tau_ses
+            self.pipeline = Pipeline.from_config(build_config(data, origin="enhance"), self.encoder,
+                                                 first_image_index=resume.next_image_index)
+            raw = PreSampler(self.encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+            enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
+            self.selective = SelectiveStage(self.pipeline, raw, enhancer, queue_size=cfg.enhance.queue,
+                                            lock=self.pipeline_lock)
+        else:
+            self.pipeline = Pipeline.from_config(cfg, self.encoder, first_image_index=resume.next_image_index)
         removed = self.pipeline.restore(resume.frames)
         self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
         if removed:  # a smaller K than before the restart trims at once
@@ -152,7 +171,14 @@ class LiveCompanion:
         self.inference = InferenceLoop(
             self.pipeline, self.queue, self.health, self.counters, self.stop_event,
             batch=self.cfg.encoder.batch, pose_at=self._pose_at, on_events=self._persist, lock=self.pipeline_lock,
+            selective=self.selective,
         )
+        if self.selective is not None:
+            from companion.live.enhance_worker import EnhanceWorker
+
+            self.enhance_worker = EnhanceWorker(self.selective, self.health, self.counters, self.stop_event,
+                                                batch=self.cfg.encoder.batch, on_events=self._persist)
+            self.enhance_worker.start()
         self.inference.start()
         self.capture.start()
 
@@ -180,13 +206,28 @@ class LiveCompanion:
 
     # ---- live tuning from the surface -------------------------------------------------------------------------
     def _on_param(self, name: str, value: float) -> None:
+        sel = self.selective
         with self.pipeline_lock:
             if name == "MERL_TAU_SS":
-                self.pipeline.tau_ss = value
+                if sel is not None:
+                    sel.raw.tau_ss = value
+                    if not sel.on:
+                        self.pipeline.tau_ss = value
+                else:
+                    self.pipeline.tau_ss = value
             elif name == "MERL_TAU_SES":
                 self.pipeline.tau_ses = value
+                if sel is not None and sel.on:
+                    self.pipeline.tau_ss = value  # the gate on enhanced frames
             elif name == "MERL_K":
                 events = self.pipeline.set_k(int(value))
+            elif name == "MERL_ENHANCE":
+                if sel is None:
+                    log.warning("MERL_ENHANCE: enhance.mode is %s; restart with enhance.mode: selective to "
+                                "enhance", self.cfg.enhance.mode)
+                    return
+                sel.on = bool(value)
+                self.pipeline.tau_ss = self.pipeline.tau_ses if value else sel.raw.tau_ss
             else:
                 return
         if name == "MERL_K" and events:
@@ -196,6 +237,8 @@ class LiveCompanion:
     def _on_queries(self, positive: str, negatives: list[str]) -> None:
         with self.pipeline_lock:
             self.pipeline.presampler.set_queries(positive, negatives)
+            if self.selective is not None:
+                self.selective.raw.set_queries(positive, negatives)
         log.info("queries set: %r against %r", positive, negatives)
 
     def _on_autopilot(self, alive: bool) -> None:
@@ -265,6 +308,7 @@ class LiveCompanion:
         return {
             "frames_seen": c.frames_seen, "frames_scored": c.frames_scored, "frames_passed": c.frames_passed,
             "frames_enhanced": c.frames_enhanced, "frames_dropped": self.queue.dropped,
+            "enhance_dropped": self.selective.queue.dropped if self.selective is not None else 0,
             "frames_lost": self.source.lost if self.source is not None else 0,
             "summary": self.store.summary if self.store is not None else [],
             "summary_added": c.summary_added, "summary_removed": c.summary_removed,
@@ -298,7 +342,9 @@ class LiveCompanion:
         self.queue.close()
         if self.source is not None:
             self.source.close()
-        for thread in (self.capture, self.inference, self._monitor):
+        if self.selective is not None:
+            self.selective.queue.close()
+        for thread in (self.capture, self.inference, self.enhance_worker, self._monitor):
             if thread is not None and thread.is_alive():
                 thread.join(timeout=15)
 

@@ -81,7 +81,8 @@ class InferenceLoop(threading.Thread):
 
     def __init__(self, pipeline, queue: DropOldestQueue[Frame], health: Health, counters: LiveCounters,
                  stop: threading.Event, *, batch: int, pose_at: Callable[[float], object] | None,
-                 on_events: Callable[[list[SummaryEvent]], None], lock: threading.Lock) -> None:
+                 on_events: Callable[[list[SummaryEvent]], None], lock: threading.Lock,
+                 selective=None) -> None:
         super().__init__(name="inference", daemon=True)
         self.pipeline = pipeline
         self.queue = queue
@@ -93,6 +94,8 @@ class InferenceLoop(threading.Thread):
         self.on_events = on_events
         self.lock = lock
         """Held while the pipeline runs, so live tuning (K, tau, queries) never changes it mid-batch."""
+        self.selective = selective
+        """companion.live.enhance_worker.SelectiveStage when enhancement runs on its own worker; else None."""
 
     def run(self) -> None:
         self.health.register("inference")
@@ -111,6 +114,9 @@ class InferenceLoop(threading.Thread):
 
     def step(self, frames: list[Frame]) -> None:
         poses = [self.pose_at(f.capture_time) for f in frames] if self.pose_at is not None else None
+        if self.selective is not None and self.selective.on:
+            self._score_for_enhancer(frames, poses)
+            return
         with self.lock:
             outcome = self.pipeline.process(frames, poses=poses)
         now = time.monotonic()
@@ -128,3 +134,13 @@ class InferenceLoop(threading.Thread):
                 c.summary_removed += 1
         if outcome.events:
             self.on_events(outcome.events)
+
+    def _score_for_enhancer(self, frames: list[Frame], poses: list | None) -> None:
+        """MERLION-E: score here, enhance and sample on the enhancer's worker."""
+        now = time.monotonic()
+        c = self.counters
+        for _frame, score, passed in self.selective.score(frames, poses):
+            c.frames_scored += 1
+            c.frames_passed += int(passed)
+            c.last_score = score
+            c.recent.append(now)

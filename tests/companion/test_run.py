@@ -85,3 +85,17 @@ def test_run_tags_frames_stores_them_sends_captures_and_stops_cleanly_then_resum
     assert after.next_image_index == before["next_image_index"]
     for frame in after.resume_state().frames:
         np.testing.assert_array_equal(frame.feature, features[frame.image_index])
+
+
+def test_selective_enhancement_runs_on_its_worker_and_stores_raw_beside_enhanced(tmp_path: Path) -> None:
+    store = tmp_path / "store"
+    cfg = write_config(tmp_path / "c.yaml", enhance={"mode": "selective", "method": "classic", "tau_ses": 0.5},
+                       mavlink={"connection": None}, store={"dir": str(store)})
+    companion = Companion("--config", str(cfg))
+    companion.wait_for("companion running")
+    wait_until(lambda: len(store_summary(store).get("summary", [])) >= 3, 90, "three enhanced summary frames")
+    assert companion.terminate() == 0, companion.output
+    for index in store_summary(store)["summary"]:
+        sidecar = json.loads((store / "frames" / f"{index:06d}.json").read_text())
+        assert sidecar["enhanced"] is True and sidecar["raw_file"] == f"frames/{index:06d}.raw.jpg"
+        assert (store / sidecar["raw_file"]).is_file()

@@ -1,0 +1,120 @@
+"""MERLION-E on the vehicle: selective enhancement on its own worker, off the inference thread.
+
+The inference thread scores every frame (ss_t) and hands only the frames that pass tau_ss to this worker, through
+a bounded drop-oldest queue (``enhance.queue``; drops are counted). The worker enhances each one, and the
+pipeline, whose pre-sampler gate here is tau_ses, re-encodes the enhanced frame, scores it (ss_e), and offers
+those above tau_ses to the sampler with the enhanced embedding: REFERENCE.md step 8, with a slow enhancer never
+holding up the scoring of new frames. The encoder is shared, so its calls are serialised by one lock; the
+enhancement itself runs outside it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.events import SummaryEvent
+from companion.frame import Frame
+from companion.live.health import Health
+from companion.live.loops import LiveCounters
+from companion.live.queues import DropOldestQueue
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Candidate:
+    """A frame that passed tau_ss, with what the sampler will need later."""
+
+    frame: Frame
+    score: float
+    pose: object | None
+
+
+class SelectiveStage:
+    """The split pipeline: ``score`` on the inference thread, ``EnhanceWorker`` for the rest."""
+
+    def __init__(self, pipeline, raw_presampler, enhancer, *, queue_size: int, lock: threading.Lock) -> None:
+        self.pipeline = pipeline
+        """Built with enhancement off and its pre-sampler gate at tau_ses: it scores ss_e and samples."""
+        self.raw = raw_presampler
+        """The tau_ss gate on the frames as captured."""
+        self.enhancer = enhancer
+        self.queue: DropOldestQueue[Candidate] = DropOldestQueue(queue_size)
+        self.lock = lock
+        self.enhanced = 0
+        self.enhanced_passed = 0
+        self.on = True
+        """MERL_ENHANCE from the surface: off sends frames straight to the pipeline (gate back at tau_ss)."""
+
+    def score(self, frames: list[Frame], poses: list | None) -> list[tuple[Frame, float, bool]]:
+        """ss_t of each frame; those above tau_ss are queued for the enhancer (the oldest waiting one may go)."""
+        with self.lock:
+            small = [self.pipeline.prepare(f.image) for f in frames]
+            emb = self.pipeline.encoder.encode_images(small)
+            scores = self.raw.scores(emb)
+            passed = self.raw.passes(scores)
+        out = []
+        for i, frame in enumerate(frames):
+            if passed[i]:
+                self.queue.put(Candidate(frame, float(scores[i]), poses[i] if poses is not None else None))
+            out.append((frame, float(scores[i]), bool(passed[i])))
+        return out
+
+
+class EnhanceWorker(threading.Thread):
+    def __init__(self, stage: SelectiveStage, health: Health, counters: LiveCounters, stop: threading.Event, *,
+                 batch: int, on_events: Callable[[list[SummaryEvent]], None]) -> None:
+        super().__init__(name="enhance", daemon=True)
+        self.stage = stage
+        self.health = health
+        self.counters = counters
+        self.stop_event = stop
+        self.batch = batch
+        self.on_events = on_events
+
+    def run(self) -> None:
+        self.health.register("enhance")
+        while not self.stop_event.is_set():
+            items = self.stage.queue.get_batch(self.batch, timeout=0.5)
+            self.health.beat("enhance")
+            if not items:
+                continue
+            try:
+                self.step(items)
+            except Exception:  # noqa: BLE001 - a failed enhancement costs those frames, not the dive
+                self.counters.inference_errors += 1
+                log.exception("enhancement failed on %d frame(s); going on", len(items))
+            self.health.beat("enhance")
+        self.health.forget("enhance")
+
+    def step(self, items: list[Candidate]) -> None:
+        stage = self.stage
+        raws: dict[int, np.ndarray] = {}
+        frames: list[Frame] = []
+        for item in items:
+            enhanced = stage.enhancer.enhance(item.frame.image)
+            raws[item.frame.index] = item.frame.image
+            frames.append(Frame(enhanced, item.frame.index, item.frame.time_s, item.frame.capture_time))
+            self.health.beat("enhance")
+        poses = [item.pose for item in items]
+        with stage.lock:
+            outcome = stage.pipeline.process(frames, poses=poses)
+        stage.enhanced += len(items)
+        self.counters.frames_enhanced += len(items)
+        stage.enhanced_passed += sum(r.passed for r in outcome.results)
+        for event in outcome.events:
+            if event.kind == "added":
+                self.counters.summary_added += 1
+                raw = raws.get(event.frame.frame_index)
+                if raw is not None and event.frame.raw_image is None:
+                    event.frame.raw_image = raw
+                    event.frame.enhanced = True
+            else:
+                self.counters.summary_removed += 1
+        if outcome.events:
+            self.on_events(outcome.events)
