@@ -12,13 +12,14 @@ from __future__ import annotations
 import logging
 import struct
 import time
+import zlib
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 log = logging.getLogger("merlion.surface.ftp")
 
-OP_TERMINATE, OP_RESET, OP_OPEN_RO, OP_READ, OP_BURST = 1, 2, 4, 5, 15
+OP_TERMINATE, OP_RESET, OP_OPEN_RO, OP_READ, OP_CRC, OP_BURST = 1, 2, 4, 5, 14, 15
 OP_ACK, OP_NAK = 128, 129
 NAK_NAMES = {
     0: "none", 1: "fail", 2: "errno", 3: "invalid data size", 4: "invalid session", 5: "no sessions available",
@@ -33,6 +34,12 @@ SendFn = Callable[[int, int, bytes], None]
 """send(target_system, target_component, payload) puts one FILE_TRANSFER_PROTOCOL on the wire."""
 DoneFn = Callable[[str, "bytes | None", str], None]
 """done(path, data or None, error text) is called once per fetch."""
+
+
+def crc32_mavftp(data: bytes) -> int:
+    """CRC-32 as ArduPilot and PX4 answer CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor), so a file
+    we hold can be checked against the server's with one small request instead of reading it again."""
+    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
 
 
 def pack(seq: int, session: int, opcode: int, offset: int = 0, data: bytes = b"", size: int | None = None) -> bytes:
@@ -63,6 +70,8 @@ def unpack(payload: bytes | list[int]) -> Reply:
 class _Job:
     path: str
     done: DoneFn
+    crc_only: bool = False
+    """Ask the server for the file's CRC-32 (``done`` gets its 4 bytes, little endian) instead of reading it."""
     known: dict[int, bytes] = field(default_factory=dict)
     """Bytes the caller already has, by offset (what a stalled push delivered): only the rest is read."""
     known_size: int | None = None
@@ -158,6 +167,16 @@ class FtpClient:
         if self._job is None:
             self._next_job()
 
+    def crc(self, path: str, done: Callable[[str, int | None, str], None]) -> None:
+        """Queue a CalcFileCRC32 of ``path``; ``done(path, crc or None, error)`` (see ``crc32_mavftp``)."""
+
+        def unpack_crc(p: str, data: bytes | None, error: str) -> None:
+            done(p, None if data is None else struct.unpack("<I", data)[0], error)
+
+        self._queue.append(_Job(path, unpack_crc, crc_only=True))
+        if self._job is None:
+            self._next_job()
+
     def pending(self) -> list[str]:
         paths = [j.path for j in self._queue]
         return paths if self._job is None else [self._job.path, *paths]
@@ -204,7 +223,7 @@ class FtpClient:
             if opcode == OP_TERMINATE:
                 self._complete()  # every byte is in; the server ends an idle session on its own
                 return
-            what = {OP_OPEN_RO: "open", OP_TERMINATE: "close"}.get(opcode, "read")
+            what = {OP_OPEN_RO: "open", OP_TERMINATE: "close", OP_CRC: "CRC request"}.get(opcode, "read")
             self._finish(None, f"no answer to {what} after {self._tries} tries")
             return
         if opcode == OP_BURST:
@@ -254,11 +273,18 @@ class FtpClient:
         if len(path) >= MAX_DATA:
             self._finish(None, "path too long")
             return
-        self._request_op(OP_OPEN_RO, data=path + b"\0", size=len(path))
+        opcode = OP_CRC if self._job.crc_only else OP_OPEN_RO
+        self._request_op(opcode, data=path + b"\0", size=len(path))
 
     def _on_reply(self, opcode: int, offset: int, reply: Reply) -> None:
         job = self._job
         assert job is not None
+        if opcode == OP_CRC:
+            if reply.opcode == OP_NAK:
+                self._finish(None, f"CRC failed: {_nak(reply)}", terminate=False)
+            else:
+                self._finish(reply.data[:4].ljust(4, b"\0"), "", terminate=False)
+            return
         if opcode == OP_OPEN_RO:
             if reply.opcode == OP_NAK:
                 self._finish(None, f"open failed: {_nak(reply)}", terminate=False)

@@ -67,6 +67,8 @@ class Abandoned:
     kind: str = "jpeg"
     chunks: dict[int, bytes] = field(default_factory=dict)
     """What did arrive, by byte offset: a pull of the same file needs only the rest."""
+    next_headless: bool = False
+    """The next image's packets came without its handshake (so that image is lost too)."""
 
 
 @dataclass
@@ -140,7 +142,7 @@ class ImageReceiver:
         )
         return gone
 
-    def _chunk(self, msg) -> PushedImage | LostHandshake | None:
+    def _chunk(self, msg) -> PushedImage | Abandoned | LostHandshake | None:
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         t = self._transfers.get(source)
         if t is None:
@@ -152,6 +154,15 @@ class ImageReceiver:
             return None
         if not 0 <= msg.seqnr < t.packets:
             return None
+        if msg.seqnr <= 1 and t.received and max(t.received) > msg.seqnr + 1:
+            # packets start again from the top (MAVLink links keep their order): the next image began and its
+            # handshake was lost. Mixing its packets into this one would make a picture of neither.
+            del self._transfers[source]
+            self._headless.add(source)
+            self.abandoned += 2
+            gone = t.abandoned(source)
+            gone.next_headless = True
+            return gone
         start = msg.seqnr * t.payload
         data = bytes(msg.data)[: t.payload]
         t.buffer[start : start + len(data)] = data

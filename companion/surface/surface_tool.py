@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import MavlinkConfig
-from companion.surface.ftp_client import FtpClient
+from companion.surface.ftp_client import FtpClient, crc32_mavftp
 from companion.surface.gallery import Capture, Gallery
 from companion.surface.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
 from companion.surface.messages import capture_from_message, mftp_path, parse_index, parse_statustext
@@ -74,6 +74,9 @@ class LinkStatus:
     ftp_ok: int = 0
     ftp_failed: int = 0
     index_pulls: int = 0
+    verified: int = 0
+    """Pushed (or part-pushed) thumbnails whose CRC matched the companion's file."""
+    mismatched: int = 0
     lost_packets: int = 0
 
 
@@ -97,6 +100,7 @@ class SurfaceTool:
             name="surface", mav_type=MAV_TYPE_GCS,
         )
         self._opened = False
+        self._last_announced: int | None = None
         self._early_text: dict[tuple[int, int], deque] = {}
         self._last_seq: dict[tuple[int, int], int] = {}
         self._ftp: FtpClient | None = None
@@ -251,10 +255,33 @@ class SurfaceTool:
             return
         log.info("capture %d at %.1f m", cap.image_index, cap.depth_m or 0.0)
         self._want_index()
+        last = self._last_announced
+        if last is not None and cap.image_index > last + 1:
+            # image indices run without gaps: the captures in between were lost on the way. Their pushes are
+            # still coming, in order, so they keep their place in the pairing queue; ask for the captures again.
+            for ghost in range(max(last + 1, cap.image_index - 16), cap.image_index):
+                if self.gallery.get(ghost) is None:
+                    log.info("capture %d was lost on the way: asking for it again", ghost)
+                    self.gallery.announce(Capture(image_index=ghost))
+                    self._expect_push(ghost)
+                    self._request_capture(ghost)
+        self._last_announced = cap.image_index if last is None else max(last, cap.image_index)
+        self._expect_push(cap.image_index)
+
+    def _expect_push(self, index: int) -> None:
         if self._early:
-            self._bind(self._early.popleft(), cap.image_index)
+            self._bind(self._early.popleft(), index)
         else:
-            self._waiting.append((cap.image_index, self._clock()))
+            self._waiting.append((index, self._clock()))
+
+    def _request_capture(self, index: int) -> None:
+        """MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED, index): the camera protocol's way to re-get a capture."""
+        if self.status.companion is None:
+            return
+        system, component = self.status.companion
+        self._link.send(mav.MAVLink_command_long_message(
+            system, component, mav.MAV_CMD_REQUEST_MESSAGE, 0,
+            mav.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, index, 0, 0, 0, 0, 0))
 
     def _on_handshake(self, msg) -> None:
         self._on_push_result(self.images.handle(msg))
@@ -287,6 +314,10 @@ class SurfaceTool:
             self._fetch_thumbnail(index, partial=self._lost_push.pop(handshake_no))
 
     def _on_push_result(self, result: PushedImage | Abandoned | LostHandshake | None) -> None:
+        if isinstance(result, Abandoned) and result.next_headless:
+            result.next_headless = False
+            self._on_push_result(result)
+            result = LostHandshake(result.source)
         if isinstance(result, LostHandshake):
             # a push whose handshake was lost: it was for the oldest capture still waiting, which must come by FTP
             with self.lock:
@@ -324,8 +355,34 @@ class SurfaceTool:
             return
         ext = "jpg" if image.kind == "jpeg" else image.kind
         self.gallery.add_thumbnail(index, image.data, ext=ext, via="push")
+        if expected is None:
+            self._want_index()  # the index brings the score, and sizes to pair the next pushes by
+        self._verify(index, image.data)
         with self.lock:
             self.status.pushed_ok += 1
+
+    def _verify(self, index: int, data: bytes) -> None:
+        """A push is paired with its capture by order, and a salvaged one is part push: check the bytes against
+        the companion's file with one CalcFileCRC32; on a mismatch fetch the whole file by name."""
+        cap = self.gallery.get(index)
+        path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
+        if self._ftp is None or not path.endswith(".jpg"):
+            return  # a WebP thumbnail on the server is not the JPEG that was pushed: nothing to compare
+
+        def checked(_path: str, crc: int | None, error: str) -> None:
+            if crc is None:
+                log.debug("CRC of %s: %s", path, error)  # e.g. trimmed meanwhile: nothing to fix
+                return
+            if crc == crc32_mavftp(data):
+                with self.lock:
+                    self.status.verified += 1
+                return
+            with self.lock:
+                self.status.mismatched += 1
+            log.warning("thumbnail of capture %d is not the companion's (CRC differs): fetching it by name", index)
+            self._fetch_thumbnail(index, replace=True)
+
+        self._ftp.crc(path, checked)
 
     def _fetch_thumbnail(self, index: int, *, replace: bool = False, partial: Abandoned | None = None) -> None:
         """Pull the thumbnail by FTP; with the ``partial`` push it came from, only the packets the push lost."""
@@ -353,6 +410,8 @@ class SurfaceTool:
             if now_cap is not None and (replace or now_cap.thumbnail is None):
                 ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
                 self.gallery.add_thumbnail(index, data, ext=ext, via="push+ftp" if known else "ftp")
+                if known:
+                    self._verify(index, data)
 
         known, known_size = {}, None
         if partial is not None and partial.kind == "jpeg" and path.endswith(".jpg"):
@@ -441,6 +500,7 @@ class SurfaceTool:
                 "autopilot_heartbeat_age_s": _age(now, s.autopilot_heartbeat),
                 "pushed_ok": s.pushed_ok, "pushed_lost": s.pushed_lost,
                 "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
+                "verified": s.verified, "mismatched": s.mismatched,
             }
             companion = {
                 "id": list(s.companion) if s.companion else None,

@@ -18,6 +18,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.events import SummaryFrame
+from vehicle.camera import CameraComponent
 from vehicle.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.ftp_server import FtpServer, VirtualTree
 from vehicle.image_push import push_messages
@@ -55,6 +56,7 @@ class CompanionPeer:
         self.tree = VirtualTree()
         self.ftp = FtpServer(self.tree)
         self.captures = CaptureLog()
+        self.camera = CameraComponent(self.captures, system_id=lambda: system, component_id=component)
         self.frames: dict[int, SummaryFrame] = {}
         self.thumbs: dict[int, bytes] = {}
         self.held: list[int] = []
@@ -77,14 +79,18 @@ class CompanionPeer:
     def heartbeat(self) -> None:
         self.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_CAMERA, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
 
-    def add(self, frame: SummaryFrame, *, push: bool = True, drop_chunks: set[int] = frozenset()) -> bytes:
-        """Announce a frame, say so in a status line, serve its thumbnail by FTP and (unless told) push it."""
+    def add(self, frame: SummaryFrame, *, push: bool = True, drop_chunks: set[int] = frozenset(),
+            announce: bool = True) -> bytes:
+        """Announce a frame (``announce=False``: the announcement is lost), say so in a status line, serve its
+        thumbnail by FTP and (unless told) push it."""
         thumb = make_thumbnail(frame.image)
         self.frames[frame.image_index] = frame
         self.thumbs[frame.image_index] = thumb.data
         self.held.append(frame.image_index)
         self.tree.put(thumbnail_path(frame.image_index), thumb.data)
-        self.send(self.captures.record(frame))
+        captured = self.captures.record(frame)
+        if announce:
+            self.send(captured)
         self.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, added_text(frame, len(self.held)).encode()))
         if push:
             self.push(thumb.data, thumb.width, thumb.height, drop_chunks=drop_chunks)
@@ -126,6 +132,10 @@ class CompanionPeer:
                 return
             for msg in self.parser.parse_buffer(data) or []:
                 self.received.append(msg)
+                if msg.get_type() == "COMMAND_LONG":
+                    for answer in self.camera.handle(msg):  # the real camera component answers requests
+                        self.send(answer)
+                    continue
                 if msg.get_type() != "FILE_TRANSFER_PROTOCOL":
                     continue
                 self.ftp_requests += 1

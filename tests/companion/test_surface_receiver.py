@@ -136,3 +136,21 @@ def test_packets_without_their_handshake_are_reported_once():
         sock.close()
     assert [type(g) for g in got] == [LostHandshake]
     assert got[0].source == (1, 100) and more == []
+
+
+def test_a_lost_packet_and_a_lost_handshake_never_make_a_mixed_image():
+    sock, peer = _pair()
+    try:
+        first, second = (make_thumbnail(summary_frame(i).image) for i in (10, 11))
+        assert len(first.data) // 253 == len(second.data) // 253  # same packet count: mixing them would "work"
+        peer.push(first.data, first.width, first.height, drop_chunks={3})
+        peer.push(second.data, second.width, second.height, drop_chunks={-1})
+        receiver = ImageReceiver()
+        got = _receive(sock, receiver, 1)
+        more = _receive(sock, receiver, 1, timeout=0.5)
+    finally:
+        peer.close()
+        sock.close()
+    assert len(got) == 1 and isinstance(got[0], Abandoned) and got[0].next_headless
+    assert got[0].chunks[0] == first.data[:253] and 3 * 253 not in got[0].chunks
+    assert more == []  # the second image's packets are not taken for the first one's missing packet

@@ -39,25 +39,32 @@ def test_gallery_mirrors_the_companion_summary_with_push_and_ftp_fallback(tmp_pa
         sent[1] = peer.add(summary_frame(1, depth=10.0, yaw_deg=30, score=0.91))
         sent[2] = peer.add(summary_frame(2, depth=11.0, yaw_deg=60, score=0.82), drop_chunks={2})  # stalls
         sent[3] = peer.add(summary_frame(3, depth=12.0, yaw_deg=90, score=0.73))
-        sent[4] = peer.add(summary_frame(4, depth=13.0, yaw_deg=120, score=0.64), push=False)  # push never comes
+        sent[4] = peer.add(summary_frame(4, depth=13.0, yaw_deg=120, score=0.64), drop_chunks={-1})  # no handshake
+        sent[5] = peer.add(summary_frame(5, depth=14.0, yaw_deg=150, score=0.55), announce=False)  # capture lost
+        sent[6] = peer.add(summary_frame(6, depth=15.0, yaw_deg=180, score=0.46))
+        sent[7] = peer.add(summary_frame(7, depth=16.0, yaw_deg=210, score=0.37), push=False)  # push never comes
         peer.values(MRL_FPS=4.5, MRL_SUMN=4)
         peer.trim(3)
 
         def settled() -> bool:
             g = Gallery(tmp_path)
             held = {c.image_index: c for c in g.summary()}
-            return set(held) == {1, 2, 4} and all(c.thumbnail and c.score is not None for c in held.values())
+            return set(held) == {1, 2, 4, 5, 6, 7} and all(c.thumbnail and c.score is not None and c.depth_m
+                                                        for c in held.values())
 
         assert _wait(settled, 30), Gallery(tmp_path).captures()
         gallery = Gallery(tmp_path)
         held = {c.image_index: c for c in gallery.summary()}
-        for i in (1, 2, 4):
-            assert (tmp_path / held[i].thumbnail).read_bytes() == sent[i]
+        for i in (1, 2, 4, 5, 6, 7):
+            assert (tmp_path / held[i].thumbnail).read_bytes() == sent[i], (i, held[i])
         assert held[1].thumbnail_via == "push"
         assert held[2].thumbnail_via == "push+ftp"  # the stalled push's packets, the lost one pulled by FTP
-        assert held[4].thumbnail_via == "ftp"
+        assert held[4].thumbnail_via == "ftp" and held[7].thumbnail_via == "ftp"
         assert (held[1].depth_m, held[1].score) == (10.0, 0.91)
         assert abs(held[4].heading_deg - 120) < 0.2
+        assert held[5].thumbnail_via == "push" and held[6].thumbnail_via == "push"  # pushes kept their order
+        assert held[5].depth_m == 14.0  # the lost capture was asked for again (MAV_CMD_REQUEST_MESSAGE)
+        assert any(m.get_type() == "COMMAND_LONG" and m.param2 == 5 for m in peer.received)
         three = gallery.get(3)
         assert not three.in_summary and (tmp_path / "removed" / "3.jpg").read_bytes() == sent[3]
     finally:
@@ -96,10 +103,13 @@ def test_every_thumbnail_arrives_intact_through_a_lossy_link_from_the_real_surfa
         held.remove(2)
         surface.publish(SummaryEvent("removed", frames[1], summary=list(held)))
 
-        def settled() -> bool:
+        def settled() -> bool:  # every thumbnail right (a push paired by order is checked against the index)
             g = Gallery(tmp_path)
             caps = {c.image_index: c for c in g.summary()}
-            return set(caps) == set(held) and all(c.thumbnail and c.score is not None for c in caps.values())
+            return set(caps) == set(held) and all(
+                c.thumbnail and c.score is not None
+                and (tmp_path / c.thumbnail).read_bytes() == surface.tree.read(f"/summary/{i}.jpg")
+                for i, c in caps.items())
 
         assert _wait(settled, 60), Gallery(tmp_path).captures()
         gallery = Gallery(tmp_path)
