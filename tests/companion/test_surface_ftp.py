@@ -9,7 +9,7 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.surface.ftp_client import FtpClient
+from companion.surface.ftp_client import FtpClient, crc32_mavftp
 from tests.companion.surface_peer import CompanionPeer, summary_frame
 
 OWN = (254, 190)
@@ -103,3 +103,17 @@ def test_only_the_bytes_a_stalled_push_lost_are_read():
         c.close()
     assert results["partial"] == (sent, "") and results["other size"] == (sent, "")
     assert c.ftp.bytes_read == 253 + len(sent)  # the lost chunk, then the whole file for the second fetch
+
+
+def test_crc_of_a_served_file_matches_ours():
+    c = _Client()
+    try:
+        sent = c.peer.add(summary_frame(12), push=False)
+        results = {}
+        c.ftp.crc("/summary/12.jpg", lambda p, crc, e: results.__setitem__(p, (crc, e)))
+        c.ftp.crc("/summary/13.jpg", lambda p, crc, e: results.__setitem__(p, (crc, e)))
+        c.pump(lambda: len(results) == 2)
+    finally:
+        c.close()
+    assert results["/summary/12.jpg"] == (crc32_mavftp(sent), "")
+    assert results["/summary/13.jpg"][0] is None and "not found" in results["/summary/13.jpg"][1]
