@@ -202,10 +202,18 @@ def main(opts: DemoOptions) -> int:
         raise UsageError(f"--duration {opts.duration}: must be positive")
     if opts.out.exists() and not opts.out.is_dir():
         raise UsageError(f"--out {opts.out}: exists and is not a folder")
+    stop = threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():  # Ctrl-C ends the demo early, with its report
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
     try:
-        report = run_demo(opts)
+        report = run_demo(opts, stop)
     except OSError as err:
         raise MerlionError(f"demo: {err}") from None
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     print(format_report(report, survey_hint=opts.source is None and SURVEY_HINT.is_file()), flush=True)
     return 0
 

@@ -42,3 +42,29 @@ def test_demo_refuses_a_missing_source(tmp_path: Path) -> None:
                        str(tmp_path / "nope.mp4"), timeout=60)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1] == f"merlion: error: --source {tmp_path / 'nope.mp4'}: no such file or folder"
+
+
+def test_ctrl_c_ends_the_demo_early_with_its_report(tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-m", "companion", "demo", "--duration", "600", "--out", str(out),
+                             "--encoder", "visual"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        for line in proc.stdout:
+            if " s  source running" in line:  # the first progress line: everything is up
+                break
+        proc.send_signal(signal.SIGINT)
+        rest = proc.communicate(timeout=120)[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, rest
+    assert "merlion demo: done" in rest
+    report = json.loads((out / "report.json").read_text())
+    assert report["duration_s"] < 600 and report["frames_seen"] > 0
