@@ -1,0 +1,19 @@
+"""`merlion bench soak` end to end, very short: the figures are there and add up (speed is not asserted)."""
+
+from __future__ import annotations
+
+import json
+
+from tests.conftest import run_merlion
+
+
+def test_soak_reports_fps_drops_memory_and_latency_as_json() -> None:
+    done = run_merlion("bench", "soak", "--minutes", "0.25", "--fps", "10", "--encoder", "visual", "--json",
+                       timeout=180)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    for key in ("scored_fps", "frames_dropped", "peak_rss_mb", "rss_growth_pct", "latency_p50_s", "latency_p95_s"):
+        assert key in result
+    assert result["frames_seen"] >= result["frames_scored"] > 0
+    assert result["captures_received"] > 0 and 0 < result["latency_p50_s"] <= result["latency_p95_s"]
+    assert result["peak_rss_mb"] >= result["rss_end_mb"] > 0
