@@ -23,7 +23,12 @@ def heading_from_q(q: list[float] | tuple[float, ...]) -> float | None:
     if w * w + x * x + y * y + z * z < 1e-6:
         return None
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return round(math.degrees(yaw) % 360.0, 1)
+    return compass(math.degrees(yaw))
+
+
+def compass(degrees: float) -> float:
+    """A heading in [0, 360) to a tenth of a degree (359.99 is 0.0, not 360.0)."""
+    return round(degrees % 360.0, 1) % 360.0
 
 
 def mftp_path(url: str) -> str | None:
@@ -144,6 +149,7 @@ def parse_index(data: bytes) -> list[Capture]:
             depth = -_num(tags["relative_alt"]) / 1000.0
         q = _first(tags, "q")
         heading = _num(_first(tags, "heading_deg", "heading"))
+        heading = None if heading is None else compass(heading)
         if heading is None and isinstance(q, list):
             heading = heading_from_q([float(v) for v in q])
         url = _first(tags, "file_url", "thumbnail", "thumb", "url", "file", "path")

@@ -100,6 +100,8 @@ def test_heading_of_unknown_attitude_is_none():
     assert heading_from_q([float("nan"), 0, 0, 0]) is None
     assert heading_from_q([0, 0, 0, 0]) is None
     assert heading_from_q([1, 0, 0, 0]) == 0.0
+    assert parse_index(b'[{"index": 1, "heading_deg": 359.99999}, {"index": 2, "heading_deg": -90}]')[0].heading_deg == 0.0
+    assert parse_index(b'[{"index": 2, "heading_deg": -90}]')[0].heading_deg == 270.0
 
 
 def test_status_lines_of_the_companion_are_understood():

@@ -41,7 +41,8 @@ function card(frame) {
   const rows = [
     ["idx", "#" + frame.image_index + (frame.via ? " (" + frame.via + ")" : "")],
     ["depth", "depth " + fmt(frame.depth_m, 1, " m")],
-    ["heading", "heading " + fmt(frame.heading_deg, 0, "\u00b0")],
+    ["heading", "heading " + (frame.heading_deg === null || frame.heading_deg === undefined
+      ? "?" : (Math.round(frame.heading_deg) % 360) + "\u00b0")],
     ["time", timeText(frame.time_utc)],
     ["score", "score " + fmt(frame.score, 2, "")],
   ];
