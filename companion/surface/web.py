@@ -20,6 +20,8 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"), "/index.html": ("inde
           "/app.js": ("app.js", "text/javascript; charset=utf-8")}
 IMAGE_TYPES = {"jpg": "image/jpeg", "jpeg": "image/jpeg", "webp": "image/webp", "png": "image/png",
                "bmp": "image/bmp", "pgm": "image/x-portable-graymap"}
+LOGS = {"gallery.json": "application/json", "log.csv": "text/csv; charset=utf-8"}
+"""The gallery's tag logs, downloadable from the page."""
 
 
 def _make_handler(state: Callable[[], dict], gallery_dir: Path) -> type[BaseHTTPRequestHandler]:
@@ -48,12 +50,14 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path) -> type[BaseHTTP
             elif path == "/api/state":
                 self._send(json.dumps(state()).encode(), "application/json")
             elif path.startswith("/files/"):
-                target = (root / path[len("/files/"):]).resolve()
+                name = path[len("/files/"):]
+                target = (root / name).resolve()
                 ext = target.suffix.lstrip(".").lower()
-                if not target.is_relative_to(root) or not target.is_file() or ext not in IMAGE_TYPES:
+                ctype = LOGS.get(name) or IMAGE_TYPES.get(ext)
+                if ctype is None or not target.is_relative_to(root) or not target.is_file():
                     self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
                     return
-                self._send(target.read_bytes(), IMAGE_TYPES[ext])
+                self._send(target.read_bytes(), ctype)
             else:
                 self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
 

@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 
 import pytest
@@ -101,6 +102,11 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             _headless(browser, f"http://127.0.0.1:{web}/", f"--screenshot={os.environ['MERLION_SURFACE_SCREENSHOT']}")
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/summary/6.jpg", timeout=5) as r:
             assert r.headers["Content-Type"] == "image/jpeg" and r.read() == surface.tree.read("/summary/6.jpg")
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/log.csv", timeout=5) as r:
+            assert r.read().startswith(b"event,wall_time,image_index")
+        for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp"):
+            with pytest.raises(urllib.error.HTTPError):
+                urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
         proc.send_signal(signal.SIGTERM)
         stdout, stderr = proc.communicate(timeout=20)
     finally:
