@@ -123,3 +123,30 @@ def test_every_thumbnail_arrives_intact_through_a_lossy_link_from_the_real_surfa
         surface.stop()
         link.stop()
         relay.close()
+
+
+def test_a_tool_started_mid_dive_learns_the_summary_from_the_index(tmp_path):
+    port = free_udp_port()
+    peer = CompanionPeer(port)  # the companion has been diving: three frames held, one trimmed, nobody listening
+    sent = {i: peer.add(summary_frame(i, depth=30.0 + i, yaw_deg=45, score=0.9)) for i in (1, 2, 3)}
+    peer.trim(2)
+    stop = threading.Event()
+    options = SurfaceOptions(connect=f"udpin:127.0.0.1:{port}")
+    thread = threading.Thread(target=serve, args=(options, str(tmp_path)), kwargs={"stop": stop}, daemon=True)
+    thread.start()
+    try:
+        def learnt() -> bool:
+            peer.heartbeat()
+            peer.values(MRL_SUMN=2)  # what a running companion sends every second
+            held = {c.image_index: c for c in Gallery(tmp_path).summary()}
+            return set(held) == {1, 3} and all(c.thumbnail for c in held.values())
+
+        assert _wait(learnt, 20), Gallery(tmp_path).captures()
+        held = {c.image_index: c for c in Gallery(tmp_path).summary()}
+        for i in (1, 3):
+            assert (tmp_path / held[i].thumbnail).read_bytes() == sent[i] and held[i].thumbnail_via == "ftp"
+            assert (held[i].depth_m, held[i].heading_deg, held[i].score) == (30.0 + i, 45.0, 0.9)
+    finally:
+        stop.set()
+        thread.join(10)
+        peer.close()
