@@ -7,8 +7,9 @@ gallery). After ``duration`` seconds or Ctrl-C everything stops, and DIR holds t
 (DIR/surface/), the on-board store (DIR/store/) and report.json; a short report is printed.
 
 Why the demo lowers tau_ss to 0.3 on the generated footage: the packaged encoder is an ImageNet classifier
-answering "fish" through its fish classes, and the generated dive is drawn, not filmed, so its fish score about
-0.2-0.6 where real fish score higher; 0.3 keeps the bare sand and sea grass out and lets most fish frames in.
+answering "fish" through its fish classes, and the generated dive is drawn, not filmed, so its fish score lower
+than real ones. Measured on one frame a second of the dive: at 0.3, 1 of 48 open-water, sand and sea-grass
+frames passes, against 13 of 16 frames of the large-fish segment and 4 of 16 of the small striped reef fish.
 With real video (``--source``) the configured tau_ss (0.5 by default) applies.
 """
 

@@ -90,11 +90,11 @@ class _Scene:
         ground = sand[None, None, :] * (0.75 + 0.35 * noise[..., None])
         img[floor_y:] = ground[floor_y:]
         if self.kind in ("sand", "big_fish"):
-            for _ in range(18):  # rocks
-                cx, cy = int(rng.integers(0, w)), int(rng.integers(floor_y, h))
-                axes = (int(rng.integers(10, 45)), int(rng.integers(6, 22)))
-                shade = float(rng.uniform(60, 110))
-                cv2.ellipse(img, (cx, cy), axes, 0, 0, 360, (shade, shade * 1.05, shade * 1.1), -1)
+            # sand ripples (dark oval rocks were tried: the packaged encoder took them for fish)
+            for _ in range(60):
+                x0, y0 = int(rng.integers(0, w)), int(rng.integers(floor_y + 4, h))
+                length = int(rng.integers(20, 80))
+                cv2.line(img, (x0, y0), (x0 + length, y0 + int(rng.integers(-3, 4))), (105, 140, 150), 2)
         if self.kind == "reef_fish":
             for _ in range(40):  # coral heads and branches
                 cx, cy = int(rng.integers(0, w)), int(rng.integers(floor_y - 30, h))
