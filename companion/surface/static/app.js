@@ -67,7 +67,7 @@ function render(state) {
   setLight("companion", ageState(comp.heartbeat_age_s, 3),
     "companion: " + (comp.id ? comp.id.join("/") + ", heartbeat " + comp.heartbeat_age_s + " s ago" : "not seen"));
   document.getElementById("counts").textContent =
-    "push " + link.pushed_ok + " ok / " + link.pushed_lost + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";
+    "push " + link.pushed_ok + " ok (" + link.verified + " CRC-checked) / " + link.pushed_lost + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";
   const values = document.getElementById("values");
   values.replaceChildren(...Object.keys(comp.values).sort().map((name) => {
     const span = document.createElement("span");
