@@ -91,6 +91,9 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
                 f["thumbnail"] and f["score"] is not None for f in s["summary"])
 
         assert _wait(ready, 30), _state(web)
+        # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
+        assert _wait(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
+        assert _state(web)["link"]["mismatched"] == 0
         dom = _headless(browser, f"http://127.0.0.1:{web}/", "--dump-dom").stdout
         figures = re.findall(r'<figure class="frame" data-index="(\d+)"', dom)
         assert figures == ["6", "5"]  # newest first, the trimmed #7 gone
