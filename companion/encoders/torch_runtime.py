@@ -61,12 +61,14 @@ def dtype_name(dtype: torch.dtype) -> str:
 
 
 def configure_threads() -> None:
-    """One intra-op thread per core and a single inter-op thread: on a 2-core companion, more only thrashes."""
+    """One intra-op thread per core and a single inter-op thread (on a 2-core companion more only thrashes);
+    denormals flushed to zero, which costs inference nothing in accuracy."""
     global _threads_set
     if _threads_set:
         return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     torch.set_num_threads(max(1, cores))
+    torch.set_flush_denormal(True)  # tiny activations otherwise take the slow microcode path on x86
     try:
         torch.set_num_interop_threads(1)
     except RuntimeError:
