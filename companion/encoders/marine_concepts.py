@@ -19,7 +19,7 @@ IMAGENET_CLASSES: dict[int, str] = {
     6: "stingray", 33: "loggerhead", 34: "leatherback turtle", 35: "mud turtle", 36: "terrapin", 37: "box turtle",
     107: "jellyfish", 108: "sea anemone", 109: "brain coral", 112: "conch", 115: "sea slug", 116: "chiton",
     117: "chambered nautilus", 118: "Dungeness crab", 119: "rock crab", 120: "fiddler crab", 121: "king crab",
-    122: "American lobster", 123: "spiny lobster", 125: "hermit crab", 147: "grey whale", 148: "killer whale",
+    122: "American lobster", 123: "spiny lobster", 124: "crayfish", 125: "hermit crab", 147: "grey whale", 148: "killer whale",
     149: "dugong", 150: "sea lion", 327: "starfish", 328: "sea urchin", 329: "sea cucumber", 389: "barracouta",
     390: "eel", 391: "coho", 392: "rock beauty", 393: "anemone fish", 394: "sturgeon", 395: "gar",
     396: "lionfish", 397: "puffer", 801: "snorkel", 833: "submarine", 913: "wreck", 973: "coral reef",
@@ -39,7 +39,8 @@ class Concept:
 
 
 CONCEPTS: tuple[Concept, ...] = (
-    Concept("fish", ("fish", "fishes"), _FISH),
+    Concept("fish", ("fish", "fishes", "anemone fish", "anemonefish", "clownfish", "lionfish", "pufferfish",
+                     "puffer", "barracuda", "sturgeon"), _FISH),
     Concept("shark", ("shark", "sharks"), (2, 3, 4)),
     Concept("ray", ("ray", "rays", "stingray", "stingrays", "manta", "mantas"), (5, 6)),
     Concept("eel", ("eel", "eels", "moray", "morays"), (390,)),
@@ -51,7 +52,7 @@ CONCEPTS: tuple[Concept, ...] = (
     Concept("sea urchin", ("sea urchin", "sea urchins", "urchin", "urchins"), (328,)),
     Concept("sea cucumber", ("sea cucumber", "sea cucumbers", "holothurian", "holothurians"), (329,)),
     Concept("crab", ("crab", "crabs"), (118, 119, 120, 121, 125)),
-    Concept("lobster", ("lobster", "lobsters", "crayfish"), (122, 123)),
+    Concept("lobster", ("lobster", "lobsters", "crayfish"), (122, 123, 124)),
     Concept("sea anemone", ("sea anemone", "sea anemones", "anemone", "anemones"), (108,)),
     Concept("sea slug", ("sea slug", "sea slugs", "nudibranch", "nudibranchs"), (115,)),
     Concept("mollusc", ("mollusc", "molluscs", "mollusk", "mollusks", "shell", "shells", "conch", "chiton",

@@ -104,6 +104,8 @@ def test_default_queries_map_and_negation_is_the_complement(encoder, suim):
     ("Scuba DIVERS near a shipwreck", ["diver", "wreck"], False),
     ("empty of jellyfish", ["jellyfish"], True),
     ("sea stars and sea cucumbers", ["starfish", "sea cucumber"], False),
+    ("an anemone fish", ["fish"], False),
+    ("clownfish in a sea anemone", ["fish", "sea anemone"], False),
 ])
 def test_query_words_map_to_concepts(query, names, negated):
     parsed = parse_query(query)
