@@ -212,3 +212,28 @@ def test_precision_auto_follows_the_cpu():
     assert cpu_has_native_bf16("flags\t: fpu sse avx2 amx_bf16 amx_tile\n")
     assert cpu_has_native_bf16("flags\t: fpu avx512f avx512_bf16\n")
     assert not cpu_has_native_bf16("flags\t: fpu sse avx2 fma\n")
+
+
+@pytest.mark.slow
+def test_a_cached_tag_is_found_offline_by_auto_and_models_list(b32, tmp_path, monkeypatch, capsys):
+    """Lay the checkpoint out as the Hugging Face cache does after `merlion models pull`, then look for it."""
+    import argparse
+
+    from huggingface_hub import constants
+
+    from companion.commands.models import run_list
+
+    snapshot = tmp_path / "hub" / "models--laion--CLIP-ViT-B-32-laion2B-s34B-b79K" / "snapshots" / "abc123"
+    snapshot.mkdir(parents=True)
+    (snapshot.parents[1] / "refs").mkdir()
+    (snapshot.parents[1] / "refs" / "main").write_text("abc123")
+    (snapshot / "open_clip_pytorch_model.bin").write_bytes(open(b32[0], "rb").read())
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path / "hub"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+
+    enc = make_encoder(EncoderConfig(name="auto", pretrained="laion2b_s34b_b79k"))
+    assert enc.describe()["weights_source"] == "cache:laion2b_s34b_b79k"
+    assert enc.describe()["weights"] == str(snapshot / "open_clip_pytorch_model.bin")
+    assert run_list(argparse.Namespace(all=False)) == 0
+    out = capsys.readouterr().out
+    assert f"clip\tViT-B-32:laion2b_s34b_b79k\t{snapshot / 'open_clip_pytorch_model.bin'}" in out
