@@ -101,24 +101,17 @@ class ImageNetEncoder(Encoder):
 
     @torch.inference_mode()
     def encode_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        rows: list[np.ndarray] = []
-        per_chunk = max(1, self._batch)
-        pending: dict[tuple[int, int], list[int]] = {}
+        out = np.zeros((len(images), FEATURES + self.views * CLASSES), dtype=np.float32)
         resized = [self._resized(img) for img in images]
+        by_shape: dict[tuple[int, int], list[int]] = {}
         for i, img in enumerate(resized):
-            pending.setdefault(img.shape[:2], []).append(i)
-        out: list[np.ndarray | None] = [None] * len(images)
-        for idx in pending.values():  # portrait and landscape frames go in separate batches
-            for start in range(0, len(idx), per_chunk):
-                part = idx[start:start + per_chunk]
+            by_shape.setdefault(img.shape[:2], []).append(i)
+        for idx in by_shape.values():  # portrait and landscape frames go in separate batches
+            for start in range(0, len(idx), self._batch):
+                part = idx[start:start + self._batch]
                 pooled, probs = self._run(np.stack([resized[i] for i in part]))
-                flat = torch.cat([pooled, probs.flatten(1)], dim=1).cpu().numpy()
-                for row, i in enumerate(part):
-                    out[i] = flat[row]
-        rows = [r for r in out if r is not None]
-        if not rows:
-            return np.zeros((0, FEATURES + self.views * CLASSES), dtype=np.float32)
-        return np.stack(rows).astype(np.float32, copy=False)
+                out[part] = torch.cat([pooled, probs.flatten(1)], dim=1).cpu().numpy()
+        return out
 
     @property
     def views(self) -> int:

@@ -137,3 +137,14 @@ def test_sampler_features_are_the_pooled_1280(encoder, suim):
     assert feats.shape == (2, FEATURES)
     assert not np.allclose(feats[0], feats[1])
     assert encoder.encode_images([]).shape == (0, FEATURES + encoder.views * CLASSES)
+
+
+def test_mixed_portrait_and_landscape_batches_keep_frame_order(suim):
+    enc = ImageNetEncoder(EncoderConfig(name="imagenet", batch=2))
+    land = suim[0][4]
+    port = np.ascontiguousarray(land.transpose(1, 0, 2))
+    frames = [land, port, land, port, land]
+    together = enc.encode_images(frames)
+    alone = np.concatenate([enc.encode_images([f]) for f in frames])
+    np.testing.assert_allclose(together, alone, atol=1e-4)
+    assert not np.allclose(together[0], together[1])
