@@ -22,7 +22,7 @@ class FrameSource(ABC):
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - sources without a device need no close
         """Release the device or file; safe to call twice."""
 
     def __enter__(self) -> FrameSource:
