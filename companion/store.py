@@ -31,48 +31,16 @@ from typing import Any
 import cv2
 import numpy as np
 
+from companion.atomic_write import TMP_PREFIX, atomic_write
 from companion.config import StoreConfig
 from companion.events import SummaryEvent, SummaryFrame
 from vehicle.pose import Pose
 
 log = logging.getLogger(__name__)
 
-TMP_PREFIX = ".tmp-"
 SUMMARY_FILE = "summary.json"
 CHANGES_FILE = "changes.jsonl"
 FORMAT_VERSION = 1
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a crash at any moment leaves the old file or the new one, whole."""
-    tmp = path.with_name(f"{TMP_PREFIX}{path.name}.{os.getpid()}.{threading.get_ident()}")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        raise
-    fsync_dir(path.parent)
-
-
-def fsync_dir(directory: Path) -> None:
-    """Make a rename durable: the directory entry itself must reach the disk."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _name(index: int) -> str:

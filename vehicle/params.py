@@ -12,7 +12,6 @@ import json
 import logging
 import math
 import os
-import tempfile
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,6 +19,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from companion.atomic_write import atomic_write
 from companion.config import Config
 
 log = logging.getLogger(__name__)
@@ -61,32 +61,6 @@ def _param_id(raw: str | bytes) -> str:
     if isinstance(raw, bytes):
         raw = raw.split(b"\0", 1)[0].decode("ascii", errors="replace")
     return raw.split("\0", 1)[0]
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` so that ``path`` holds either the old or the new content, whatever happens."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    try:
-        dfd = os.open(path.parent, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
 
 
 class ParamServer:
@@ -145,7 +119,8 @@ class ParamServer:
         if self.path is None:
             return
         body = {"version": FILE_VERSION, "params": self.values()}
-        write_atomic(self.path, json.dumps(body, indent=1) + "\n")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(self.path, json.dumps(body, indent=1) + "\n")
 
     # ---- protocol -------------------------------------------------------------------------------------------
 
