@@ -6,6 +6,7 @@ its store (with timeouts), never on fixed sleeps.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import re
@@ -40,15 +41,44 @@ def write_config(path: Path, **sections) -> Path:
     return path
 
 
+_PR_SET_PDEATHSIG = 1
+_started: list[Companion] = []
+_started_lock = threading.Lock()
+
+
+def _die_with_parent() -> None:
+    """Runs in the child before exec: the kernel SIGKILLs it if the test process dies first (Linux only)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+
+
+def reap_companions() -> None:
+    """Kill every companion a test started and left running (a failed assertion skips its terminate())."""
+    with _started_lock:
+        started, _started[:] = list(_started), []
+    for companion in started:
+        companion.kill()
+
+
 class Companion:
-    """`merlion run` in a subprocess with its log collected line by line."""
+    """`merlion run` in a subprocess with its log collected line by line.
+
+    Every instance is remembered so that the tests' teardown (``reap_companions``) kills it whatever the test
+    did, and the child is tied to the test process so that not even a killed pytest leaves it running.
+    """
 
     def __init__(self, *args: str, env: dict | None = None) -> None:
         full_env = dict(os.environ)
         full_env.update(env or {})
         full_env["PYTHONUNBUFFERED"] = "1"
+        preexec = _die_with_parent if sys.platform.startswith("linux") else None
         self.proc = subprocess.Popen([sys.executable, "-m", "companion", "run", *args], cwd=REPO, env=full_env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     preexec_fn=preexec)
+        with _started_lock:
+            _started.append(self)
         self.lines: list[str] = []
         self._cond = threading.Condition()
         self._reader = threading.Thread(target=self._read, daemon=True)
