@@ -22,6 +22,7 @@ import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tests.conftest import REPO
+from tests.waiting import wait_until as poll_until
 
 FAST_SOURCE = "synthetic://dive?seconds=1&width=160&height=96"
 
@@ -137,11 +138,9 @@ class Companion:
 
 
 def wait_until(predicate, timeout: float = 60.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.1)
+    """Fails the test, naming ``what``, unless ``predicate()`` comes true within ``timeout`` seconds."""
+    if not poll_until(predicate, timeout, interval=0.1):
+        raise AssertionError(f"timed out waiting for {what}")
 
 
 def store_summary(store: Path) -> dict:

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 from companion.config import MavlinkConfig, TelemetryConfig
@@ -49,16 +48,6 @@ def companion_and_sim(*, telemetry: bool = True, stale_after_s: float = 0.4, **s
         if tel is not None:
             tel.stop()
         link.stop()
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = 10.0) -> bool:
-    """Poll a condition that no single event signals (an interval set on the far side, a counter)."""
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 class Transitions:

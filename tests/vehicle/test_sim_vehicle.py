@@ -15,7 +15,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from companion.config import MavlinkConfig
 from companion.errors import MerlionError
 from tests.conftest import REPO, free_udp_port, run_merlion
-from tests.vehicle.sim_env import FAST_LINK, Transitions, companion_and_sim, quick_dive, wait_until
+from tests.vehicle.sim_env import FAST_LINK, Transitions, companion_and_sim, quick_dive
+from tests.waiting import wait_until
 from vehicle.dive_profile import compile_profile, load_profile
 from vehicle.link import MavLink
 from vehicle.message_rates import RateKeeper
