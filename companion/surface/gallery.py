@@ -181,10 +181,20 @@ class Gallery:
             return path
 
     def remove(self, image_index: int) -> bool:
-        """The frame was trimmed out of the summary: move its thumbnail aside; True if it was in the summary."""
+        """The frame was trimmed out of the summary: move its thumbnail aside; True if it was in the summary.
+
+        A trim of a frame not heard of yet (its capture lost or still on the way) is remembered, so that a late
+        capture or push for it lands in removed/ and never puts it back into the summary.
+        """
         with self._lock:
             cap = self._captures.get(image_index)
-            if cap is None or not cap.in_summary:
+            if cap is None:
+                now = time.time()
+                cap = Capture(image_index=image_index, in_summary=False, announced_at=now, removed_at=now)
+                self._captures[image_index] = cap
+                self._persist("removed", cap)
+                return False
+            if not cap.in_summary:
                 return False
             cap.in_summary = False
             cap.removed_at = time.time()
@@ -201,13 +211,15 @@ class Gallery:
         """Make the gallery's current summary ``summary`` (from index.json); return indices removed.
 
         Frames announced after ``announced_before`` (when the index was asked for) are kept: the index was
-        built before they existed.
+        built before they existed. Likewise frames whose trim arrived after that moment stay out: the index was
+        built before the trim, and a trimmed frame never comes back (a frame re-entering gets a new index).
         """
         wanted = set(summary)
         with self._lock:
             gone = [i for i, c in self._captures.items() if c.in_summary and i not in wanted
                     and (announced_before is None or (c.announced_at or 0.0) < announced_before)]
-            back = [i for i, c in self._captures.items() if not c.in_summary and i in wanted]
+            back = [i for i, c in self._captures.items() if not c.in_summary and i in wanted
+                    and (announced_before is None or (c.removed_at or 0.0) < announced_before)]
         for i in gone:
             self.remove(i)
         for i in back:

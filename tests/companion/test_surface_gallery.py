@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import time
 
 import pytest
 
@@ -63,3 +64,30 @@ def test_mirror_keeps_frames_announced_after_the_index_was_asked_for(tmp_path):
     g.announce(Capture(image_index=2, announced_at=200.0))
     assert g.mirror([], announced_before=150.0) == [1]  # 2 is newer than the index: not yet in it, kept
     assert [c.image_index for c in g.summary()] == [2]
+
+
+def test_a_stale_index_never_brings_back_a_frame_trimmed_after_it_was_asked_for(tmp_path):
+    """The demo's 7-vs-6: index.json asked for, the trim STATUSTEXT arrives while the index is on its way (FTP
+    is the lowest priority), then the index, built before the trim, still lists the frame."""
+    g = Gallery(tmp_path)
+    for i in (1, 2, 3):
+        g.announce(Capture(image_index=i, announced_at=100.0))
+    asked = time.time()
+    assert g.remove(2)  # the trim arrives after the index was asked for
+    assert g.mirror([1, 2, 3], announced_before=asked) == []
+    assert [c.image_index for c in g.summary()] == [3, 1]
+    g.remove(3)
+    later = time.time() + 1  # an index asked for after both trims is the authority: 3 is held again
+    g.mirror([1, 3], announced_before=later)
+    assert [c.image_index for c in g.summary()] == [3, 1]
+
+
+def test_a_capture_or_push_arriving_after_its_trim_goes_to_removed(tmp_path):
+    g = Gallery(tmp_path)
+    assert not g.remove(5)  # trimmed before we heard of it
+    assert not g.announce(Capture(image_index=5, depth_m=3.0))  # the late capture: tags kept, not held
+    g.add_thumbnail(5, b"\xff\xd8late\xff\xd9")
+    five = Gallery(tmp_path).get(5)
+    assert not five.in_summary and five.depth_m == 3.0 and five.thumbnail == "removed/5.jpg"
+    assert (tmp_path / "removed" / "5.jpg").is_file() and not (tmp_path / "summary" / "5.jpg").exists()
+    assert Gallery(tmp_path).summary() == []
