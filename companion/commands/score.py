@@ -7,6 +7,7 @@ import json
 import sys
 from typing import Any
 
+from companion.cli_overrides import Overrides, put_queries_and_encoder
 from companion.config import load_config
 
 
@@ -20,7 +21,7 @@ def register(add_command) -> None:
     p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file (or open_clip model folder)")
     p.add_argument("--pretrained", metavar="TAG", help="open_clip pretrained tag, used if already cached")
-    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], help="encoder precision")
+    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16", "int8"], help="encoder precision")
     p.add_argument("--batch", type=int, help="images encoded together (default 8)")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--json", action="store_true", help='JSON lines: {"file": ..., "score": ...}')
@@ -29,23 +30,8 @@ def register(add_command) -> None:
 
 def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
     """Only the options given, as a nested configuration override."""
-    over: dict[str, dict[str, Any]] = {}
-
-    def put(section: str, key: str, value: Any) -> None:
-        if value is not None:
-            over.setdefault(section, {})[key] = value
-
-    put("queries", "positive", args.query)
-    if args.negative is not None:
-        put("queries", "negatives", args.negative)
-    elif args.query is not None:
-        put("queries", "negatives", [])  # the default negative belongs to the default positive
-    put("encoder", "name", args.encoder)
-    put("encoder", "model", args.model)
-    put("encoder", "weights", args.weights)
-    put("encoder", "pretrained", args.pretrained)
-    put("encoder", "precision", args.precision)
-    put("encoder", "batch", args.batch)
+    over: Overrides = {}
+    put_queries_and_encoder(over, args)
     return over
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from companion.cli_overrides import Overrides, put, put_queries_and_encoder
 from companion.config import load_config
 
 
@@ -31,25 +32,12 @@ def register(add_command) -> None:
 
 def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
     """Command-line options as a nested configuration override (only the ones given)."""
-    over: dict[str, dict[str, Any]] = {"source": {"uri": args.source}}
-
-    def put(section: str, key: str, value: Any) -> None:
-        if value is not None:
-            over.setdefault(section, {})[key] = value
-
-    put("source", "fps", args.fps)
-    put("sampler", "k", args.k)
-    put("queries", "positive", args.query)
-    put("queries", "tau_ss", args.threshold)
-    if args.negative is not None:
-        put("queries", "negatives", args.negative)
-    elif args.query is not None:
-        put("queries", "negatives", [])  # the default negative belongs to the default positive
-    put("encoder", "name", args.encoder)
-    put("encoder", "model", args.model)
-    put("encoder", "weights", args.weights)
-    put("encoder", "batch", args.batch)
-    put("enhance", "mode", args.enhance)
+    over: Overrides = {"source": {"uri": args.source}}
+    put(over, "source", "fps", args.fps)
+    put(over, "sampler", "k", args.k)
+    put(over, "queries", "tau_ss", args.threshold)
+    put(over, "enhance", "mode", args.enhance)
+    put_queries_and_encoder(over, args)
     return over
 
 
