@@ -29,7 +29,7 @@ from vehicle.budget import LinkBudget, Priority
 from vehicle.camera import CameraComponent, CameraIdentity
 from vehicle.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.ftp_protocol import Op
-from vehicle.ftp_server import FtpServer, VirtualTree
+from vehicle.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
 from vehicle.image_push import push_messages
 from vehicle.params import ParamServer, ParamSpec
 from vehicle.thumbnails import Thumbnail, make_thumbnail
@@ -269,7 +269,8 @@ class SurfaceLink:
             tags = _frame_tags(h.frame)
             idx = h.frame.image_index
             tags.update(thumbnail=thumbnail_path(idx, self.ext), full=f"/summary/full/{idx}.jpg",
-                        thumbnail_bytes=len(h.thumb.data), width=h.thumb.width, height=h.thumb.height)
+                        thumbnail_bytes=len(h.thumb.data), thumbnail_crc32=crc32_ardupilot(h.thumb.data),
+                        width=h.thumb.width, height=h.thumb.height)
             if h.frame.raw_image is not None:
                 tags["raw"] = f"/summary/raw/{idx}.jpg"
             items.append(tags)

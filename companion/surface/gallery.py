@@ -50,6 +50,8 @@ class Capture:
     thumbnail_via: str | None = None
     """push | ftp."""
     thumbnail_bytes: int | None = None
+    thumbnail_crc32: int | None = None
+    """CRC-32 (MAVLink FTP flavour) of the companion's thumbnail file, from index.json."""
     in_summary: bool = True
     announced_at: float | None = None
     """Surface wall clock when we first heard of it."""

@@ -166,5 +166,7 @@ def parse_index(data: bytes) -> list[Capture]:
             file_url=url if isinstance(url, str) else None,
         )
         cap.thumbnail_bytes = int(size) if _num(size) is not None else None
+        crc = _num(_first(tags, "thumbnail_crc32", "crc32"))
+        cap.thumbnail_crc32 = int(crc) & 0xFFFFFFFF if crc is not None else None
         out.append(cap)
     return out

@@ -6,10 +6,12 @@ falls back to a MAVLink FTP pull (``/summary/<n>.jpg``) for every capture whose 
 pulls ``/summary/index.json`` when it first meets the companion and after the summary changed, which gives the
 score and heading of each frame and mirrors the summary even when a STATUSTEXT was lost.
 
-Pairing pushes with captures: the image protocol carries no image index, so pushes are paired with captures in
-the order both arrive (the companion announces a frame, then pushes its thumbnail; thumbnails of frames trimmed
-before they were sent are dropped, and the trim is announced first). Each handshake takes the oldest capture
-still waiting; an image whose packets never all arrive is fetched by FTP instead.
+Pairing pushes with captures: the image protocol carries no image index, so our companion sends a
+NAMED_VALUE_INT ``MRL_PUSH`` = image index right before each handshake, and that handshake belongs to that frame.
+Without a marker (another sender, or the marker lost) pushes are paired with captures in the order both arrive
+(the companion announces a frame, then pushes its thumbnail; thumbnails of frames trimmed before they were sent
+are dropped, and the trim is announced first): each handshake takes the oldest capture still waiting. An image
+whose packets never all arrive is fetched by FTP instead.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ log = logging.getLogger("merlion.surface")
 MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
 MAV_TYPE_GCS = mav.MAV_TYPE_GCS
 INDEX_PATH = "/summary/index.json"
+PUSH_MARKER = "MRL_PUSH"
 
 
 @dataclass
@@ -112,6 +115,9 @@ class SurfaceTool:
         self._orphans: dict[int, PushedImage] = {}  # finished pushes not yet paired
         self._lost_push: dict[int, Abandoned] = {}  # pushes abandoned before pairing, by handshake number
         self._fetching: set[int] = set()
+        self._marker: int | None = None  # image index named by the last MRL_PUSH, until its handshake comes
+        self._crc: dict[int, int] = {}  # thumbnail CRC32 by image index, from index.json (JPEG only)
+        self._unverified: dict[int, bytes] = {}  # pushed thumbnails waiting for an index.json with their CRC
         self._index_due: float | None = None
         self._index_pulled_at = -1e9
 
@@ -204,8 +210,12 @@ class SurfaceTool:
             self._on_statustext(msg, now)
         elif kind in ("NAMED_VALUE_FLOAT", "NAMED_VALUE_INT"):
             name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else msg.name
+            name = name.rstrip("\0")
+            if kind == "NAMED_VALUE_INT" and name == PUSH_MARKER:
+                self._marker = int(msg.value)
+                return
             with self.lock:
-                self.status.values[name.rstrip("\0")] = float(msg.value)
+                self.status.values[name] = float(msg.value)
                 self.status.values_at = now
         elif kind == "FILE_TRANSFER_PROTOCOL" and self._ftp is not None:
             self._ftp.handle(msg)
@@ -291,6 +301,10 @@ class SurfaceTool:
         if progress is None:
             return
         handshake_no = progress[0]
+        marker, self._marker = self._marker, None
+        if marker is not None:
+            self._bind_marked(handshake_no, marker)
+            return
         live = []
         for index, since in self._waiting:
             cap = self.gallery.get(index)
@@ -305,6 +319,16 @@ class SurfaceTool:
             self._early.append(handshake_no)
         else:
             self._bind(handshake_no, pick)
+
+    def _bind_marked(self, handshake_no: int, index: int) -> None:
+        """The handshake the companion named with MRL_PUSH: it is that frame's, whatever arrived in between.
+        A frame trimmed meanwhile still gets it (into removed/); one whose capture was lost is asked for again."""
+        if self.gallery.get(index) is None:
+            log.info("push for capture %d came before its capture: asking for the capture", index)
+            self.gallery.announce(Capture(image_index=index))
+            self._request_capture(index)
+        self._waiting = deque((i, t) for i, t in self._waiting if i != index)
+        self._bind(handshake_no, index)
 
     def _bind(self, handshake_no: int, index: int) -> None:
         self._bound[handshake_no] = index
@@ -322,6 +346,12 @@ class SurfaceTool:
             # a push whose handshake was lost: it was for the oldest capture still waiting, which must come by FTP
             with self.lock:
                 self.status.pushed_lost += 1
+            marker, self._marker = self._marker, None
+            if marker is not None:
+                log.info("push for capture %d lost its handshake: FTP fallback", marker)
+                self._waiting = deque((i, t) for i, t in self._waiting if i != marker)
+                self._fetch_thumbnail(marker)
+                return
             while self._waiting:
                 index, _ = self._waiting.popleft()
                 cap = self.gallery.get(index)
@@ -362,25 +392,43 @@ class SurfaceTool:
             self.status.pushed_ok += 1
 
     def _verify(self, index: int, data: bytes) -> None:
-        """A push is paired with its capture by order, and a salvaged one is part push: check the bytes against
-        the companion's file with one CalcFileCRC32; on a mismatch fetch the whole file by name."""
+        """A push may be paired by order, and a salvaged one is part push: check the bytes against the CRC32 that
+        index.json gives for the companion's file (no extra request; a push usually lands before the index that
+        lists it, so the check waits for that pull); on a mismatch fetch the whole file by name."""
         cap = self.gallery.get(index)
         path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
         if self._ftp is None or not path.endswith(".jpg"):
             return  # a WebP thumbnail on the server is not the JPEG that was pushed: nothing to compare
+        crc = self._crc.get(index)
+        if crc is None:
+            self._unverified[index] = data
+            self._want_index()
+            return
+        self._unverified.pop(index, None)
+        self._checked(index, crc == crc32_mavftp(data))
+
+    def _checked(self, index: int, ok: bool) -> None:
+        if ok:
+            with self.lock:
+                self.status.verified += 1
+            return
+        with self.lock:
+            self.status.mismatched += 1
+        log.warning("thumbnail of capture %d is not the companion's (CRC differs): fetching it by name", index)
+        self._fetch_thumbnail(index, replace=True)
+
+    def _verify_by_request(self, index: int, data: bytes) -> None:
+        """The fallback for a companion whose index.json has no CRC: one CalcFileCRC32 request."""
+        cap = self.gallery.get(index)
+        path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
+        if self._ftp is None:
+            return
 
         def checked(_path: str, crc: int | None, error: str) -> None:
             if crc is None:
                 log.debug("CRC of %s: %s", path, error)  # e.g. trimmed meanwhile: nothing to fix
                 return
-            if crc == crc32_mavftp(data):
-                with self.lock:
-                    self.status.verified += 1
-                return
-            with self.lock:
-                self.status.mismatched += 1
-            log.warning("thumbnail of capture %d is not the companion's (CRC differs): fetching it by name", index)
-            self._fetch_thumbnail(index, replace=True)
+            self._checked(index, crc == crc32_mavftp(data))
 
         self._ftp.crc(path, checked)
 
@@ -462,10 +510,13 @@ class SurfaceTool:
         self._waiting = deque((i, t) for i, t in self._waiting if i not in gone)
         waiting = {i for i, _ in self._waiting}
         for cap in captures:
-            if cap.thumbnail_bytes is not None and (cap.file_url or "").endswith(".jpg"):
-                self._expected[cap.image_index] = cap.thumbnail_bytes  # pushes are JPEG: comparable
+            if (cap.file_url or "").endswith(".jpg"):  # pushes are JPEG: comparable
+                if cap.thumbnail_bytes is not None:
+                    self._expected[cap.image_index] = cap.thumbnail_bytes
+                if cap.thumbnail_crc32 is not None:
+                    self._crc[cap.image_index] = cap.thumbnail_crc32
             tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
-                                                 "score", "file_url")}
+                                                 "score", "file_url", "thumbnail_crc32")}
             self.gallery.update_tags(cap.image_index, **tags)
             known = self.gallery.get(cap.image_index)
             if known is None:
@@ -476,6 +527,7 @@ class SurfaceTool:
                 # fetch the right one by name
                 log.warning("capture %d: pushed thumbnail has %d bytes, the companion says %d: re-fetching",
                             cap.image_index, known.thumbnail_bytes, cap.thumbnail_bytes)
+                self._unverified.pop(cap.image_index, None)
                 self._fetch_thumbnail(cap.image_index, replace=True)
                 continue
             if known.thumbnail is not None:
@@ -483,6 +535,21 @@ class SurfaceTool:
             # a frame we never heard announced has no push coming: fetch it now
             if cap.image_index not in waiting and cap.image_index not in self._bound.values():
                 self._fetch_thumbnail(cap.image_index)
+        self._verify_waiting({c.image_index for c in captures})
+
+    def _verify_waiting(self, listed: set[int]) -> None:
+        """After an index pull: check the pushes that waited for their CRC; an index without CRCs (another
+        companion) gets the CalcFileCRC32 request instead; frames trimmed meanwhile need no check."""
+        for index, data in list(self._unverified.items()):
+            cap = self.gallery.get(index)
+            if cap is None or not cap.in_summary:
+                del self._unverified[index]
+            elif index in self._crc:
+                self._verify(index, data)
+            elif index in listed:
+                del self._unverified[index]
+                self._verify_by_request(index, data)
+            # else: announced after this index was built; the next pull lists it
 
     # --- for the web page ----------------------------------------------------------------------------------
 

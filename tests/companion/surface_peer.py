@@ -20,9 +20,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.events import SummaryFrame
 from vehicle.camera import CameraComponent
 from vehicle.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
-from vehicle.ftp_server import FtpServer, VirtualTree
+from vehicle.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
 from vehicle.image_push import push_messages
 from vehicle.pose import Pose
+from vehicle.status import push_marker
 from vehicle.thumbnails import make_thumbnail
 
 
@@ -45,7 +46,12 @@ def summary_frame(index: int, *, depth: float = 12.5, yaw_deg: float = 90.0, sco
 class CompanionPeer:
     """Sends as system 1 component 100 to ``port``; answers FTP requests on a thread until ``close``."""
 
-    def __init__(self, port: int, *, system: int = 1, component: int = 100) -> None:
+    def __init__(self, port: int, *, system: int = 1, component: int = 100, markers: bool = False,
+                 index_crc: bool = False) -> None:
+        """``markers``: send MRL_PUSH before each push, and ``index_crc``: put each thumbnail's size and CRC32 in
+        index.json, as the real companion does; without them, an older or foreign companion."""
+        self.markers = markers
+        self.index_crc = index_crc
         self.addr = ("127.0.0.1", port)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
@@ -93,10 +99,13 @@ class CompanionPeer:
             self.send(captured)
         self.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, added_text(frame, len(self.held)).encode()))
         if push:
-            self.push(thumb.data, thumb.width, thumb.height, drop_chunks=drop_chunks)
+            self.push(thumb.data, thumb.width, thumb.height, drop_chunks=drop_chunks, index=frame.image_index)
         return thumb.data
 
-    def push(self, data: bytes, width: int, height: int, *, drop_chunks: set[int] = frozenset()) -> None:
+    def push(self, data: bytes, width: int, height: int, *, drop_chunks: set[int] = frozenset(),
+             index: int | None = None) -> None:
+        if self.markers and index is not None:
+            self.send(push_marker(index, 0))
         for i, msg in enumerate(push_messages(data, width, height, 80)):
             if i - 1 in drop_chunks:
                 continue
@@ -117,9 +126,11 @@ class CompanionPeer:
         frames = []
         for i in self.held:
             f = self.frames[i]
-            frames.append({"image_index": i, "time_utc": f.capture_time, "score": f.score,
-                           "depth_m": f.pose.depth_m, "heading_deg": f.pose.heading_deg,
-                           "thumbnail": thumbnail_path(i)})
+            entry = {"image_index": i, "time_utc": f.capture_time, "score": f.score, "depth_m": f.pose.depth_m,
+                     "heading_deg": f.pose.heading_deg, "thumbnail": thumbnail_path(i)}
+            if self.index_crc:
+                entry.update(thumbnail_bytes=len(self.thumbs[i]), thumbnail_crc32=crc32_ardupilot(self.thumbs[i]))
+            frames.append(entry)
         return json.dumps({"frames": frames}).encode()
 
     def _serve(self) -> None:

@@ -13,6 +13,7 @@ from companion.surface.gallery import Gallery
 from companion.surface.surface_tool import SurfaceOptions
 from tests.companion.surface_peer import CompanionPeer, summary_frame
 from tests.conftest import free_udp_port
+from vehicle.thumbnails import make_thumbnail
 
 
 def _wait(predicate, timeout: float = 20.0) -> bool:
@@ -150,3 +151,49 @@ def test_a_tool_started_mid_dive_learns_the_summary_from_the_index(tmp_path):
         stop.set()
         thread.join(10)
         peer.close()
+
+
+def test_pushes_pair_by_their_mrl_push_marker_and_are_checked_against_index_crcs(tmp_path):
+    """Our companion names each push (MRL_PUSH) and lists each thumbnail's CRC32 in index.json: pushes arriving
+    out of order still land on their frames, a corrupt one is caught without a CalcFileCRC32 request, and a push
+    for a frame already trimmed goes to removed/, never back into the summary."""
+    port = free_udp_port()
+    stop = threading.Event()
+    options = SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", index_refresh_s=0.5)
+    thread = threading.Thread(target=serve, args=(options, str(tmp_path)), kwargs={"stop": stop}, daemon=True)
+    thread.start()
+    peer = CompanionPeer(port, markers=True, index_crc=True)
+    try:
+        assert _wait(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
+        frames = {i: summary_frame(i, depth=20.0 + i, score=0.5 + i / 10) for i in (1, 2, 3, 5)}
+        sent = {i: peer.add(frames[i], push=False) for i in (1, 2, 3, 5)}
+        thumbs = {i: make_thumbnail(frames[i].image) for i in sent}
+        peer.trim(5)
+        # pushes in another order than the captures: arrival order would give frame 1 the thumbnail of frame 2
+        for i in (2, 1, 5):
+            peer.push(sent[i], thumbs[i].width, thumbs[i].height, index=i)
+        bad = bytearray(sent[3])
+        bad[len(bad) // 2] ^= 0xFF  # same size, other bytes: only the CRC tells
+        peer.push(bytes(bad), thumbs[3].width, thumbs[3].height, index=3)
+
+        def settled() -> bool:
+            held = {c.image_index: c for c in Gallery(tmp_path).summary()}
+            return set(held) == {1, 2, 3} and held[3].thumbnail_via == "ftp" and all(
+                c.thumbnail for c in held.values())
+
+        assert _wait(settled, 30), Gallery(tmp_path).captures()
+        gallery = Gallery(tmp_path)
+        for i in (1, 2, 3):
+            cap = gallery.get(i)
+            assert (tmp_path / cap.thumbnail).read_bytes() == sent[i], cap
+        assert gallery.get(1).thumbnail_via == "push" and gallery.get(2).thumbnail_via == "push"
+        five = gallery.get(5)
+        assert not five.in_summary and (tmp_path / "removed" / "5.jpg").read_bytes() == sent[5]
+        assert not (tmp_path / "summary" / "5.jpg").exists()
+        crc_requests = [m for m in peer.received if m.get_type() == "FILE_TRANSFER_PROTOCOL" and m.payload[3] == 14]
+        assert crc_requests == []
+    finally:
+        stop.set()
+        thread.join(10)
+        peer.close()
+    assert not thread.is_alive()
