@@ -6,7 +6,13 @@ One run measures, on the same frames of one source:
 - encoder only: the same downscaled frames through ``encode_images`` at the same batch size, frames/s;
 - the sampler alone at K = 6 and K = 64: milliseconds per offered frame over a long seeded stream of features
   with the encoder's dimension (a real dive has too few frames to fill K = 64 many times over);
-- the peak resident memory of the process.
+- the peak resident memory of the process;
+- the paper's own per-frame loop as the baseline (``paper_frames`` frames): read a frame, open_clip's own PIL
+  transform on the full frame, the model at batch 1 in fp32, score, sampler, no decode thread. Our end-to-end
+  rate divided by it is ``speedup_vs_paper_loop``: a ratio measured in the same run on the same machine, so it
+  survives the machine's noise and slowness where absolute frames/s do not. For a non-CLIP encoder the baseline
+  is the same batch-1 loop with that encoder fed full frames. It runs last, after the peak RSS was read, since a
+  reduced-precision run needs a second, fp32 copy of the model for it.
 
 The source is looped until ``frames`` frames have gone through, so a short clip still gives a steady rate.
 Speed targets are checked here, never in tests.
@@ -20,11 +26,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm import tqdm
 
 from companion.config import Config
 from companion.encoders.base import Encoder
 from companion.frame_feed import FrameFeed
 from companion.pipeline import Pipeline
+from companion.presampler import PreSampler
 from companion.sampler import InformativeSampler
 from companion.sources.factory import open_source
 
@@ -50,6 +58,14 @@ class PipelineBench:
     stage_ms: dict
     decode_ms: float
     passed: int
+    paper_loop_fps: float | None = None
+    """The paper's per-frame loop (batch 1, fp32, open_clip's PIL transform, no decode thread) on the same source."""
+    paper_loop_frames: int = 0
+    paper_loop_precision: str | None = None
+
+    @property
+    def speedup_vs_paper_loop(self) -> float | None:
+        return self.end_to_end_fps / self.paper_loop_fps if self.paper_loop_fps else None
 
     def as_json(self) -> dict:
         return {"end_to_end_fps": round(self.end_to_end_fps, 2), "encoder_fps": round(self.encoder_fps, 2),
@@ -58,7 +74,11 @@ class PipelineBench:
                 "rss_end_mb": round(self.rss_end_mb, 1), "frames": self.frames, "batch": self.batch,
                 "encoder": self.encoder, "source": self.source,
                 "stage_ms_per_frame": {k: round(v, 3) for k, v in self.stage_ms.items()},
-                "decode_ms_per_frame": round(self.decode_ms, 3)}
+                "decode_ms_per_frame": round(self.decode_ms, 3),
+                "paper_loop_fps": None if self.paper_loop_fps is None else round(self.paper_loop_fps, 3),
+                "speedup_vs_paper_loop": (None if self.speedup_vs_paper_loop is None
+                                          else round(self.speedup_vs_paper_loop, 3)),
+                "paper_loop_frames": self.paper_loop_frames, "paper_loop_precision": self.paper_loop_precision}
 
     def table(self) -> str:
         ratio = self.end_to_end_fps / self.encoder_fps if self.encoder_fps else float("nan")
@@ -74,6 +94,10 @@ class PipelineBench:
             ("stages", ", ".join(f"{k} {v:.2f}" for k, v in self.stage_ms.items()) + " ms/frame"),
             ("decode thread", f"{self.decode_ms:.2f} ms/frame"),
         ]
+        if self.paper_loop_fps:
+            rows.insert(4, ("paper loop", f"{self.paper_loop_fps:.2f} frames/s ({self.paper_loop_frames} frames, "
+                                          f"batch 1, {self.paper_loop_precision}, its own preprocessing): end to "
+                                          f"end is {self.speedup_vs_paper_loop:.2f} x the paper's loop"))
         return "\n".join(f"{name:<14}{value}" for name, value in rows)
 
 
@@ -108,8 +132,55 @@ def _looped(cfg: Config) -> Config:
     return looped
 
 
-def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = None) -> PipelineBench:
-    """Run the three measurements; ``cfg`` gives the source, encoder, batch, queries and sampler settings."""
+def _fp32_twin(cfg: Config, encoder: Encoder) -> Encoder:
+    """The encoder itself when it runs in fp32 (or has no precision), else a fresh fp32 one of the same model."""
+    if encoder.describe().get("precision", "fp32") == "fp32":
+        return encoder
+    from companion.encoders.factory import make_encoder
+
+    return make_encoder(cfg.encoder.model_copy(update={"precision": "fp32", "batch": 1}))
+
+
+def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *, progress: bool = False) -> tuple[float, str]:
+    """Frames/s of the paper's loop: decode, preprocess, encode at batch 1, score and sample, one frame at a time.
+
+    CLIP gets open_clip's own PIL transform on the full frame (``encode_images_reference``); other encoders get
+    the full frame through ``encode_images``. The first frame is a warm-up and is not timed.
+    """
+    paper = _fp32_twin(cfg, encoder)
+    reference = getattr(paper, "encode_images_reference", None)
+    encode = reference if reference is not None else paper.encode_images
+    presampler = PreSampler(paper, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+    sampler = InformativeSampler(cfg.sampler.k, cfg.sampler.distance, cfg.sampler.threshold)
+    source = open_source(_looped(cfg).source)
+    done, start = 0, None
+    try:
+        with tqdm(total=frames, desc="paper loop", unit="frame", file=sys.stderr, disable=not progress) as bar:
+            for frame in source:
+                emb = encode([frame.image])
+                score = presampler.scores(emb)
+                if presampler.passes(score)[0]:
+                    sampler.offer(frame.index, paper.sampler_features(emb)[0])
+                if start is None:
+                    start = time.perf_counter()
+                    continue
+                done += 1
+                bar.update(1)
+                if done >= frames:
+                    break
+    finally:
+        source.close()
+    if start is None or done == 0:
+        return 0.0, str(paper.describe().get("precision", "-"))
+    return done / (time.perf_counter() - start), str(paper.describe().get("precision", "-"))
+
+
+def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = None, paper_frames: int = 32,
+                   progress: bool = False) -> PipelineBench:
+    """Run the measurements; ``cfg`` gives the source, encoder, batch, queries and sampler settings.
+
+    ``paper_frames=0`` skips the paper-loop baseline; ``progress`` draws bars on stderr (for a terminal).
+    """
     if encoder is None:
         from companion.encoders.factory import make_encoder
 
@@ -131,11 +202,13 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
 
     start = time.perf_counter()
     done = passed = 0
-    with FrameFeed(open_source(looped.source), pipeline.prepare, limit=frames) as feed:
+    bar = tqdm(total=frames, desc="end to end", unit="frame", file=sys.stderr, disable=not progress)
+    with bar, FrameFeed(open_source(looped.source), pipeline.prepare, limit=frames) as feed:
         for chunk in feed.batches(batch):
             chunk = chunk[: frames - done]
             out = pipeline.process([f for f, _ in chunk], [s for _, s in chunk])
             done += len(chunk)
+            bar.update(len(chunk))
             passed += sum(r.passed for r in out.results)
             if done >= frames:
                 break
@@ -150,10 +223,16 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     encoder_only = len(prepared) / (time.perf_counter() - start)
     dim = int(encoder.sampler_features(np.zeros((1, dims), np.float32)).shape[1])
 
-    return PipelineBench(
+    result = PipelineBench(
         encoder=encoder.describe(), source=cfg.source.uri, frames=done, batch=batch,
         end_to_end_fps=end_to_end, encoder_fps=encoder_only,
         sampler_ms_k6=sampler_ms_per_frame(6, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
         sampler_ms_k64=sampler_ms_per_frame(64, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
-        peak_rss_mb=peak_rss_mb(), load_peak_rss_mb=load_peak, rss_end_mb=rss_now_mb(), stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed,
+        peak_rss_mb=peak_rss_mb(), load_peak_rss_mb=load_peak, rss_end_mb=rss_now_mb(),
+        stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed,
     )
+    if paper_frames > 0:
+        result.paper_loop_fps, result.paper_loop_precision = paper_loop_fps(cfg, encoder, paper_frames,
+                                                                            progress=progress)
+        result.paper_loop_frames = paper_frames
+    return result

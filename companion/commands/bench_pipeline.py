@@ -1,9 +1,10 @@
-"""``merlion bench pipeline SOURCE``: end-to-end vs encoder-only frames/s, sampler ms/frame, peak RSS."""
+"""``merlion bench pipeline SOURCE``: end-to-end vs encoder-only and vs the paper's loop, sampler cost, peak RSS."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 
 def register(add_command) -> None:
@@ -14,8 +15,10 @@ def register(add_command) -> None:
     p.add_argument("--model", help="open_clip architecture for clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
     p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
-    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], help="encoder precision")
+    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16", "int8"], help="encoder precision")
     p.add_argument("--frames", type=int, default=256, help="frames to push through (default 256)")
+    p.add_argument("--paper-frames", type=int, default=32,
+                   help="frames for the paper's per-frame loop baseline (default 32; 0 skips it)")
     p.add_argument("--fps", type=float, help="subsample the source to this rate (default: every frame)")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--json", action="store_true", help="end with one JSON object on the last line")
@@ -29,6 +32,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 1:
         raise UsageError(f"--frames must be at least 1, got {args.frames}")
+    if args.paper_frames < 0:
+        raise UsageError(f"--paper-frames must be 0 or more, got {args.paper_frames}")
     over: dict = {"source": {"uri": args.source, "fps": args.fps if args.fps is not None else 240.0}}
     enc = {"name": args.encoder, "model": args.model, "weights": args.weights, "batch": args.batch,
            "precision": args.precision}
@@ -36,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
     if enc:
         over["encoder"] = enc
     cfg = load_config(args.config, overrides=over)
-    result = bench_pipeline(cfg, frames=args.frames)
+    result = bench_pipeline(cfg, frames=args.frames, paper_frames=args.paper_frames,
+                            progress=sys.stderr.isatty())
     print(result.table())
     if args.json:
         print(json.dumps(result.as_json()))
