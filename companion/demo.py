@@ -122,6 +122,22 @@ def _gallery_counts(surface_dir: Path) -> tuple[int, int, int]:
     return len(caps), len(held), len(thumbs)
 
 
+def _surface_settled(surface_dir: Path, summary: list[int], timeout: float) -> bool:
+    """Wait (at most ``timeout``) until the surface gallery holds exactly ``summary``, each with a thumbnail."""
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            doc = json.loads((surface_dir / "gallery.json").read_text(encoding="utf-8"))
+            held = {c["image_index"]: c for c in doc.get("captures", []) if c.get("in_summary")}
+            if set(held) == set(summary) and all(c.get("thumbnail") for c in held.values()):
+                return True
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            pass
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.1)
+
+
 def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str, Any]:
     """Run the demo; returns the report (also written to DIR/report.json)."""
     stop = stop or threading.Event()
@@ -154,7 +170,8 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
                 log.warning("%s exited early (code %s); see %s", name, proc.returncode, logs / f"{name}.log")
         companion.stop_pipeline()
         companion.drain(timeout=20.0)
-        time.sleep(1.5)  # the surface tool's FTP pull of index.json and the last acknowledgements
+        held = companion.store.summary if companion.store is not None else []
+        _surface_settled(out / "surface", held, timeout=10.0)  # the last trims and thumbnails still on the way
     finally:
         if companion is not None:
             companion.stop()

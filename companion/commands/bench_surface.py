@@ -22,7 +22,9 @@ def run(args: argparse.Namespace) -> int:
     result = {"push": push, "limit_encapsulated_data": round(sb.LIMIT, 4), "limit_reference": sb.REFERENCE_LIMIT}
     print(f"push: {push['frames']} thumbnails ({sum(push['thumbnail_bytes'])} B) reached the surface in "
           f"{push['seconds_to_surface']} s, intact={push['intact']}, captures {push['captures_received']}; "
-          f"payload efficiency {push['push_efficiency']:.1%} of push bytes (limit {sb.LIMIT:.1%}), "
+          f"payload efficiency {push['push_efficiency']:.1%} of push bytes = {push['of_limit']:.1%} of the "
+          f"ENCAPSULATED_DATA limit {sb.LIMIT:.2%} (253/267; {push['floor_for_these_sizes']:.1%} at best for these "
+          f"sizes with handshake and marker), "
           f"{push['overall_efficiency']:.1%} of all bytes; {push['achieved_bytes_per_s']} B/s on the wire",
           flush=True)
     if not args.no_pull:

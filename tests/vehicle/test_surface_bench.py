@@ -14,6 +14,10 @@ def test_bench_surface_reports_efficiency_and_time():
     push = result["push"]
     assert push["intact"] and push["captures_received"] == 2
     assert 0.85 < push["push_efficiency"] <= result["limit_encapsulated_data"] < result["limit_reference"]
+    assert result["limit_encapsulated_data"] == round(253 / (10 + 2 + 253 + 2), 4)  # header, seqnr, data, CRC
+    assert abs(push["of_limit"] - push["push_efficiency"] / (253 / 267)) < 0.001
+    # every push byte on the wire is the protocol's own (marker, handshake, chunks): nothing sent twice
+    assert abs(push["push_efficiency"] - push["floor_for_these_sizes"]) < 0.005
     assert push["seconds_to_surface"] > 0
     assert result["pull"] == {"frames": 2, "intact": 2, "seconds_to_surface": result["pull"]["seconds_to_surface"]}
 
