@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 
 log = logging.getLogger(__name__)
 
@@ -22,6 +22,8 @@ REPO = Path(__file__).resolve().parents[2]
 UNIT_NAME = "merlion-companion.service"
 UNIT_TEMPLATE = REPO / "systemd" / UNIT_NAME
 VEHICLE_CONFIG = REPO / "config" / "bluerov2-orin.yaml"
+USER_NAME = re.compile(r"[a-z_][a-z0-9_-]{0,31}")
+"""What useradd accepts by default; anything else would also break the User= line of the unit."""
 
 
 @dataclass
@@ -51,6 +53,8 @@ def install(plan: InstallPlan) -> list[str]:
     """Write the unit and config; on the live system also create the user and enable the service."""
     if not UNIT_TEMPLATE.is_file():
         raise MerlionError(f"{UNIT_TEMPLATE}: unit template missing from this installation")
+    if not USER_NAME.fullmatch(plan.user):
+        raise UsageError(f"--user {plan.user!r}: not a valid user name (lower-case letters, digits, _ and -)")
     live = plan.root == Path("/")
     unit_dir = plan.root / "etc" / "systemd" / "system"
     conf_dir = plan.root / "etc" / "merlion"
@@ -72,6 +76,8 @@ def install(plan: InstallPlan) -> list[str]:
         plan.done.append(f"unit -> {unit_dir / UNIT_NAME}")
     except PermissionError as err:
         raise MerlionError(f"{err.filename}: permission denied (run with sudo, or use --root DIR to stage)") from None
+    except OSError as err:
+        raise MerlionError(f"{err.filename or plan.root}: cannot write there ({err.strerror or err})") from None
     if live:
         _ensure_user(plan)
         _systemctl(plan, "daemon-reload")

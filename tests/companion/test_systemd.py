@@ -57,3 +57,17 @@ def test_install_service_names_a_missing_config(tmp_path: Path) -> None:
     done = run_merlion("install-service", "--root", str(tmp_path), "--config", str(tmp_path / "nope.yaml"), timeout=60)
     assert done.returncode == 1
     assert done.stderr.strip().splitlines()[-1] == f"merlion: error: {tmp_path / 'nope.yaml'}: no such config file"
+
+
+def test_install_service_refuses_a_bad_user_name_and_an_unwritable_root(tmp_path: Path) -> None:
+    bad_user = run_merlion("install-service", "--root", str(tmp_path / "a"), "--user", "x\nExecStartPre=/bin/sh",
+                           timeout=60)
+    assert bad_user.returncode == 2
+    assert bad_user.stderr.strip().startswith("merlion: error: --user") and len(bad_user.stderr.splitlines()) == 1
+    assert not (tmp_path / "a").exists()
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    unwritable = run_merlion("install-service", "--root", str(blocker), "--no-enable", timeout=60)
+    assert unwritable.returncode == 1
+    assert unwritable.stderr.startswith(f"merlion: error: {blocker}/") and len(unwritable.stderr.splitlines()) == 1
+    assert "Traceback" not in unwritable.stderr
