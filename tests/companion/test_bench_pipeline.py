@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import json
 
+import open_clip
+import pytest
+import torch
+
 from tests.conftest import run_merlion, shared_file
+
+SMALL = "ViT-S-32-alt"
 
 
 def test_bench_pipeline_json_last_line():
@@ -17,6 +23,35 @@ def test_bench_pipeline_json_last_line():
         assert isinstance(result[key], (int, float)) and result[key] > 0, key
     assert result["frames"] == 60 and result["batch"] == 4  # 47 frames at 5 fps: looped past the end
     assert "end to end" in proc.stdout
+    assert result["paper_loop_frames"] == 32 and result["paper_loop_fps"] > 0  # the default baseline ran
+    assert result["speedup_vs_paper_loop"] == pytest.approx(result["end_to_end_fps"] / result["paper_loop_fps"],
+                                                            rel=0.01)
+    assert "x the paper's loop" in proc.stdout
+
+
+def test_paper_loop_baseline_runs_clip_in_fp32_whatever_the_run_uses(tmp_path):
+    """An int8 run is compared with the paper's fp32 loop (a second model built for it), on the same frames."""
+    torch.manual_seed(0)
+    ckpt = tmp_path / "small.pt"
+    torch.save(open_clip.create_model(SMALL, pretrained=None).state_dict(), ckpt)
+    proc = run_merlion("bench", "pipeline", str(shared_file("survey/survey_480x270.mp4")), "--encoder", "clip",
+                       "--model", SMALL, "--weights", str(ckpt), "--precision", "int8", "--fps", "5",
+                       "--frames", "8", "--batch", "4", "--paper-frames", "3", "--json")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["encoder"]["precision"] == "int8" and result["paper_loop_precision"] == "fp32"
+    assert result["paper_loop_frames"] == 3 and result["paper_loop_fps"] > 0
+
+
+def test_paper_loop_can_be_skipped_and_bad_counts_are_refused():
+    video = str(shared_file("survey/survey_480x270.mp4"))
+    proc = run_merlion("bench", "pipeline", video, "--encoder", "visual", "--frames", "8", "--paper-frames", "0",
+                       "--json")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["paper_loop_fps"] is None and result["speedup_vs_paper_loop"] is None
+    proc = run_merlion("bench", "pipeline", video, "--encoder", "visual", "--paper-frames", "-1")
+    assert proc.returncode == 2 and "--paper-frames" in proc.stderr.strip().splitlines()[-1]
 
 
 def test_bench_pipeline_bad_source_is_one_line(tmp_path):

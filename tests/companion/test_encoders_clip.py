@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import json
 import logging
+import subprocess
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -127,7 +130,7 @@ def test_vit_b32_through_the_cli_agrees_with_open_clip_itself(b32, images, tmp_p
     np.testing.assert_allclose(cli_scores, want, atol=0.01)
 
 
-@pytest.mark.parametrize("precision", ["bf16", "fp16"])
+@pytest.mark.parametrize("precision", ["bf16", "fp16", "int8"])
 def test_reduced_precision_keeps_scores_within_0_01(small_ckpt, small_fp32, images, precision):
     ref = small_fp32
     low = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision=precision))
@@ -139,6 +142,56 @@ def test_reduced_precision_keeps_scores_within_0_01(small_ckpt, small_fp32, imag
     np.testing.assert_allclose(got, want, atol=0.01)
     texts = ["underwater image with fish", "underwater image without fish"]
     np.testing.assert_allclose(low.encode_texts(texts), ref.encode_texts(texts), atol=0.02)
+
+
+def test_int8_embeddings_point_the_same_way_as_fp32(small_ckpt, small_fp32, images):
+    """Scores within 0.01 could hide a larger error when random towers make scores alike: compare directions too."""
+    low = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="int8"))
+    cos = np.sum(low.encode_images(images) * small_fp32.encode_images(images), axis=1)
+    assert cos.min() > 0.995
+    quantized = [m for m in low._model.visual.modules() if "quantized" in type(m).__module__]
+    assert quantized, "int8 asked for but no layer was quantized"
+
+
+def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_fp32, images):
+    """Trainer checkpoints ({"state_dict": ...}, "module." prefixes) and pre-zip torch files load like plain ones."""
+    state = small_fp32._model.state_dict()
+    wrapped = tmp_path / "wrapped.pt"
+    torch.save({"state_dict": {f"module.{k}": v for k, v in state.items()}, "epoch": 3}, wrapped)
+    legacy = tmp_path / "legacy.pt"
+    torch.save(state, legacy, _use_new_zipfile_serialization=False)
+    want = small_fp32.encode_images(images[:2])
+    for path in (wrapped, legacy):
+        enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(path), precision="fp32"))
+        np.testing.assert_allclose(enc.encode_images(images[:2]), want, atol=1e-5)
+
+
+def test_a_checkpoint_of_another_architecture_is_a_one_line_error(small_ckpt):
+    with pytest.raises(MerlionError, match="do not load into ViT-B-32"):
+        ClipEncoder(EncoderConfig(name="clip", model="ViT-B-32", weights=small_ckpt, precision="fp32"))
+
+
+@pytest.mark.slow
+def test_loading_holds_one_copy_of_the_weights(tmp_path):
+    """open_clip's loader held checkpoint and model at once (~2x the file); the mmap'd load stays near 1x."""
+    torch.manual_seed(0)
+    ckpt = tmp_path / "b32_fp32.pt"
+    torch.save(open_clip.create_model("ViT-B-32", pretrained=None).state_dict(), ckpt)
+    size_mb = ckpt.stat().st_size / 2**20
+    code = (
+        "import resource, torch, open_clip\n"
+        "from companion.config import EncoderConfig\n"
+        "from companion.encoders.clip import ClipEncoder\n"
+        "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
+        f"enc = ClipEncoder(EncoderConfig(name='clip', weights={str(ckpt)!r}, precision='fp32'))\n"
+        "enc.encode_images([__import__('numpy').zeros((240, 320, 3), 'uint8')])\n"
+        "print(before, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n"
+    )
+    repo = Path(__file__).resolve().parents[2]  # this checkout's companion package, whatever pytest's cwd
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=repo)
+    assert proc.returncode == 0, proc.stderr
+    before, after = map(float, proc.stdout.split()[-2:])
+    assert after - before < 1.3 * size_mb, (before, after, size_mb)
 
 
 def test_batches_give_the_same_embeddings_as_single_frames(small_fp32, images):
