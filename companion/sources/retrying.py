@@ -128,7 +128,8 @@ class RetryingSource(FrameSource):
 
     def _failed(self, err: BaseException, delay: float) -> None:
         self.failures += 1
-        self.last_error = str(err) or type(err).__name__
+        # the source's own errors already start with "source NAME: "; the log line below names it once
+        self.last_error = (str(err) or type(err).__name__).removeprefix(f"source {self.name}: ")
         log.warning("source %s: %s; retrying in %.1f s", self.name, self.last_error, delay)
         self._set("retrying", self.last_error)
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from companion.config import SourceConfig
-from companion.errors import UsageError
+from companion.errors import MerlionError, UsageError
 from companion.sources.base import FrameSource
 from companion.sources.capture import SourceLost
 from companion.sources.retrying import RetryingSource
@@ -235,3 +235,19 @@ def test_rtp_h264_stream_is_received_lost_and_reopened() -> None:
         sender.kill()
         sender.wait(10)
         reader.join(30)
+
+
+def test_a_failure_names_the_source_once() -> None:
+    details: list[str] = []
+
+    def opener() -> FrameSource:
+        raise MerlionError("source cam: no such file or folder")
+
+    def on_state(state: str, detail: str) -> None:
+        if state == "retrying":
+            details.append(detail)
+            source.close()
+
+    source = RetryingSource(opener, name="cam", live=False, initial_s=0.01, max_s=0.01, on_state=on_state)
+    assert list(source) == []
+    assert details == ["no such file or folder"] and source.last_error == "no such file or folder"
