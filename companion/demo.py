@@ -143,10 +143,12 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
     stop = stop or threading.Event()
     check_source(opts)
     out = opts.out
-    (out / "surface").mkdir(parents=True, exist_ok=True)
-    (out / "store").mkdir(parents=True, exist_ok=True)
     logs = out / "logs"
-    logs.mkdir(exist_ok=True)
+    try:
+        for folder in (out / "surface", out / "store", logs):
+            folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise MerlionError(f"--out {out}: cannot create {err.filename or out} ({err.strerror or err})") from None
     surface_port = _free_udp_port()
     hub = UdpHub(outputs=[("127.0.0.1", surface_port)]).start()
     cfg = demo_config(opts, hub_url=hub.url)
