@@ -279,6 +279,8 @@ class SurfaceTool:
         self._expect_push(cap.image_index)
 
     def _expect_push(self, index: int) -> None:
+        if index in self._bound.values():
+            return  # its marked push came first (the capture was lost and asked for again)
         if self._early:
             self._bind(self._early.popleft(), index)
         else:

@@ -165,12 +165,12 @@ def test_pushes_pair_by_their_mrl_push_marker_and_are_checked_against_index_crcs
     peer = CompanionPeer(port, markers=True, index_crc=True)
     try:
         assert _wait(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
-        frames = {i: summary_frame(i, depth=20.0 + i, score=0.5 + i / 10) for i in (1, 2, 3, 5)}
-        sent = {i: peer.add(frames[i], push=False) for i in (1, 2, 3, 5)}
+        frames = {i: summary_frame(i, depth=20.0 + i, score=0.5 + i / 10) for i in (1, 2, 3, 4, 5)}
+        sent = {i: peer.add(frames[i], push=False, announce=i != 4) for i in (1, 2, 3, 4, 5)}  # 4's capture lost
         thumbs = {i: make_thumbnail(frames[i].image) for i in sent}
         peer.trim(5)
         # pushes in another order than the captures: arrival order would give frame 1 the thumbnail of frame 2
-        for i in (2, 1, 5):
+        for i in (2, 1, 5, 4):
             peer.push(sent[i], thumbs[i].width, thumbs[i].height, index=i)
         bad = bytearray(sent[3])
         bad[len(bad) // 2] ^= 0xFF  # same size, other bytes: only the CRC tells
@@ -178,15 +178,16 @@ def test_pushes_pair_by_their_mrl_push_marker_and_are_checked_against_index_crcs
 
         def settled() -> bool:
             held = {c.image_index: c for c in Gallery(tmp_path).summary()}
-            return set(held) == {1, 2, 3} and held[3].thumbnail_via == "ftp" and all(
+            return set(held) == {1, 2, 3, 4} and held[3].thumbnail_via == "ftp" and held[4].depth_m and all(
                 c.thumbnail for c in held.values())
 
         assert _wait(settled, 30), Gallery(tmp_path).captures()
         gallery = Gallery(tmp_path)
-        for i in (1, 2, 3):
+        for i in (1, 2, 3, 4):
             cap = gallery.get(i)
             assert (tmp_path / cap.thumbnail).read_bytes() == sent[i], cap
-        assert gallery.get(1).thumbnail_via == "push" and gallery.get(2).thumbnail_via == "push"
+        assert [gallery.get(i).thumbnail_via for i in (1, 2, 4)] == ["push"] * 3
+        assert gallery.get(4).depth_m == 24.0  # its marker named it: the capture was asked for again
         five = gallery.get(5)
         assert not five.in_summary and (tmp_path / "removed" / "5.jpg").read_bytes() == sent[5]
         assert not (tmp_path / "summary" / "5.jpg").exists()
