@@ -137,6 +137,8 @@ def load_label_csv(path: str | Path, fps: float | None = None) -> LabelTable:
         raise MerlionError(f"{p}: needs columns 'frame,labels' or 'frame_index' plus '<name>_present' (got {cols})")
     table = LabelTable(labels={}, source=str(p), fps=fps)
     for line, row in enumerate(rows, start=2):
+        if None in row:  # csv.DictReader files fields past the header under None, as a list
+            raise MerlionError(f"{p}: line {line}: {len(cols) + len(row[None])} fields, the header names {len(cols)}")
         row = {(k or "").strip(): (v or "").strip() for k, v in row.items()}
         try:
             frame = int(row[key]) + offset

@@ -68,6 +68,10 @@ def test_csv_formats(tmp_path):
     with pytest.raises(MerlionError, match="needs columns"):
         (tmp_path / "c.csv").write_text("foo,bar\n1,2\n")
         load_label_csv(tmp_path / "c.csv")
+    wide = tmp_path / "wide.csv"
+    wide.write_text("frame,labels\n1,fish\n2,crab,extra\n")  # an unquoted comma: more fields than the header
+    with pytest.raises(MerlionError, match="line 3: 3 fields, the header names 2"):
+        load_label_csv(wide)
 
 
 def test_survey_labels_give_two_fish_segments():
