@@ -31,8 +31,12 @@ def cli_overrides(*, source: str | None = None, mavlink: str | None = None, stor
 
 
 def build(config_path: str | None, overrides: dict[str, Any], environ: Mapping[str, str]) -> Config:
-    """Everything validated before anything starts (a bad key: ConfigError, exit 2)."""
-    return load_config(config_path, overrides=overrides, environ=dict(environ))
+    """Everything validated before anything starts (a bad key: ConfigError, exit 2; a bad source URI: exit 2)."""
+    from companion.sources.factory import check_source_uri
+
+    cfg = load_config(config_path, overrides=overrides, environ=dict(environ))
+    check_source_uri(cfg.source.uri)
+    return cfg
 
 
 def run_companion(cfg: Config, *, environ: Mapping[str, str], duration: float | None = None,

@@ -9,6 +9,19 @@ from companion.errors import MerlionError
 from companion.sources.base import FrameSource
 
 
+def check_source_uri(uri: str) -> None:
+    """A malformed synthetic:// or udp:// URI is a usage error before anything starts; the live companion
+    would otherwise retry it forever, as if it were a camera that is not plugged in yet."""
+    if uri.startswith("synthetic://"):
+        from companion.sources.synthetic import parse_synthetic_uri
+
+        parse_synthetic_uri(uri)
+    elif uri.startswith("udp://"):
+        from companion.sources.stream import parse_udp
+
+        parse_udp(uri)
+
+
 def open_source(cfg: SourceConfig, *, realtime: bool | None = None) -> FrameSource:
     """The source for ``cfg.uri``; ``realtime`` overrides ``cfg.realtime`` (offline tools read files flat out)."""
     uri = cfg.uri

@@ -41,6 +41,16 @@ def test_missing_config_file_and_bad_environment_value(tmp_path: Path) -> None:
     assert done.returncode == 2 and "sampler.k" in done.stderr and "MERLION__" in done.stderr
 
 
+def test_malformed_source_uri_is_one_line_and_exit_2_not_retried(tmp_path: Path) -> None:
+    store = tmp_path / "store"
+    done = run_merlion("run", "--source", "synthetic://dive?seconds=abc", "--store", str(store), "--mavlink", "none",
+                       "--duration", "30", timeout=60)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert lines == ["merlion: error: source 'synthetic://dive?seconds=abc': could not convert string to float: 'abc'"]
+    assert not store.exists()
+
+
 @pytest.fixture
 def vehicle():
     """A UDP hub (the router), the simulated ArduSub on it, and a ground-station listener on it."""
