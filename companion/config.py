@@ -56,6 +56,8 @@ class EncoderConfig(_Section):
     device: Literal["auto", "cpu", "cuda"] = "auto"
     precision: Literal["auto", "fp32", "bf16", "fp16", "int8"] = "auto"
     """int8: CLIP's image tower with dynamically quantized linear layers (CPU only; see docs/encoders.md)."""
+    runtime: Literal["torch", "onnx"] = "torch"
+    """onnx: CLIP's image tower exported at start-up and run by ONNX Runtime in fp32 (CPU; see docs/encoders.md)."""
     batch: int = Field(8, ge=1, le=256)
     """Largest batch taken from the queue at once; smaller batches go as soon as they are there."""
     input_size: int | None = Field(None, gt=0)

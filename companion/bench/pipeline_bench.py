@@ -138,7 +138,7 @@ def _fp32_twin(cfg: Config, encoder: Encoder) -> Encoder:
         return encoder
     from companion.encoders.factory import make_encoder
 
-    return make_encoder(cfg.encoder.model_copy(update={"precision": "fp32", "batch": 1}))
+    return make_encoder(cfg.encoder.model_copy(update={"precision": "fp32", "runtime": "torch", "batch": 1}))
 
 
 def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *, progress: bool = False) -> tuple[float, str]:

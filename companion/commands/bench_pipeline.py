@@ -16,6 +16,7 @@ def register(add_command) -> None:
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
     p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
     p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16", "int8"], help="encoder precision")
+    p.add_argument("--runtime", choices=["torch", "onnx"], help="CLIP image tower runtime (default torch)")
     p.add_argument("--frames", type=int, default=256, help="frames to push through (default 256)")
     p.add_argument("--paper-frames", type=int, default=32,
                    help="frames for the paper's per-frame loop baseline (default 32; 0 skips it)")
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--paper-frames must be 0 or more, got {args.paper_frames}")
     over: dict = {"source": {"uri": args.source, "fps": args.fps if args.fps is not None else 240.0}}
     enc = {"name": args.encoder, "model": args.model, "weights": args.weights, "batch": args.batch,
-           "precision": args.precision}
+           "precision": args.precision, "runtime": args.runtime}
     enc = {k: v for k, v in enc.items() if v is not None}
     if enc:
         over["encoder"] = enc

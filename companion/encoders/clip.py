@@ -69,6 +69,37 @@ def quantize_image_tower(visual: torch.nn.Module) -> torch.nn.Module:
         return quantize_dynamic(visual, {torch.nn.Linear}, dtype=torch.qint8, inplace=True)
 
 
+class OnnxImageTower:
+    """The image tower exported to ONNX (in memory, no file) and run by ONNX Runtime on the CPU, in fp32.
+
+    Measured on the 2-core AVX2 build machine, same run: 1.4x (batch 8) to 2.7x (batch 1) the frames/s of torch's
+    fp32 tower with the same embeddings (cosine 1.000000), where torch's int8 gave 1.1-1.4x. Export costs some
+    seconds at start-up and the session holds its own copy of the tower's weights (~350 MB for ViT-B-32).
+    """
+
+    def __init__(self, visual: torch.nn.Module, size: tuple[int, int], threads: int) -> None:
+        import io
+        import warnings
+
+        import onnxruntime as ort
+
+        buf = io.BytesIO()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
+            torch.onnx.export(visual, (torch.zeros(1, 3, *size),), buf, input_names=["image"],
+                              output_names=["embedding"], dynamic_axes={"image": {0: "n"}, "embedding": {0: "n"}},
+                              opset_version=17, dynamo=False)
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        self._session = ort.InferenceSession(buf.getvalue(), opts, providers=["CPUExecutionProvider"])
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
+        out = self._session.run(None, {"image": batch.contiguous().numpy()})[0]
+        return torch.from_numpy(out)
+
+
 def _as_pair(size: int | Sequence[int]) -> tuple[int, int]:
     """open_clip sizes are an int or (height, width)."""
     if isinstance(size, int):
@@ -142,6 +173,12 @@ class ClipEncoder(Encoder):
         self._model = self._load()
         pcfg = open_clip.get_model_preprocess_cfg(self._model)
         self.preprocess = ClipPreprocess(pcfg)
+        self._onnx: OnnxImageTower | None = None
+        if cfg.runtime == "onnx":
+            if self._device.type != "cpu" or self._dtype != torch.float32 or self._int8:
+                raise UsageError(f"encoder.runtime onnx runs fp32 on the CPU only (precision {self.precision}, "
+                                 f"device {self._device}): use precision fp32 or runtime torch")
+            self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads())
         self._tokenizer = open_clip.get_tokenizer(cfg.model)
         self._batch = cfg.batch
         log.info("CLIP %s loaded from %s (%s) on %s, %s", cfg.model, self._weights.path, self._weights.source,
@@ -226,7 +263,10 @@ class ClipEncoder(Encoder):
         out = []
         for start in range(0, len(images), self._batch):
             batch = torch.stack([self.preprocess(img) for img in images[start:start + self._batch]])
-            emb = self._model.encode_image(batch.to(self._device, self._dtype))
+            if self._onnx is not None:
+                emb = self._onnx(batch)
+            else:
+                emb = self._model.encode_image(batch.to(self._device, self._dtype))
             out.append(F.normalize(emb.float(), dim=-1).cpu().numpy())
         if not out:
             return np.zeros((0, self._embed_dim()), dtype=np.float32)
@@ -253,4 +293,5 @@ class ClipEncoder(Encoder):
     def describe(self) -> dict:
         return {"name": self.name, "model": self._cfg.model, "weights": str(self._weights.path),
                 "weights_source": self._weights.source, "precision": self.precision,
+                "runtime": "onnx" if self._onnx is not None else "torch",
                 "device": str(self._device), "input_size": list(self.input_size)}

@@ -153,6 +153,19 @@ def test_int8_embeddings_point_the_same_way_as_fp32(small_ckpt, small_fp32, imag
     assert quantized, "int8 asked for but no layer was quantized"
 
 
+def test_onnx_runtime_gives_the_fp32_embeddings(small_ckpt, small_fp32, images):
+    fast = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32",
+                                     runtime="onnx", batch=3))
+    assert fast.describe()["runtime"] == "onnx"
+    got, want = fast.encode_images(images), small_fp32.encode_images(images)
+    assert np.sum(got * want, axis=1).min() > 0.9999
+    queries = _spread_queries(small_fp32, images)
+    np.testing.assert_allclose(fast.semantic_scores(got, queries), small_fp32.semantic_scores(want, queries),
+                               atol=0.01)
+    with pytest.raises(MerlionError, match="runtime onnx"):
+        ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="bf16", runtime="onnx"))
+
+
 def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_fp32, images):
     """Trainer checkpoints ({"state_dict": ...}, "module." prefixes) and pre-zip torch files load like plain ones."""
     state = small_fp32._model.state_dict()
