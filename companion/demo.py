@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from companion.arg_checks import require_positive
 from companion.config import Config, build_config
 from companion.errors import MerlionError, UsageError
 from companion.live.companion import LiveCompanion, LiveOptions
@@ -218,8 +219,7 @@ def format_report(report: dict[str, Any], *, survey_hint: bool) -> str:
 
 
 def main(opts: DemoOptions) -> int:
-    if opts.duration <= 0:
-        raise UsageError(f"--duration {opts.duration}: must be positive")
+    require_positive("--duration", opts.duration)
     if opts.out.exists() and not opts.out.is_dir():
         raise UsageError(f"--out {opts.out}: exists and is not a folder")
     stop = threading.Event()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 
@@ -27,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
         speeds = [float(s) for s in args.speeds.split(",") if s.strip()]
     except ValueError:
         raise UsageError(f"--speeds {args.speeds}: expected numbers like 5,20,50") from None
-    if not speeds or min(speeds) <= 0:
+    if not speeds or not all(math.isfinite(s) and s > 0 for s in speeds):
         raise UsageError(f"--speeds {args.speeds}: speeds must be positive")
     next(iter(read_tlog(args.log)), None)
     result = run_link_bench(Path(args.log), speeds, start_s=args.start, duration_s=args.duration,

@@ -20,11 +20,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.arg_checks import require_positive
     from companion.bench.soak_bench import run_soak, summary_dict
-    from companion.errors import UsageError
 
-    if args.minutes <= 0 or args.fps <= 0:
-        raise UsageError("--minutes and --fps must be positive")
+    require_positive("--minutes", args.minutes)
+    require_positive("--fps", args.fps)
     last = [-1]
 
     def progress(elapsed: float, total: float, status: str) -> None:

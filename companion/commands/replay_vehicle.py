@@ -25,15 +25,16 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.arg_checks import require_non_negative, require_positive
     from companion.config import MavlinkConfig
-    from companion.errors import MerlionError, UsageError
+    from companion.errors import MerlionError
     from vehicle.link import MavLink, parse_connection
     from vehicle.replay import TlogReplay, read_tlog
 
-    if args.speed <= 0:
-        raise UsageError(f"--speed {args.speed}: must be positive")
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: must be positive")
+    require_positive("--speed", args.speed)
+    require_positive("--duration", args.duration)
+    require_non_negative("--start", args.start)
+    require_non_negative("--wait-peer", args.wait_peer)
     endpoint = parse_connection(args.connect)
     next(iter(read_tlog(args.log)), None)  # a missing or foreign file fails here, before any socket opens
     # the link only carries the log's packets: no heartbeat of its own, and it never answers anything

@@ -20,11 +20,10 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.errors import UsageError
+    from companion.arg_checks import require_positive
     from companion.live.runner import build, cli_overrides, run_companion
 
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: must be positive")
+    require_positive("--duration", args.duration)
     overrides = cli_overrides(source=args.source, mavlink=args.mavlink, store=args.store, loop=args.loop)
     cfg = build(args.config, overrides, os.environ)
     report = run_companion(cfg, environ=os.environ, duration=args.duration)

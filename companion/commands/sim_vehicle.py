@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import threading
 
@@ -46,12 +47,13 @@ def _rates(items: list[str]) -> dict[str, float]:
             rates[name] = float(hz)
         except ValueError:
             raise UsageError(f"--rate {item}: rate must be a number of Hz") from None
-        if rates[name] < 0:
+        if not (math.isfinite(rates[name]) and rates[name] >= 0):
             raise UsageError(f"--rate {item}: rate must be >= 0")
     return rates
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.arg_checks import require_non_negative, require_positive
     from companion.errors import UsageError
     from vehicle.dive_profile import load_profile
     from vehicle.link import parse_connection
@@ -61,10 +63,10 @@ def run(args: argparse.Namespace) -> int:
     parse_connection(connection)
     if not 1 <= args.system_id <= 254:
         raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the ground station's)")
-    for name in ("duration", "silence_for", "reboot_s"):
-        value = getattr(args, name)
-        if value is not None and value <= 0:
-            raise UsageError(f"--{name.replace('_', '-')} {value}: must be positive")
+    for name in ("duration", "silence_for", "reboot_s", "fluid_density"):
+        require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
+    for name in ("silence_at", "reboot_at"):
+        require_non_negative(f"--{name.replace('_', '-')}", getattr(args, name))
     sim = SimVehicle(connection, load_profile(args.profile), system_id=args.system_id, rates=_rates(args.rate),
                      message_interval=not args.no_message_interval, fluid_density=args.fluid_density,
                      reboot_s=args.reboot_s)

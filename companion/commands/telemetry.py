@@ -22,13 +22,13 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.arg_checks import require_positive
     from companion.config import load_config
     from companion.errors import UsageError
     from vehicle.link import parse_connection
     from vehicle.telemetry_watch import watch_telemetry
 
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: must be positive")
+    require_positive("--duration", args.duration)
     overrides = {"mavlink": {"connection": args.connect}} if args.connect else None
     cfg = load_config(args.config, overrides=overrides, environ=dict(os.environ))
     if not cfg.mavlink.connection:

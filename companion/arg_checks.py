@@ -1,0 +1,23 @@
+"""Range checks for command-line numbers, one message style for every command.
+
+argparse's ``type=float`` takes "nan" and "inf" too; a plain ``value <= 0`` test lets NaN through (every
+comparison with NaN is false), so the checks here say what is allowed rather than what is not.
+"""
+
+from __future__ import annotations
+
+import math
+
+from companion.errors import UsageError
+
+
+def require_positive(option: str, value: float | None) -> None:
+    """``option`` (e.g. "--duration") must be a finite number above zero when it is given."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UsageError(f"{option} {value}: must be positive")
+
+
+def require_non_negative(option: str, value: float | None) -> None:
+    """``option`` must be a finite number, zero or more, when it is given."""
+    if value is not None and not (math.isfinite(value) and value >= 0):
+        raise UsageError(f"{option} {value}: must be zero or more")
