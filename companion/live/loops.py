@@ -41,7 +41,9 @@ class LiveCounters:
 
     def fps(self, now: float | None = None) -> float:
         now = time.monotonic() if now is None else now
-        times = [t for t in self.recent if now - t <= 10.0]
+        # copy first: the inference thread appends while the status thread asks (iterating a deque that changes
+        # raises RuntimeError); deque.copy() runs in C without letting another thread in
+        times = [t for t in self.recent.copy() if now - t <= 10.0]
         if len(times) < 2:
             return 0.0
         span = max(times[-1] - times[0], 1e-6)

@@ -55,3 +55,25 @@ def test_hub_forwards_every_datagram_to_every_other_peer() -> None:
         hub.stop()
         for s in (a, b, listen):
             s.close()
+
+
+def test_fps_can_be_read_while_the_inference_thread_appends() -> None:
+    from companion.live.loops import LiveCounters
+
+    counters = LiveCounters()
+    stop = threading.Event()
+
+    def inference() -> None:
+        t = 0.0
+        while not stop.is_set():
+            t += 0.01
+            counters.recent.append(t)
+
+    writer = threading.Thread(target=inference, daemon=True)
+    writer.start()
+    try:
+        for _ in range(20000):  # iterating the live deque raised "deque mutated during iteration" here
+            assert counters.fps(now=1e9) == 0.0  # every time is too old at this "now"
+    finally:
+        stop.set()
+        writer.join(timeout=5)
