@@ -10,6 +10,7 @@ restarts the mapping too, counted as a resync.
 
 from __future__ import annotations
 
+import threading
 from collections import deque
 
 
@@ -28,18 +29,27 @@ class BootClock:
         self._window: deque[tuple[float, float]] = deque()  # (arrival, offset), offsets increasing (min-queue)
         self._last_boot_s: float | None = None
         self._above = 0
+        self._lock = threading.Lock()
+        """observe() runs on the MAVLink thread while frames are tagged on the inference thread: the window is
+        briefly empty inside observe() (popped before the new minimum goes in), which a reader must never see."""
 
     @property
     def synced(self) -> bool:
-        return bool(self._window)
+        with self._lock:
+            return bool(self._window)
 
     @property
     def offset(self) -> float | None:
         """Seconds to add to the autopilot's boot time to get companion time (None before the first sample)."""
-        return self._window[0][1] if self._window else None
+        with self._lock:
+            return self._window[0][1] if self._window else None
 
     def observe(self, time_boot_ms: int, arrival: float) -> bool:
         """Take one sample; True when it revealed an autopilot reboot (the mapping was restarted)."""
+        with self._lock:
+            return self._observe(time_boot_ms, arrival)
+
+    def _observe(self, time_boot_ms: int, arrival: float) -> bool:
         boot_s = time_boot_ms / 1000.0
         offset = arrival - boot_s
         rebooted = self._last_boot_s is not None and boot_s < self._last_boot_s - self.reboot_tolerance_s

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import random
+import sys
+import threading
 
 import pytest
 
@@ -64,3 +66,29 @@ def test_window_follows_drift():
         clock.observe(boot_ms, arrival)
     expected = (10.0 + 299 * 0.1) - int(299 * 100 * 0.998) / 1000
     assert clock.offset == pytest.approx(expected, abs=0.015)
+
+
+def test_offset_read_on_another_thread_never_sees_the_window_half_updated() -> None:
+    """observe() empties the window before the new minimum goes in; a frame tagged then got no offset (or an
+    IndexError) before the lock."""
+    clock = BootClock()
+    clock.observe(0, 100.0)
+    stop = threading.Event()
+
+    def telemetry_thread() -> None:
+        i = 0
+        while not stop.is_set():
+            i += 1
+            clock.observe(i * 10, 100.0 + i * 0.01 - i * 1e-6)  # every sample is the new smallest offset
+
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # switch threads often, so that a reader lands inside observe()
+    writer = threading.Thread(target=telemetry_thread, daemon=True)
+    writer.start()
+    try:
+        misses = sum(clock.offset is None for _ in range(20000))
+    finally:
+        stop.set()
+        writer.join(timeout=5)
+        sys.setswitchinterval(previous)
+    assert misses == 0
