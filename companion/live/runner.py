@@ -31,11 +31,15 @@ def cli_overrides(*, source: str | None = None, mavlink: str | None = None, stor
 
 
 def build(config_path: str | None, overrides: dict[str, Any], environ: Mapping[str, str]) -> Config:
-    """Everything validated before anything starts (a bad key: ConfigError, exit 2; a bad source URI: exit 2)."""
+    """Everything validated before anything starts (a bad key: ConfigError, exit 2; a bad source URI or MAVLink
+    connection string: exit 2), so that neither the store nor the encoder is touched for a typo."""
     from companion.sources.factory import check_source_uri
+    from vehicle.link import parse_connection
 
     cfg = load_config(config_path, overrides=overrides, environ=dict(environ))
     check_source_uri(cfg.source.uri)
+    if cfg.mavlink.connection:
+        parse_connection(cfg.mavlink.connection)
     return cfg
 
 

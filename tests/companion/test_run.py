@@ -41,14 +41,19 @@ def test_missing_config_file_and_bad_environment_value(tmp_path: Path) -> None:
     assert done.returncode == 2 and "sampler.k" in done.stderr and "MERLION__" in done.stderr
 
 
-def test_malformed_source_uri_is_one_line_and_exit_2_not_retried(tmp_path: Path) -> None:
+@pytest.mark.parametrize("source, mavlink, message", [
+    ("synthetic://dive?seconds=abc", "none", "source 'synthetic://dive?seconds=abc': could not convert string to float"),
+    ("synthetic://dive", "bogus:xx", "mavlink connection 'bogus:xx': expected udpin:"),
+])
+def test_malformed_source_or_connection_is_one_line_and_exit_2_before_anything_starts(
+        tmp_path: Path, source: str, mavlink: str, message: str) -> None:
     store = tmp_path / "store"
-    done = run_merlion("run", "--source", "synthetic://dive?seconds=abc", "--store", str(store), "--mavlink", "none",
-                       "--duration", "30", timeout=60)
+    done = run_merlion("run", "--source", source, "--store", str(store), "--mavlink", mavlink, "--duration", "30",
+                       timeout=60)
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
-    assert lines == ["merlion: error: source 'synthetic://dive?seconds=abc': could not convert string to float: 'abc'"]
-    assert not store.exists()
+    assert len(lines) == 1 and lines[0].startswith(f"merlion: error: {message}"), done.stderr
+    assert not store.exists(), "a malformed source is not retried like an unplugged camera; nothing starts"
 
 
 @pytest.fixture
