@@ -23,7 +23,6 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -307,10 +306,6 @@ class Store:
                                  "score": float(event.frame.score), "summary": list(self._summary)})
             self._write_summary()
             self._enforce_budget()
-
-    def apply_all(self, events: Iterable[SummaryEvent]) -> None:
-        for event in events:
-            self.apply(event)
 
     def _write_frame(self, held: _Held) -> None:
         if self.memory_only:

@@ -63,10 +63,6 @@ def started_text(version: str) -> tuple[str, int]:
     return f"MERLION {version} started", INFO
 
 
-def encoder_text(describe: str) -> tuple[str, int]:
-    return f"Encoder: {describe}", INFO
-
-
 def link_text(alive: bool) -> tuple[str, int]:
     return ("Autopilot link back", INFO) if alive else ("Autopilot link lost", WARNING)
 

@@ -15,10 +15,9 @@ Shutdown runs the other way round; the store is always consistent on disk, so a 
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -380,7 +379,3 @@ def _make_telemetry(link, cfg: Config):
     from vehicle.telemetry import VehicleTelemetry
 
     return VehicleTelemetry(link, cfg.telemetry)
-
-
-def environ_notifier(environ: Mapping[str, str] | None = None) -> Notifier:
-    return Notifier.from_environ(dict(os.environ) if environ is None else environ)

@@ -20,10 +20,6 @@ from companion.sources.capture import CaptureSource
 
 log = logging.getLogger(__name__)
 
-def is_stream(uri: str) -> bool:
-    return uri.startswith(("rtsp://", "rtsps://", "udp://"))
-
-
 def parse_udp(uri: str) -> tuple[str, int]:
     """``udp://@:5600`` or ``udp://0.0.0.0:5600`` -> (bind address, port)."""
     body = uri[len("udp://"):].rstrip("/")
