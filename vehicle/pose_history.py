@@ -144,9 +144,13 @@ class PoseHistory:
         self._add(self._global, t, (lat, lon, alt_m))
 
     def clear(self) -> None:
+        """Forget every sample (an autopilot reboot restarts its clock, so old times mean nothing any more)."""
         with self._lock:
             for ch in (self._depth, self._attitude, self._heading, self._local, self._global):
                 ch.prune(math.inf)
+            # the new boot's times start below the old newest one; left as it was, pruning (which only runs
+            # when a sample is the newest yet) would stop until the new uptime passed the old one
+            self._newest = -math.inf
 
     def _add(self, channel: _Channel, t: float, value: tuple[float, ...], tag: Any = None) -> None:
         with self._lock:

@@ -102,3 +102,16 @@ def test_heading_alone_interpolates_through_north():
     h.add_heading(1.0, 10.0)
     assert h.pose_at(0.5).heading_deg % 360.0 == pytest.approx(0.0, abs=1e-9)
     assert h.pose_at(0.75).heading_deg == pytest.approx(5.0)
+
+
+def test_history_keeps_pruning_after_a_reboot_clears_it():
+    """After clear() (an autopilot reboot) times start again near zero; old samples must still be dropped."""
+    h = PoseHistory(stale_after_s=1.0, history_s=2.0)
+    for i in range(1000):  # an uptime of 100 s before the reboot
+        h.add_depth(i * 0.1, 5.0, "scaled_pressure2")
+    h.clear()
+    for i in range(500):  # 50 s of the new boot: still below the old newest time
+        h.add_depth(i * 0.1, 6.0, "scaled_pressure2")
+    kept = len(h._depth.times)  # the only window onto memory use
+    assert kept <= 2 * 2.0 / 0.1 + 2, f"{kept} samples kept for a 2 s history"
+    assert h.pose_at(49.9).depth_m == pytest.approx(6.0)
