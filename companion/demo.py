@@ -83,8 +83,9 @@ def _merlion(*args: str) -> list[str]:
 
 
 def _spawn(args: list[str], log_path: Path) -> subprocess.Popen:
-    fh = open(log_path, "w", encoding="utf-8")  # noqa: SIM115 - lives as long as the process
-    return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+    # the child gets its own copy of the descriptor; the demo's copy is closed at once instead of leaking
+    with open(log_path, "w", encoding="utf-8") as fh:
+        return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
 
 
 def _end(proc: subprocess.Popen | None, timeout: float = 15.0) -> int | None:
