@@ -243,6 +243,8 @@ def load_config(
             raise ConfigError(f"{p}: no such config file") from None
         except OSError as err:
             raise ConfigError(f"{p}: cannot read ({err.strerror})") from None
+        except UnicodeDecodeError as err:
+            raise ConfigError(f"{p}: not a UTF-8 text file (byte {err.start}); is this the YAML config?") from None
         try:
             loaded = yaml.safe_load(text)
         except yaml.YAMLError as err:

@@ -48,6 +48,13 @@ def test_missing_file_is_named(tmp_path):
         load_config(tmp_path / "nope.yaml", environ={})
 
 
+def test_a_binary_file_is_named_not_a_traceback(tmp_path):
+    f = tmp_path / "photo.jpg"
+    f.write_bytes(b"\xff\xd8\xff\xe0 not yaml")
+    with pytest.raises(ConfigError, match=r"photo\.jpg: not a UTF-8 text file \(byte 0\)"):
+        load_config(f, environ={})
+
+
 def test_environment_and_overrides_win_in_order(tmp_path):
     f = tmp_path / "c.yaml"
     f.write_text("sampler:\n  k: 4\nsurface:\n  budget_bytes_per_s: 3000\n")
