@@ -62,6 +62,13 @@ class PipelineBench:
     """The paper's per-frame loop (batch 1, fp32, open_clip's PIL transform, no decode thread) on the same source."""
     paper_loop_frames: int = 0
     paper_loop_precision: str | None = None
+    cpu_ms: dict | None = None
+    """Process CPU ms per frame of each phase (end_to_end, encoder, paper_loop): less swayed than wall time by
+    other processes on a shared machine, so their ratios are the steadier comparison."""
+
+    def _cpu_ratio(self, slow: str, fast: str) -> float | None:
+        cpu = self.cpu_ms or {}
+        return cpu[slow] / cpu[fast] if cpu.get(slow) and cpu.get(fast) else None
 
     @property
     def speedup_vs_paper_loop(self) -> float | None:
@@ -78,7 +85,9 @@ class PipelineBench:
                 "paper_loop_fps": None if self.paper_loop_fps is None else round(self.paper_loop_fps, 3),
                 "speedup_vs_paper_loop": (None if self.speedup_vs_paper_loop is None
                                           else round(self.speedup_vs_paper_loop, 3)),
-                "paper_loop_frames": self.paper_loop_frames, "paper_loop_precision": self.paper_loop_precision}
+                "paper_loop_frames": self.paper_loop_frames, "paper_loop_precision": self.paper_loop_precision,
+                "cpu_ms_per_frame": {k: round(v, 2) for k, v in (self.cpu_ms or {}).items()},
+                "cpu_speedup_vs_paper_loop": _round(self._cpu_ratio("paper_loop", "end_to_end"), 3)}
 
     def table(self) -> str:
         ratio = self.end_to_end_fps / self.encoder_fps if self.encoder_fps else float("nan")
@@ -94,11 +103,19 @@ class PipelineBench:
             ("stages", ", ".join(f"{k} {v:.2f}" for k, v in self.stage_ms.items()) + " ms/frame"),
             ("decode thread", f"{self.decode_ms:.2f} ms/frame"),
         ]
+        if self.cpu_ms:
+            cpu = ", ".join(f"{k.replace('_', ' ')} {v:.0f}" for k, v in self.cpu_ms.items())
+            vs = self._cpu_ratio("paper_loop", "end_to_end")
+            rows.append(("CPU time", f"{cpu} ms/frame" + (f" ({vs:.2f} x less than the paper's loop)" if vs else "")))
         if self.paper_loop_fps:
             rows.insert(4, ("paper loop", f"{self.paper_loop_fps:.2f} frames/s ({self.paper_loop_frames} frames, "
                                           f"batch 1, {self.paper_loop_precision}, its own preprocessing): end to "
                                           f"end is {self.speedup_vs_paper_loop:.2f} x the paper's loop"))
         return "\n".join(f"{name:<14}{value}" for name, value in rows)
+
+
+def _round(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
 
 
 def peak_rss_mb() -> float:
@@ -141,8 +158,9 @@ def _fp32_twin(cfg: Config, encoder: Encoder) -> Encoder:
     return make_encoder(cfg.encoder.model_copy(update={"precision": "fp32", "runtime": "torch", "batch": 1}))
 
 
-def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *, progress: bool = False) -> tuple[float, str]:
-    """Frames/s of the paper's loop: decode, preprocess, encode at batch 1, score and sample, one frame at a time.
+def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *,
+                   progress: bool = False) -> tuple[float, str, float]:
+    """Frames/s, precision and CPU ms per frame of the paper's loop: decode, preprocess, encode at batch 1, score and sample, one frame at a time.
 
     CLIP gets open_clip's own PIL transform on the full frame (``encode_images_reference``); other encoders get
     the full frame through ``encode_images``. The first frame is a warm-up and is not timed.
@@ -153,7 +171,7 @@ def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *, progress: bool
     presampler = PreSampler(paper, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
     sampler = InformativeSampler(cfg.sampler.k, cfg.sampler.distance, cfg.sampler.threshold)
     source = open_source(_looped(cfg).source)
-    done, start = 0, None
+    done, start, cpu_start = 0, None, 0.0
     try:
         with tqdm(total=frames, desc="paper loop", unit="frame", file=sys.stderr, disable=not progress) as bar:
             for frame in source:
@@ -162,7 +180,7 @@ def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *, progress: bool
                 if presampler.passes(score)[0]:
                     sampler.offer(frame.index, paper.sampler_features(emb)[0])
                 if start is None:
-                    start = time.perf_counter()
+                    start, cpu_start = time.perf_counter(), time.process_time()
                     continue
                 done += 1
                 bar.update(1)
@@ -170,9 +188,11 @@ def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *, progress: bool
                     break
     finally:
         source.close()
+    precision = str(paper.describe().get("precision", "-"))
     if start is None or done == 0:
-        return 0.0, str(paper.describe().get("precision", "-"))
-    return done / (time.perf_counter() - start), str(paper.describe().get("precision", "-"))
+        return 0.0, precision, 0.0
+    return (done / (time.perf_counter() - start), precision,
+            1000.0 * (time.process_time() - cpu_start) / done)
 
 
 def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = None, paper_frames: int = 32,
@@ -200,6 +220,8 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     prepared = prepared[:frames]
     encoder.encode_images(prepared[:batch])  # warm-up: first-call allocations and kernel selection
 
+    cpu = {}
+    cpu_start = time.process_time()
     start = time.perf_counter()
     done = passed = 0
     bar = tqdm(total=frames, desc="end to end", unit="frame", file=sys.stderr, disable=not progress)
@@ -214,13 +236,16 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
                 break
         decode_ms = 1000.0 * feed.decode_seconds / max(1, feed.decoded)
     end_to_end = done / (time.perf_counter() - start)
+    cpu["end_to_end"] = 1000.0 * (time.process_time() - cpu_start) / max(1, done)
 
+    cpu_start = time.process_time()
     start = time.perf_counter()
     dims = 0
     for i in range(0, len(prepared), batch):
         emb = encoder.encode_images(prepared[i:i + batch])
         dims = emb.shape[1]
     encoder_only = len(prepared) / (time.perf_counter() - start)
+    cpu["encoder"] = 1000.0 * (time.process_time() - cpu_start) / max(1, len(prepared))
     dim = int(encoder.sampler_features(np.zeros((1, dims), np.float32)).shape[1])
 
     result = PipelineBench(
@@ -229,10 +254,11 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
         sampler_ms_k6=sampler_ms_per_frame(6, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
         sampler_ms_k64=sampler_ms_per_frame(64, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
         peak_rss_mb=peak_rss_mb(), load_peak_rss_mb=load_peak, rss_end_mb=rss_now_mb(),
-        stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed,
+        stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed, cpu_ms=cpu,
     )
     if paper_frames > 0:
-        result.paper_loop_fps, result.paper_loop_precision = paper_loop_fps(cfg, encoder, paper_frames,
-                                                                            progress=progress)
-        result.paper_loop_frames = paper_frames
+        fps, precision, cpu_ms = paper_loop_fps(cfg, encoder, paper_frames, progress=progress)
+        result.paper_loop_fps, result.paper_loop_precision, result.paper_loop_frames = fps, precision, paper_frames
+        if cpu_ms:
+            cpu["paper_loop"] = cpu_ms
     return result

@@ -27,6 +27,8 @@ def test_bench_pipeline_json_last_line():
     assert result["speedup_vs_paper_loop"] == pytest.approx(result["end_to_end_fps"] / result["paper_loop_fps"],
                                                             rel=0.01)
     assert "x the paper's loop" in proc.stdout
+    assert set(result["cpu_ms_per_frame"]) == {"end_to_end", "encoder", "paper_loop"}
+    assert all(v > 0 for v in result["cpu_ms_per_frame"].values()) and result["cpu_speedup_vs_paper_loop"] > 0
 
 
 def test_paper_loop_baseline_runs_clip_in_fp32_whatever_the_run_uses(tmp_path):
