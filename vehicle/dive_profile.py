@@ -225,6 +225,6 @@ def load_profile(path: str | Path | None) -> DiveProfile:
         data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise MerlionError(f"{p}: no such dive profile") from None
-    except (OSError, yaml.YAMLError) as err:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         raise MerlionError(f"{p}: cannot read dive profile ({type(err).__name__})") from None
     return compile_profile(data, origin_name=str(p))

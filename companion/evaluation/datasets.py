@@ -80,7 +80,7 @@ def load_dataset(path: str | Path) -> SrumDataset:
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise MerlionError(f"{p}: no such file") from None
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise MerlionError(f"{p}: not a readable JSON data set ({err})") from None
     if not isinstance(data, dict):
         raise MerlionError(f"{p}: top level must be an object")
@@ -178,6 +178,8 @@ def load_humans(path: str | Path) -> dict[str, list[int]]:
         raise MerlionError(f"{p}: no such file") from None
     except OSError as err:
         raise MerlionError(f"{p}: cannot read ({err.strerror})") from None
+    except UnicodeDecodeError as err:
+        raise MerlionError(f"{p}: not a text file (byte {err.start} is not UTF-8)") from None
     if p.suffix.lower() == ".json":
         try:
             data = json.loads(text)
@@ -218,7 +220,7 @@ def read_summary_json(path: str | Path, label_fps: float | None = None) -> tuple
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise MerlionError(f"{p}: no such summary file") from None
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise MerlionError(f"{p}: not a readable summary.json ({err})") from None
     entries = data.get("frames") if isinstance(data, dict) else None
     if not isinstance(entries, list):

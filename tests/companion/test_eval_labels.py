@@ -8,9 +8,16 @@ import pytest
 
 from companion.errors import MerlionError
 from companion.evaluation.auroc import auroc, threshold_rates
-from companion.evaluation.datasets import LabelTable, load_humans, load_label_csv, read_summary_json
+from companion.evaluation.datasets import (
+    LabelTable,
+    load_dataset,
+    load_humans,
+    load_label_csv,
+    read_summary_json,
+)
 from companion.evaluation.labels_eval import evaluate_labels, oracle_summary, positive_segments
 from tests.conftest import shared_file
+from vehicle.dive_profile import load_profile
 
 
 def _table() -> LabelTable:
@@ -91,6 +98,19 @@ def test_summary_json_index_is_zero_based_source_frame(tmp_path):
     p.write_text(json.dumps({"frames": [{"time_s": 1}]}))
     with pytest.raises(MerlionError, match="index"):
         read_summary_json(p)
+
+
+def test_binary_files_are_one_line_errors_not_tracebacks(tmp_path):
+    """A JPEG passed where a text file belongs: each reader names the file (UnicodeDecodeError escaped before)."""
+    jpeg = tmp_path / "photo.jpg"
+    jpeg.write_bytes(b"\xff\xd8\xff\xe0 binary")
+    data_set = tmp_path / "photo.json"
+    data_set.write_bytes(jpeg.read_bytes())
+    for read in (read_summary_json, load_humans, load_dataset, load_profile):
+        path = data_set if read is load_dataset else jpeg
+        with pytest.raises(MerlionError) as caught:
+            read(path)
+        assert str(caught.value).startswith(f"{path}: ") and "\n" not in str(caught.value), read
 
 
 def test_humans_file_formats(tmp_path):
