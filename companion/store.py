@@ -173,7 +173,7 @@ class Store:
                 data = json.loads(summary_path.read_text(encoding="utf-8"))
                 indices = [int(i) for i in data.get("summary", [])]
                 next_index = int(data.get("next_image_index", 0))
-            except (OSError, ValueError, TypeError) as err:
+            except (OSError, ValueError, TypeError, AttributeError) as err:  # AttributeError: JSON but not an object
                 log.warning("store %s: %s unreadable (%s); rebuilding from the change log", self.dir, SUMMARY_FILE, err)
                 indices = self._summary_from_changes()
         highest = self._highest_index_on_disk()
@@ -198,7 +198,10 @@ class Store:
             except ValueError:
                 continue  # a line cut short by a crash
             if isinstance(entry, dict) and isinstance(entry.get("summary"), list):
-                held = [int(i) for i in entry["summary"]]
+                try:
+                    held = [int(i) for i in entry["summary"]]
+                except (TypeError, ValueError):
+                    continue  # a damaged entry: the one before it stands
         return held
 
     def _highest_index_on_disk(self) -> int:
@@ -218,8 +221,14 @@ class Store:
             image = cv2.imread(str(base.with_suffix(".jpg")), cv2.IMREAD_COLOR)
         except (OSError, ValueError):
             return None
-        if image is None:
+        if image is None or not isinstance(sidecar, dict):
             return None
+        try:
+            return self._held_from(sidecar, image, feature)
+        except (KeyError, TypeError, ValueError):  # a sidecar edited by hand or damaged: that frame is dropped
+            return None
+
+    def _held_from(self, sidecar: dict[str, Any], image: np.ndarray, feature: np.ndarray) -> _Held:
         raw = None
         if sidecar.get("raw_file"):
             raw = cv2.imread(str(self.dir / sidecar["raw_file"]), cv2.IMREAD_COLOR)

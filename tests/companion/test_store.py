@@ -93,6 +93,21 @@ def test_half_written_files_are_removed_and_a_broken_index_is_rebuilt(tmp_path: 
     assert not list(tmp_path.rglob(f"{TMP_PREFIX}*"))
 
 
+def test_valid_json_of_the_wrong_shape_drops_only_what_it_damaged(tmp_path: Path) -> None:
+    """Hand-edited or damaged files that still parse as JSON: the store starts (no boot loop under systemd)."""
+    store = Store(StoreConfig(dir=str(tmp_path)))
+    for i in range(3):
+        store.apply(added(make_frame(i), list(range(i + 1))))
+    (tmp_path / SUMMARY_FILE).write_text("[0, 1, 2]")  # an array, not an object
+    with open(tmp_path / CHANGES_FILE, "a") as fh:
+        fh.write('{"kind": "added", "summary": ["x"]}\n')
+    (tmp_path / "frames" / "000001.json").write_text('{"no": "image_index"}')
+    (tmp_path / "frames" / "000002.json").write_text("[]")
+    again = Store(StoreConfig(dir=str(tmp_path)))
+    assert again.summary == [0]
+    assert again.next_image_index == 3
+
+
 def test_disk_budget_prunes_oldest_non_summary_frames_first(tmp_path: Path) -> None:
     cfg = StoreConfig(dir=str(tmp_path), disk_budget_mb=0.25)
     store = Store(cfg)
