@@ -123,7 +123,12 @@ def _move_into_place(out_tmp: Path, out_dir: Path) -> None:
     if out_dir.exists():
         old = out_dir.with_name(f".{out_dir.name}.old-{out_tmp.name}")
         out_dir.rename(old)
-    out_tmp.rename(out_dir)
+    try:
+        out_tmp.rename(out_dir)
+    except OSError:
+        if old is not None:
+            old.rename(out_dir)  # the previous summary stays where it was
+        raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
 
@@ -133,6 +138,19 @@ def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder:
     """Summarize ``cfg.source.uri`` into ``out_dir``; raises MerlionError (one line) for anything the user can fix."""
     out_dir = Path(out_dir)
     _check_out_dir(out_dir, force)
+    try:  # made first, so an output folder that cannot be written fails now, not after the whole video
+        out_tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    except OSError as err:
+        raise MerlionError(f"{out_dir}: cannot write there ({err.strerror or err})") from None
+    try:
+        return _summarize_into(cfg, out_dir, out_tmp, encoder, progress)
+    finally:
+        if out_tmp.exists():
+            shutil.rmtree(out_tmp, ignore_errors=True)
+
+
+def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder | None,
+                    progress: bool | None) -> SummaryRun:
     source = open_source(cfg.source, realtime=False)
     if encoder is None:
         from companion.encoders.factory import make_encoder
@@ -154,13 +172,9 @@ def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder:
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
              "frames_added": pipeline.counts["added"]}
     document = build_document(cfg, encoder, pipeline, frames, stats)
-    out_tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
     try:
         _write(out_tmp, document, frames)
         _move_into_place(out_tmp, out_dir)
     except OSError as err:
         raise MerlionError(f"{out_dir}: cannot write the summary ({err.strerror or err})") from None
-    finally:
-        if out_tmp.exists():
-            shutil.rmtree(out_tmp, ignore_errors=True)
     return SummaryRun(out_dir, document, seen, passed, lost)

@@ -106,6 +106,13 @@ def test_bad_input_is_one_line_and_nonzero(tmp_path):
     assert "tau_ss" in one_error_line(proc.stderr)
 
 
+def test_an_output_folder_that_cannot_be_written_fails_before_the_work():
+    """Its parent exists but nothing can be made in it (/proc/self refuses new entries, even to root)."""
+    cfg = load_config(None, overrides={"source": {"uri": "synthetic://dive?seconds=1&width=64&height=64"}})
+    with pytest.raises(MerlionError, match=r"^/proc/self/summary: cannot write there \("):
+        summarize(cfg, "/proc/self/summary", encoder=VisualEncoder())
+
+
 def test_progress_bar_only_when_asked_or_on_a_terminal(tmp_path, capsys):
     cfg = load_config(None, overrides={"source": {"uri": str(shared_file(SURVEY)), "fps": 1}, "sampler": {"k": 2}})
     encoder = VisualEncoder()
