@@ -115,7 +115,10 @@ def enhance_path(enhancer: Enhancer, src: str | Path, dst: str | Path, *, sbs: b
     if progress is None:
         progress = sys.stderr.isatty()
     if src.is_dir():
-        dst.mkdir(parents=True, exist_ok=True)
+        try:
+            dst.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise MerlionError(f"{dst}: cannot create the output folder ({err.strerror or err})") from None
     else:
         dst_parent = pairs[0][1].parent
         if not dst_parent.is_dir():

@@ -81,7 +81,10 @@ def compare(
     report_runs = []
     with tempfile.TemporaryDirectory(prefix="merlion-compare-") as tmp:
         root = Path(out_dir) if out_dir else Path(tmp)
-        root.mkdir(parents=True, exist_ok=True)
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise MerlionError(f"--out {root}: cannot create the folder ({err.strerror or err})") from None
         for name, run_cfg in plans:
             encoder = encoder_factory(run_cfg)
             where = root / ("merlion" if name == MERLION else "visual")
