@@ -9,9 +9,11 @@ from companion.commands.enhance import add_enhancer_options, enhancer_config
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.arg_checks import require_positive
     from companion.bench import enhance_bench as eb
     from companion.enhancers.factory import make_enhancer
 
+    require_positive("--seconds", args.seconds)  # NaN never compares as elapsed: the timing loop never ended
     cfg = enhancer_config(args)
     enhancer = make_enhancer(cfg.enhance)
     loaded = eb.load_images(args.images)
