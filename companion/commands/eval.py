@@ -95,8 +95,15 @@ def _params(args: argparse.Namespace, fps: float | None):
 
 
 def _summary_frames(args: argparse.Namespace) -> tuple[list[int], dict | None, Path | None]:
+    """The summary's frames; also checks the numeric options first, since every summary command starts here."""
+    from companion.arg_checks import require_positive
     from companion.evaluation.datasets import read_summary_json
 
+    require_positive("--fps", args.fps)
+    require_positive("--label-fps", args.label_fps)
+    k = getattr(args, "k", None)  # only eval labels has --k
+    if k is not None and k < 1:
+        raise UsageError(f"--k {k}: must be at least 1")
     if getattr(args, "run", None):
         return [], None, None
     if args.summary_json:

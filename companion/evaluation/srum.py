@@ -32,9 +32,9 @@ class SrumParams:
     def __post_init__(self) -> None:
         if not 0.0 <= self.alpha <= 1.0:
             raise MerlionError(f"alpha: must be in [0, 1], got {self.alpha}", exit_code=2)
-        if self.tau_s < 0:
+        if not (math.isfinite(self.tau_s) and self.tau_s >= 0):  # "not >=" also refuses NaN
             raise MerlionError(f"tau: must be >= 0 seconds, got {self.tau_s}", exit_code=2)
-        if self.fps <= 0:
+        if not (math.isfinite(self.fps) and self.fps > 0):
             raise MerlionError(f"fps: must be > 0, got {self.fps}", exit_code=2)
 
 

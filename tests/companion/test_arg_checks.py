@@ -28,6 +28,8 @@ def test_require_positive_and_non_negative_accept() -> None:
     (("sim-vehicle", "--connect", "udpout:127.0.0.1:9", "--fluid-density", "-5"),
      "merlion: error: --fluid-density -5.0: must be positive"),
     (("bench", "enhance", "--seconds", "nan"), "merlion: error: --seconds nan: must be positive"),
+    (("eval", "labels", "--labels", "none.csv", "--summary", "1", "--label-fps", "nan"),
+     "merlion: error: --label-fps nan: must be positive"),
 ])
 def test_commands_refuse_nan_and_negative_numbers(args: tuple[str, ...], message: str) -> None:
     done = run_merlion(*args, timeout=60)

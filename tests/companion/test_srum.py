@@ -73,3 +73,7 @@ def test_bad_inputs_are_one_line_errors(labels):
         SrumParams(alpha=1.5)
     with pytest.raises(MerlionError, match="fps"):
         SrumParams(fps=0)
+    with pytest.raises(MerlionError, match="tau"):
+        SrumParams(tau_s=float("nan"))  # NaN slipped past "< 0"
+    with pytest.raises(MerlionError, match="fps"):
+        SrumParams(fps=float("nan"))
