@@ -55,7 +55,7 @@ class EncoderConfig(_Section):
     """A local CLIP checkpoint file; wins over `pretrained`."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
     precision: Literal["auto", "fp32", "bf16", "fp16", "int8"] = "auto"
-    """int8: CLIP's image tower with dynamically quantized linear layers (CPU only; see docs/encoders.md)."""
+    """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp32 elsewhere; int8 (CLIP, CPU only, never auto)."""
     runtime: Literal["torch", "onnx"] = "torch"
     """onnx: CLIP's image tower exported at start-up and run by ONNX Runtime in fp32 (CPU; see docs/encoders.md)."""
     batch: int = Field(8, ge=1, le=256)
