@@ -193,7 +193,8 @@ class LiveCompanion:
 
     def _persist(self, events: list[SummaryEvent]) -> None:
         """Store first (the source of truth), then the surface: a crash in between loses no saved frame."""
-        tags = {"query": self.cfg.queries.positive, "encoder": getattr(self.encoder, "name", ""),
+        tags = {"query": self.pipeline.presampler.positive,  # the live query, which the surface may change
+                "encoder": getattr(self.encoder, "name", ""),
                 "source": self.cfg.source.uri}
         for event in events:
             self.store.apply(event, tags=tags)
