@@ -14,12 +14,12 @@ from __future__ import annotations
 import csv
 import json
 import os
-import tempfile
 import threading
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
 
 LOG_COLUMNS = [
@@ -61,20 +61,6 @@ class Capture:
     def from_dict(cls, data: dict) -> Capture:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in data.items() if k in known})
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    """Write beside the target and rename over it, so a reader or a crash never sees half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class Gallery:
@@ -173,9 +159,7 @@ class Gallery:
             folder = "summary" if cap.in_summary else "removed"
             rel = f"{folder}/{image_index}.{ext}"
             path = self.root / rel
-            tmp = path.with_name(f".{path.name}.tmp")
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
+            atomic_write(path, data)
             if cap.thumbnail and cap.thumbnail != rel:
                 (self.root / cap.thumbnail).unlink(missing_ok=True)
             cap.thumbnail, cap.thumbnail_via, cap.thumbnail_bytes = rel, via, len(data)
@@ -250,7 +234,7 @@ class Gallery:
             "summary": sorted(i for i, c in self._captures.items() if c.in_summary),
             "captures": [asdict(c) for _, c in sorted(self._captures.items())],
         }
-        _atomic_write(self._json, json.dumps(doc, indent=1))
+        atomic_write(self._json, json.dumps(doc, indent=1))
         new = not self._csv.exists()
         with self._csv.open("a", newline="", encoding="utf-8") as fh:
             writer = csv.writer(fh)
