@@ -184,12 +184,7 @@ class Gallery:
                 return False
             cap.in_summary = False
             cap.removed_at = time.time()
-            if cap.thumbnail:
-                src = self.root / cap.thumbnail
-                rel = f"removed/{Path(cap.thumbnail).name}"
-                if src.exists():
-                    os.replace(src, self.root / rel)
-                cap.thumbnail = rel
+            self._move_thumbnail(cap, "removed")
             self._persist("removed", cap)
             return True
 
@@ -219,13 +214,17 @@ class Gallery:
         with self._lock:
             cap = self._captures[image_index]
             cap.in_summary, cap.removed_at = True, None
-            if cap.thumbnail:
-                src = self.root / cap.thumbnail
-                rel = f"summary/{Path(cap.thumbnail).name}"
-                if src.exists():
-                    os.replace(src, self.root / rel)
-                cap.thumbnail = rel
+            self._move_thumbnail(cap, "summary")
             self._persist("added", cap)
+
+    def _move_thumbnail(self, cap: Capture, folder: str) -> None:
+        """Keep a capture's thumbnail in the folder that matches its state (caller holds the lock)."""
+        if cap.thumbnail:
+            src = self.root / cap.thumbnail
+            rel = f"{folder}/{Path(cap.thumbnail).name}"
+            if src.exists():
+                os.replace(src, self.root / rel)
+            cap.thumbnail = rel
 
     def _persist(self, event: str, cap: Capture) -> None:
         """Caller holds the lock. JSON first (the state), then the CSV row (the history)."""
