@@ -14,6 +14,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from vehicle.settings import MavlinkConfig, SurfaceConfig, TelemetryConfig
+
 ENV_PREFIX = "MERLION__"
 
 
@@ -99,44 +101,6 @@ class EnhanceConfig(_Section):
     @classmethod
     def _fraction(cls, value: float) -> float:
         return as_fraction(value)
-
-
-class MavlinkConfig(_Section):
-    connection: str | None = "udpin:127.0.0.1:14551"
-    """pymavlink connection string (udpin:, udpout:, tcp:, tcpin:, /dev/ttyACM0,115200); null: no vehicle link."""
-    system_id: int | None = Field(None, ge=1, le=254)
-    """The vehicle's system id; None: learnt from the autopilot heartbeat (1 until then). Never 255."""
-    component_id: int = Field(100, ge=1, le=254)
-    """This companion's component id: 100-105 are cameras (QGroundControl finds those), 191-194 onboard computers."""
-    heartbeat_timeout_s: float = Field(3.0, gt=0)
-    reconnect_initial_s: float = Field(0.5, gt=0)
-    reconnect_max_s: float = Field(10.0, gt=0)
-
-
-class TelemetryConfig(_Section):
-    attitude_hz: float = Field(10.0, gt=0)
-    position_hz: float = Field(5.0, gt=0)
-    pressure_hz: float = Field(5.0, gt=0)
-    stale_after_s: float = Field(1.0, gt=0)
-    """A frame whose nearest telemetry sample is older than this is tagged stale, never given a made-up pose."""
-    history_s: float = Field(30.0, gt=0)
-    fluid_density: float = Field(1025.0, gt=900, lt=1100)
-    """kg/m^3: 1025 sea water, 997 fresh water."""
-    surface_pressure_hpa: float = Field(1013.25, gt=800, lt=1200)
-
-
-class SurfaceConfig(_Section):
-    budget_bytes_per_s: int = Field(2000, ge=100)
-    """All the companion sends (heartbeat, answers, status, thumbnails, FTP) shares this wire budget."""
-    thumbnail_bytes: int = Field(2500, ge=300, le=65000)
-    thumbnail_format: Literal["jpeg", "webp"] = "jpeg"
-    thumbnail_max_side: int = Field(160, ge=16, le=1024)
-    push: bool = True
-    """Push each new summary frame with DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA."""
-    ftp: bool = True
-    ftp_writable: bool = False
-    """Allow uploads (e.g. /config/queries.txt to change the queries live)."""
-    status_hz: float = Field(1.0, gt=0, le=10)
 
 
 class StoreConfig(_Section):

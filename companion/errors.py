@@ -1,23 +1,12 @@
-"""The one domain error of the command line: its message is the single line the user sees."""
+"""The one domain error of the command line: its message is the single line the user sees.
+
+The class itself lives in ``vehicle.errors`` (the side that imports nothing from the app), so a bad tlog or a bad
+connection string from ``vehicle/`` is the same error as a bad video from ``companion/``.
+"""
 
 from __future__ import annotations
 
+from vehicle.errors import UsageError
+from vehicle.errors import UserError as MerlionError
 
-class MerlionError(Exception):
-    """A problem the user can fix (a missing file, a bad value, absent weights).
-
-    The message names what is wrong (file, key, value) in one line; ``exit_code`` is what ``merlion`` exits with.
-    """
-
-    exit_code: int = 1
-
-    def __init__(self, message: str, *, exit_code: int | None = None) -> None:
-        super().__init__(message)
-        if exit_code is not None:
-            self.exit_code = exit_code
-
-
-class UsageError(MerlionError):
-    """Bad arguments or configuration, found before anything started."""
-
-    exit_code = 2
+__all__ = ["MerlionError", "UsageError"]

@@ -52,9 +52,11 @@ EXTRA = {
 
 
 def docstrings() -> dict[str, str]:
-    """Attribute docstrings from companion/config.py: the string right under an annotated field."""
-    tree = ast.parse((REPO / "companion" / "config.py").read_text())
-    classes = {node.name: node for node in tree.body if isinstance(node, ast.ClassDef)}
+    """Attribute docstrings from companion/config.py and vehicle/settings.py: the string right under an annotated field."""
+    classes = {}
+    for source in (REPO / "companion" / "config.py", REPO / "vehicle" / "settings.py"):
+        tree = ast.parse(source.read_text())
+        classes.update({node.name: node for node in tree.body if isinstance(node, ast.ClassDef)})
     sections = {}
     for node in classes["Config"].body:
         if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):

@@ -18,13 +18,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion import image_quality as iq
-from companion.auroc import auroc
 from companion.config import Config, QueryConfig
-from companion.encoders.base import Encoder
-from companion.enhancers.base import Enhancer
-from companion.enhancers.files import IMAGE_SUFFIXES, list_images
 from companion.errors import MerlionError, UsageError
+from companion.evaluation.roc import auroc
+from companion.vision import image_quality as iq
+from companion.vision.encoders.base import Encoder
+from companion.vision.enhancers.base import Enhancer
+from companion.vision.enhancers.files import IMAGE_SUFFIXES, list_images
 
 log = logging.getLogger(__name__)
 

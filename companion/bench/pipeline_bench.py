@@ -29,12 +29,12 @@ import numpy as np
 from tqdm import tqdm
 
 from companion.config import Config
-from companion.encoders.base import Encoder
-from companion.frame_feed import FrameFeed
-from companion.pipeline import Pipeline
-from companion.presampler import PreSampler
-from companion.sampler import InformativeSampler
 from companion.sources.factory import open_source
+from companion.sources.frame_feed import FrameFeed
+from companion.vision.encoders.base import Encoder
+from companion.vision.pipeline import Pipeline
+from companion.vision.presampler import PreSampler
+from companion.vision.sampler import InformativeSampler
 
 SAMPLER_FRAMES = 3000
 SAMPLER_SEED = 20240607
@@ -153,7 +153,7 @@ def _fp32_twin(cfg: Config, encoder: Encoder) -> Encoder:
     """The encoder itself when it runs in fp32 (or has no precision), else a fresh fp32 one of the same model."""
     if encoder.describe().get("precision", "fp32") == "fp32":
         return encoder
-    from companion.encoders.factory import make_encoder
+    from companion.vision.encoders.factory import make_encoder
 
     return make_encoder(cfg.encoder.model_copy(update={"precision": "fp32", "runtime": "torch", "batch": 1}))
 
@@ -202,7 +202,7 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     ``paper_frames=0`` skips the paper-loop baseline; ``progress`` draws bars on stderr (for a terminal).
     """
     if encoder is None:
-        from companion.encoders.factory import make_encoder
+        from companion.vision.encoders.factory import make_encoder
 
         encoder = make_encoder(cfg.encoder)
     load_peak = peak_rss_mb()

@@ -95,7 +95,7 @@ class _Surface:
 
 def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_dir: str | None = None,
              progress=None) -> SoakResult:
-    from vehicle.sim_vehicle import SimVehicle
+    from vehicle.sim.vehicle import SimVehicle
 
     duration = minutes * 60.0
     warmup = 60.0 if duration > 90.0 else duration / 4

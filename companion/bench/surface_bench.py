@@ -1,6 +1,6 @@
 """How well the surface link uses its bytes, and how long a fresh summary takes to reach the surface.
 
-Real parts end to end: the companion's ``MavLink`` on loopback UDP with a ``SurfaceLink`` at the configured budget,
+Real parts end to end: the companion's ``MavLink`` on loopback UDP with a ``Downlink`` at the configured budget,
 and a pymavlink ground station receiving it. Push: the receiver reassembles every pushed thumbnail and counts every
 wire byte it got; efficiency is thumbnail bytes delivered per wire byte. Pull: pymavlink's ``mavftp`` (MAVProxy's
 client) downloads the same thumbnails from the FTP server, push switched off.
@@ -18,12 +18,12 @@ import numpy as np
 from pymavlink import mavftp, mavutil
 
 from companion.config import MavlinkConfig, SourceConfig, SurfaceConfig
-from companion.events import SummaryEvent, SummaryFrame
 from companion.sources.factory import open_source
-from vehicle.image_push import CHUNK, PushReassembler
-from vehicle.link import MavLink
-from vehicle.pose import Pose
-from vehicle.surface_link import SurfaceLink
+from companion.vision.events import SummaryEvent, SummaryFrame
+from vehicle.autopilot.pose import Pose
+from vehicle.camera.downlink import Downlink
+from vehicle.camera.image_push import CHUNK, PushReassembler
+from vehicle.link.connection import MavLink
 
 MAVLINK2_HEADER = 10
 """STX, len, incompat and compat flags, seq, sysid, compid, 3-byte msgid."""
@@ -45,7 +45,7 @@ def push_floor(sizes: list[int]) -> float:
     2 drops trailing zero bytes; a JPEG ends in 0xD9). The gap from ``LIMIT`` is per-image overhead, not waste."""
     from pymavlink.dialects.v20 import ardupilotmega as mav
 
-    from vehicle.status import push_marker
+    from vehicle.camera.status import push_marker
 
     packer = mav.MAVLink(None, srcSystem=1, srcComponent=100)
     wire = 0
@@ -125,13 +125,13 @@ class _Receiver:
                 self.captures.add(msg.image_index)
 
 
-def _companion(budget: int, thumbnail_bytes: int, push: bool) -> tuple[MavLink, SurfaceLink, mavutil.mavfile]:
+def _companion(budget: int, thumbnail_bytes: int, push: bool) -> tuple[MavLink, Downlink, mavutil.mavfile]:
     port = _free_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="bench")
     link.start()
     if not link.wait_open(5):
         raise RuntimeError("companion link did not open")
-    surface = SurfaceLink(link, SurfaceConfig(budget_bytes_per_s=budget, thumbnail_bytes=thumbnail_bytes,
+    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=budget, thumbnail_bytes=thumbnail_bytes,
                                               push=push))
     gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190,
                                      dialect="ardupilotmega")

@@ -9,9 +9,9 @@ from companion.commands.enhance import add_enhancer_options, enhancer_config
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_positive
     from companion.bench import enhance_bench as eb
-    from companion.enhancers.factory import make_enhancer
+    from companion.commands.arg_checks import require_positive
+    from companion.vision.enhancers.factory import make_enhancer
 
     require_positive("--seconds", args.seconds)  # NaN never compares as elapsed: the timing loop never ended
     cfg = enhancer_config(args)
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
               f"UCIQE {q['uciqe_degraded']:.3f} -> {q['uciqe_enhanced']:.3f} (reference {q['uciqe_reference']:.3f}), "
               f"UIQM {q['uiqm_degraded']:.3f} -> {q['uiqm_enhanced']:.3f} (reference {q['uiqm_reference']:.3f})")
     if args.separation:
-        from companion.encoders.factory import make_encoder
+        from companion.vision.encoders.factory import make_encoder
 
         encoder_cfg = cfg.encoder if args.encoder is None else cfg.encoder.model_copy(update={"name": args.encoder})
         encoder = make_encoder(encoder_cfg)

@@ -21,8 +21,8 @@ def register(add_command) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from companion.errors import UsageError
-    from vehicle.link_bench import run_link_bench
-    from vehicle.replay import read_tlog
+    from vehicle.sim.link_bench import run_link_bench
+    from vehicle.sim.replay import read_tlog
 
     try:
         speeds = [float(s) for s in args.speeds.split(",") if s.strip()]

@@ -20,8 +20,8 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_positive
     from companion.bench.soak_bench import run_soak, summary_dict
+    from companion.commands.arg_checks import require_positive
 
     require_positive("--minutes", args.minutes)
     require_positive("--fps", args.fps)

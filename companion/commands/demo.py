@@ -25,7 +25,7 @@ def register(add_command) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
-    from companion.demo import DemoOptions, main
+    from companion.live.demo import DemoOptions, main
 
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)

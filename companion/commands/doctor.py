@@ -16,8 +16,8 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_non_negative
-    from companion.doctor import FAIL, run_checks
+    from companion.commands.arg_checks import require_non_negative
+    from companion.live.doctor import FAIL, run_checks
 
     require_non_negative("--wait", args.wait)
     results = run_checks(args.config, dict(os.environ), heartbeat_wait_s=args.wait,

@@ -40,8 +40,8 @@ def enhancer_config(args: argparse.Namespace) -> Config:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.enhancers.factory import make_enhancer
-    from companion.enhancers.files import enhance_path
+    from companion.vision.enhancers.factory import make_enhancer
+    from companion.vision.enhancers.files import enhance_path
 
     cfg = enhancer_config(args)
     enhancer = make_enhancer(cfg.enhance)

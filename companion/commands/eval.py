@@ -96,7 +96,7 @@ def _params(args: argparse.Namespace, fps: float | None):
 
 def _summary_frames(args: argparse.Namespace) -> tuple[list[int], dict | None, Path | None]:
     """The summary's frames; also checks the numeric options first, since every summary command starts here."""
-    from companion.arg_checks import require_positive
+    from companion.commands.arg_checks import require_positive
     from companion.evaluation.datasets import read_summary_json
 
     require_positive("--fps", args.fps)
@@ -224,13 +224,13 @@ def _config(args: argparse.Namespace, encoder: str | None):
 def make_encoder(cfg):
     """The configured encoder: the team's factory, with the visual baseline always available."""
     if cfg.encoder.name == "visual":
-        from companion.encoders.visual import VisualEncoder
+        from companion.vision.encoders.visual import VisualEncoder
 
         return VisualEncoder(cfg.encoder)
     try:
-        from companion.encoders.factory import make_encoder as factory
+        from companion.vision.encoders.factory import make_encoder as factory
     except ImportError:
-        raise MerlionError(f"encoder {cfg.encoder.name!r}: companion.encoders.factory is not installed") from None
+        raise MerlionError(f"encoder {cfg.encoder.name!r}: companion.vision.encoders.factory is not installed") from None
     return factory(cfg.encoder)
 
 

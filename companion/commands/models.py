@@ -36,7 +36,7 @@ def _name_and_tag(name: str, tag: str | None) -> tuple[str, str]:
 
 
 def run_pull(args: argparse.Namespace) -> int:
-    from companion.encoders.weights import pull
+    from companion.vision.encoders.weights import pull
 
     model, tag = _name_and_tag(args.name, args.pretrained)
     path = pull(model, tag, cache_dir=args.cache_dir)
@@ -48,7 +48,7 @@ def run_pull(args: argparse.Namespace) -> int:
 def run_list(args: argparse.Namespace) -> int:
     import open_clip
 
-    from companion.encoders.weights import list_cached
+    from companion.vision.encoders.weights import list_cached
 
     print("imagenet\tefficientnet-lite0\tpackaged (always available)")
     cached = list_cached()

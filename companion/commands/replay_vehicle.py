@@ -25,11 +25,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_non_negative, require_positive
+    from companion.commands.arg_checks import require_non_negative, require_positive
     from companion.config import MavlinkConfig
     from companion.errors import MerlionError
-    from vehicle.link import MavLink, parse_connection
-    from vehicle.replay import TlogReplay, read_tlog
+    from vehicle.link.connection import MavLink, parse_connection
+    from vehicle.sim.replay import TlogReplay, read_tlog
 
     require_positive("--speed", args.speed)
     require_positive("--duration", args.duration)

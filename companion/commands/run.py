@@ -20,7 +20,7 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_positive
+    from companion.commands.arg_checks import require_positive
     from companion.live.runner import build, cli_overrides, run_companion
 
     require_positive("--duration", args.duration)

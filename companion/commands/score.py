@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any
 
-from companion.cli_overrides import Overrides, put_queries_and_encoder
+from companion.commands.overrides import Overrides, put_queries_and_encoder
 from companion.config import load_config
 
 
@@ -36,7 +36,7 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.score_images import score_images
+    from companion.vision.score_images import score_images
 
     cfg = load_config(args.config, overrides=overrides_from(args))
     failed = 0

@@ -35,7 +35,7 @@ def register(add_command) -> None:
 
 def _rates(items: list[str]) -> dict[str, float]:
     from companion.errors import UsageError
-    from vehicle.sim_vehicle import DEFAULT_RATES
+    from vehicle.sim.vehicle import DEFAULT_RATES
 
     rates: dict[str, float] = {}
     for item in items:
@@ -53,11 +53,11 @@ def _rates(items: list[str]) -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_non_negative, require_positive
+    from companion.commands.arg_checks import require_non_negative, require_positive
     from companion.errors import UsageError
-    from vehicle.dive_profile import load_profile
-    from vehicle.link import parse_connection
-    from vehicle.sim_vehicle import SimVehicle, run_sim_vehicle
+    from vehicle.link.connection import parse_connection
+    from vehicle.sim.dive_profile import load_profile
+    from vehicle.sim.vehicle import SimVehicle, run_sim_vehicle
 
     connection = args.connect or args.listen
     parse_connection(connection)

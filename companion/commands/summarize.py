@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from companion.cli_overrides import Overrides, put, put_queries_and_encoder
+from companion.commands.overrides import Overrides, put, put_queries_and_encoder
 from companion.config import load_config
 
 
@@ -42,7 +42,7 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.summarize import summarize
+    from companion.vision.summarize import summarize
 
     cfg = load_config(args.config, overrides=overrides_from(args))
     result = summarize(cfg, args.out, force=args.force)

@@ -9,10 +9,10 @@ import socket
 import threading
 
 from companion.errors import MerlionError, UsageError
-from companion.surface.gallery import Gallery
-from companion.surface.surface_tool import SurfaceOptions, SurfaceTool
-from companion.surface.web import WebServer
-from vehicle.link import parse_connection
+from companion.topside.gallery import Gallery
+from companion.topside.tool import SurfaceOptions, SurfaceTool
+from companion.topside.web import WebServer
+from vehicle.link.connection import parse_connection
 
 log = logging.getLogger("merlion.surface")
 

@@ -22,11 +22,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.arg_checks import require_positive
+    from companion.commands.arg_checks import require_positive
     from companion.config import load_config
     from companion.errors import UsageError
-    from vehicle.link import parse_connection
-    from vehicle.telemetry_watch import watch_telemetry
+    from vehicle.autopilot.telemetry_watch import watch_telemetry
+    from vehicle.link.connection import parse_connection
 
     require_positive("--duration", args.duration)
     overrides = {"mavlink": {"connection": args.connect}} if args.connect else None
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     print(f"telemetry: {cfg.mavlink.connection} as component {cfg.mavlink.component_id}", flush=True)
-    result = watch_telemetry(cfg, duration=args.duration, stop=stop, request_rates=not args.no_rates,
+    result = watch_telemetry(cfg.mavlink, cfg.telemetry, duration=args.duration, stop=stop, request_rates=not args.no_rates,
                              report=None if args.json else lambda line: print(f"telemetry: {line}", flush=True))
     if args.json:
         print(json.dumps(result, default=str), flush=True)

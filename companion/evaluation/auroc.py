@@ -1,7 +1,7 @@
 """How well a semantic score ranks labelled positive frames above negatives, for ``merlion eval auroc``.
 
 AUROC is threshold-free, so it judges the encoder and the prompts apart from the choice of tau_ss; the area
-itself comes from ``companion.auroc`` (the encoder area's implementation, shared rather than duplicated). This
+itself comes from ``companion.evaluation.roc`` (the encoder area's implementation, shared rather than duplicated). This
 module adds the one-line error the command line wants and what a given threshold does to the same frames.
 """
 
@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion import auroc as _auroc
 from companion.errors import MerlionError
+from companion.evaluation import roc as _auroc
 
 
 def auroc(scores: Sequence[float], positive: Sequence[bool]) -> float:

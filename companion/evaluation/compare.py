@@ -1,6 +1,6 @@
 """MERLION against the ROST-style visual baseline on one labelled video, in one call.
 
-Both runs go through the very same ``companion.summarize.summarize`` (same source, subsampling, sampler, K);
+Both runs go through the very same ``companion.vision.summarize.summarize`` (same source, subsampling, sampler, K);
 only the encoder differs: the configured one (MERLION) or ``visual`` (no semantic filter). Each summary is then
 scored against the video's per-frame labels (labels_eval: precision, coverage, SRUM vs the oracle, with one
 shared oracle of size ``sampler.k``). MERLION's per-frame scores (a second, full-rate pass) give its AUROC and
@@ -16,7 +16,6 @@ from pathlib import Path
 import cv2
 
 from companion.config import Config, build_config
-from companion.encoders.base import Encoder
 from companion.errors import MerlionError
 from companion.evaluation.auroc import auroc
 from companion.evaluation.datasets import LabelTable, load_labels, read_summary_json
@@ -25,6 +24,7 @@ from companion.evaluation.labels_eval import default_query, evaluate_labels, is_
 from companion.evaluation.report import write_report
 from companion.evaluation.runs import run_from_summary
 from companion.evaluation.srum import SrumParams
+from companion.vision.encoders.base import Encoder
 
 MERLION = "MERLION"
 BASELINE = "visual baseline"
@@ -74,7 +74,7 @@ def compare(
     query = query or default_query(table)
     base = _with(cfg, source={"uri": str(video)})
     plans = [(MERLION, base), (BASELINE, _with(base, encoder={"name": "visual"}))]
-    from companion.summarize import summarize
+    from companion.vision.summarize import summarize
 
     result: dict = {"video": str(video), "labels": str(labels), "query": query, "k": cfg.sampler.k,
                     "fps": cfg.source.fps, "runs": {}}

@@ -207,10 +207,10 @@ def load_humans(path: str | Path) -> dict[str, list[int]]:
 def read_summary_json(path: str | Path, label_fps: float | None = None) -> tuple[list[int], dict]:
     """1-based label frames of a ``merlion summarize`` summary.json, and the file's content.
 
-    Each entry's ``index`` is the 0-based frame of the source video *before* subsampling (companion.frame), so
+    Each entry's ``index`` is the 0-based frame of the source video *before* subsampling (companion.sources.frame), so
     a summary taken at 5 fps from a 30 fps video still names source frames: label frame = index + 1. When the
     label file was made at another frame rate than the video (``label_fps``), the entry's ``time_s`` is used
-    instead: label frame = round(time_s x label_fps) + 1. The on-board store's summary.json (companion.store)
+    instead: label frame = round(time_s x label_fps) + 1. The on-board store's summary.json (companion.storage.store)
     is read the same way: its entries name the source frame ``frame_index`` and carry the pose tags.
     """
     p = Path(path)

@@ -2,7 +2,7 @@
 
 Reads the file with OpenCV in source order (no subsampling: labels are per source frame) and scores in batches
 exactly as the pipeline does: the same downscale (``pipeline.downscale_for``) and the same pre-sampler
-(``companion.presampler``, which adds the generic negative when no negative query is given).
+(``companion.vision.presampler``, which adds the generic negative when no negative query is given).
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import numpy as np
 from tqdm import tqdm
 
 from companion.config import QueryConfig
-from companion.encoders.base import Encoder
 from companion.errors import MerlionError
-from companion.pipeline import downscale_for
-from companion.presampler import PreSampler
+from companion.vision.encoders.base import Encoder
+from companion.vision.pipeline import downscale_for
+from companion.vision.presampler import PreSampler
 
 
 @dataclass

@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 
 from companion.config import Config, build_config
-from companion.encoders.base import Encoder
 from companion.evaluation.frame_scores import score_video
 from companion.evaluation.report import ReportRun
+from companion.vision.encoders.base import Encoder
 
 
 def _depth(entry: dict) -> float | None:

@@ -24,14 +24,14 @@ from typing import Any
 
 from companion import __version__
 from companion.config import Config, build_config
-from companion.events import SummaryEvent
-from companion.frame import Frame
 from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
 from companion.live.queues import DropOldestQueue
+from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
-from companion.store import Store
+from companion.storage.store import Store
+from companion.vision.events import SummaryEvent
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,7 @@ class LiveOptions:
     notifier: Notifier | None = None
     """sd_notify (built from the environment by the command line; None: silent)."""
     make_encoder: Callable[[Any], Any] | None = None
-    """Encoder factory override (tests); default companion.encoders.factory.make_encoder."""
+    """Encoder factory override (tests); default companion.vision.encoders.factory.make_encoder."""
     params_path: str | None = None
     """Where live-tuned parameters persist (default: in the store directory)."""
 
@@ -100,18 +100,18 @@ class LiveCompanion:
                  getattr(self.encoder, "name", "?"), cfg.mavlink.connection, self.store.dir)
 
     def _build_pipeline(self, resume) -> None:
-        from companion.pipeline import Pipeline
+        from companion.vision.pipeline import Pipeline
 
         factory = self.options.make_encoder
         if factory is None:
-            from companion.encoders.factory import make_encoder as factory
+            from companion.vision.encoders.factory import make_encoder as factory
         self.encoder = factory(self.cfg.encoder)
         cfg = self.cfg
         if cfg.enhance.mode == "selective":
             # the pipeline samples enhanced frames behind a tau_ses gate; tau_ss is applied before the worker
-            from companion.enhancers.factory import make_enhancer
             from companion.live.enhance_worker import SelectiveStage
-            from companion.presampler import PreSampler
+            from companion.vision.enhancers.factory import make_enhancer
+            from companion.vision.presampler import PreSampler
 
             data = cfg.model_dump()
             data["enhance"]["mode"] = "none"
@@ -134,16 +134,18 @@ class LiveCompanion:
         if not cfg.mavlink.connection:
             log.warning("mavlink.connection is null: no vehicle link, no surface link (store only)")
             return
-        from vehicle.link import MavLink
-        from vehicle.params import default_params
-        from vehicle.surface_link import SurfaceLink
+        from companion.live.tunables import default_params
+        from companion.storage.params_file import ParamsFile
+        from vehicle.camera.downlink import Downlink
+        from vehicle.link.connection import MavLink
 
         self.link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="companion")
         self.link.healthy = self.health.healthy
         self.telemetry = _make_telemetry(self.link, cfg)
-        params_path = self.options.params_path or str(Path(cfg.store.dir) / "params.json")
-        self.surface = SurfaceLink(
-            self.link, cfg.surface, params=default_params(cfg), params_path=params_path,
+        params_file = ParamsFile(self.options.params_path or Path(cfg.store.dir) / "params.json")
+        self.surface = Downlink(
+            self.link, cfg.surface, params=default_params(cfg), saved_params=params_file.load(),
+            persist_params=params_file.save,
             loader=self.store.frame, image_count=image_count,
             queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
         )
@@ -247,14 +249,14 @@ class LiveCompanion:
         else:
             log.warning("autopilot heartbeat lost; frames are tagged stale until it returns")
         if self.surface is not None:
-            from vehicle import status as st
+            from vehicle.camera import status as st
 
             self.surface.event(*st.link_text(alive))
 
     def _on_source_state(self, state: str, detail: str) -> None:
         if self.surface is None:
             return
-        from vehicle import status as st
+        from vehicle.camera import status as st
 
         if state == "retrying":
             self.surface.event(*st.camera_text(False))
@@ -352,7 +354,7 @@ class LiveCompanion:
         """Wait (at most ``timeout``) until the thumbnails already queued for the surface are on the wire."""
         if self.surface is None:
             return True
-        from vehicle.budget import Priority
+        from vehicle.link.budget import Priority
 
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -376,7 +378,7 @@ class LiveCompanion:
 
 
 def _make_telemetry(link, cfg: Config):
-    """The vehicle's pose history attached to the link (vehicle/telemetry.py)."""
-    from vehicle.telemetry import VehicleTelemetry
+    """The vehicle's pose history attached to the link (vehicle/autopilot/telemetry.py)."""
+    from vehicle.autopilot.telemetry import VehicleTelemetry
 
     return VehicleTelemetry(link, cfg.telemetry)

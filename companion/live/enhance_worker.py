@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.events import SummaryEvent
-from companion.frame import Frame
 from companion.live.health import Health
 from companion.live.loops import LiveCounters
 from companion.live.queues import DropOldestQueue
+from companion.sources.frame import Frame
+from companion.vision.events import SummaryEvent
 
 log = logging.getLogger(__name__)
 

@@ -15,11 +15,11 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from companion.events import SummaryEvent
-from companion.frame import Frame
 from companion.live.health import Health
 from companion.live.queues import DropOldestQueue
+from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
+from companion.vision.events import SummaryEvent
 
 log = logging.getLogger(__name__)
 

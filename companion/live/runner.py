@@ -34,7 +34,7 @@ def build(config_path: str | None, overrides: dict[str, Any], environ: Mapping[s
     """Everything validated before anything starts (a bad key: ConfigError, exit 2; a bad source URI or MAVLink
     connection string: exit 2), so that neither the store nor the encoder is touched for a typo."""
     from companion.sources.factory import check_source_uri
-    from vehicle.link import parse_connection
+    from vehicle.link.connection import parse_connection
 
     cfg = load_config(config_path, overrides=overrides, environ=dict(environ))
     check_source_uri(cfg.source.uri)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 
-from companion.frame import Frame
+from companion.sources.frame import Frame
 
 
 class FrameSource(ABC):

@@ -13,8 +13,8 @@ from collections.abc import Callable, Iterator
 
 import cv2
 
-from companion.frame import Frame
 from companion.sources.base import FrameSource
+from companion.sources.frame import Frame
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import cv2
 
 from companion.errors import MerlionError
-from companion.frame import Frame
 from companion.sources.base import FrameSource
+from companion.sources.frame import Frame
 from companion.sources.subsample import Pacer
 
 log = logging.getLogger(__name__)

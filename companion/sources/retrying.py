@@ -15,8 +15,8 @@ import time
 from collections.abc import Callable, Iterator
 
 from companion.errors import MerlionError
-from companion.frame import Frame
 from companion.sources.base import FrameSource
+from companion.sources.frame import Frame
 
 log = logging.getLogger(__name__)
 

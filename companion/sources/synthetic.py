@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 
 from companion.errors import UsageError
-from companion.frame import Frame
 from companion.sources.base import FrameSource
+from companion.sources.frame import Frame
 
 SEGMENTS = ("descent", "sand", "reef_fish", "seagrass", "big_fish")
 """In dive order; the footage repeats them (with fresh random detail) for as long as it runs."""

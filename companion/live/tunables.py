@@ -1,0 +1,23 @@
+"""The parameters a ground station may change live (MERL_*), with their ranges, taken from the configuration."""
+
+from __future__ import annotations
+
+from companion.config import Config
+from vehicle.camera.params import ParamSpec
+
+
+def default_params(cfg: Config) -> list[ParamSpec]:
+    """The tunable set, starting from the configuration (names at most 16 characters)."""
+    return [
+        ParamSpec("MERL_TAU_SS", cfg.queries.tau_ss, 0.01, 0.99, doc="semantic pre-sampling threshold"),
+        ParamSpec("MERL_TAU_SES", cfg.enhance.tau_ses, 0.01, 0.99, doc="threshold after enhancement"),
+        ParamSpec("MERL_K", cfg.sampler.k, 1, 1000, integer=True, doc="summary size"),
+        ParamSpec("MERL_THUMB_B", cfg.surface.thumbnail_bytes, 300, 65000, integer=True,
+                  doc="thumbnail byte budget"),
+        ParamSpec("MERL_LINK_BPS", cfg.surface.budget_bytes_per_s, 100, 1_000_000, integer=True,
+                  doc="link budget, bytes/s"),
+        ParamSpec("MERL_ENHANCE", 0 if cfg.enhance.mode == "none" else 1, 0, 1, integer=True,
+                  doc="enhancer off (0) or on (1)"),
+    ]
+
+

@@ -1,0 +1,97 @@
+"""Decode ahead of inference: a thread reads the source (and downscales each frame) into a bounded queue.
+
+OpenCV decodes and resizes with the GIL released, so on a small machine this overlaps decoding with the
+encoder's matrix work instead of adding to it. The consumer takes batches: it waits for one frame, then takes
+whatever else is already queued, up to the batch size, so latency stays bounded and throughput grows under load.
+An error in the source (e.g. a video with nothing decodable) is raised in the consumer.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import numpy as np
+
+from companion.sources.base import FrameSource
+from companion.sources.frame import Frame
+
+_END = object()
+
+
+class FrameFeed:
+    """Iterate ``batches(n)`` to get lists of (frame, prepared image) from ``source`` decoded in the background."""
+
+    def __init__(self, source: FrameSource, prepare: Callable[[np.ndarray], np.ndarray] | None = None, *,
+                 depth: int = 32, limit: int | None = None) -> None:
+        self.source = source
+        self.prepare = prepare
+        self.limit = limit
+        self.decode_seconds = 0.0
+        self.decoded = 0
+        self._queue: queue.Queue = queue.Queue(maxsize=max(1, depth))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="frame-feed", daemon=True)
+        self._started = False
+
+    def _put(self, item: object) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self) -> None:
+        try:
+            start = time.perf_counter()
+            for frame in self.source:
+                small = self.prepare(frame.image) if self.prepare is not None else frame.image
+                self.decode_seconds += time.perf_counter() - start
+                self.decoded += 1
+                if not self._put((frame, small)) or (self.limit is not None and self.decoded >= self.limit):
+                    break
+                start = time.perf_counter()
+            self._put(_END)
+        except BaseException as err:  # handed to the consumer, which raises it
+            self._put(err)
+
+    def batches(self, size: int) -> Iterator[list[tuple[Frame, np.ndarray]]]:
+        if not self._started:
+            self._thread.start()
+            self._started = True
+        done = False
+        while not done:
+            item = self._queue.get()
+            batch: list[tuple[Frame, np.ndarray]] = []
+            while True:
+                if item is _END:
+                    done = True
+                    break
+                if isinstance(item, BaseException):
+                    raise item
+                batch.append(item)
+                if len(batch) >= size:
+                    break
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+            if batch:
+                yield batch
+
+    def close(self) -> None:
+        """Stop the decode thread and release the source."""
+        self._stop.set()
+        if self._started:
+            self._thread.join(timeout=5.0)
+        self.source.close()
+
+    def __enter__(self) -> FrameFeed:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

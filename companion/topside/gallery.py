@@ -1,0 +1,244 @@
+"""The surface gallery on disk: thumbnails plus a JSON and a CSV log of their tags, mirroring the summary.
+
+Layout of DIR:
+- ``summary/<n>.<ext>``: the thumbnails of the frames now in the companion's summary (exactly those);
+- ``removed/<n>.<ext>``: thumbnails of frames trimmed out since (kept: nothing received is thrown away);
+- ``gallery.json``: every capture ever seen with its tags and whether it is in the summary (rewritten atomically);
+- ``log.csv``: one appended row per event (added, thumbnail, tags, removed), for spreadsheets and audits.
+
+A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import threading
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from companion.errors import MerlionError
+from companion.storage.atomic_write import atomic_write
+
+LOG_COLUMNS = [
+    "event", "wall_time", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
+    "lat", "lon", "alt_m", "thumbnail", "thumbnail_via", "file_url",
+]
+
+
+@dataclass
+class Capture:
+    """One summary frame as the surface knows it; fields the companion has not told us yet are None."""
+
+    image_index: int
+    time_utc: float | None = None
+    """Seconds since epoch at capture (companion clock)."""
+    depth_m: float | None = None
+    """Metres below the surface (positive down)."""
+    heading_deg: float | None = None
+    q: list[float] | None = None
+    """Attitude quaternion w-x-y-z."""
+    lat: float | None = None
+    lon: float | None = None
+    alt_m: float | None = None
+    score: float | None = None
+    file_url: str | None = None
+    thumbnail: str | None = None
+    """Path of the thumbnail relative to DIR, once we have it."""
+    thumbnail_via: str | None = None
+    """push | ftp."""
+    thumbnail_bytes: int | None = None
+    thumbnail_crc32: int | None = None
+    """CRC-32 (MAVLink FTP flavour) of the companion's thumbnail file, from index.json."""
+    in_summary: bool = True
+    announced_at: float | None = None
+    """Surface wall clock when we first heard of it."""
+    removed_at: float | None = None
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Capture:
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+
+class Gallery:
+    """Thread-safe: the receive loop writes, the web server reads snapshots."""
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        self.root = Path(root)
+        try:
+            (self.root / "summary").mkdir(parents=True, exist_ok=True)
+            (self.root / "removed").mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise MerlionError(f"{self.root}: cannot create the gallery folder ({err.strerror})") from None
+        self._lock = threading.Lock()
+        self._captures: dict[int, Capture] = {}
+        self._json = self.root / "gallery.json"
+        self._csv = self.root / "log.csv"
+        self._load()
+
+    def _load(self) -> None:
+        if not self._json.exists():
+            return
+        try:
+            data = json.loads(self._json.read_text(encoding="utf-8"))
+            for item in data.get("captures", []):
+                cap = Capture.from_dict(item)
+                self._captures[cap.image_index] = cap
+        except (OSError, ValueError, TypeError, AttributeError) as err:
+            raise MerlionError(f"{self._json}: not a gallery file this tool can read ({err})") from None
+
+    # --- reading -------------------------------------------------------------------------------------------
+
+    def get(self, image_index: int) -> Capture | None:
+        with self._lock:
+            cap = self._captures.get(image_index)
+            return None if cap is None else Capture(**asdict(cap))
+
+    def captures(self) -> list[Capture]:
+        """Every capture ever seen, newest (highest image index) first."""
+        with self._lock:
+            return [Capture(**asdict(c)) for _, c in sorted(self._captures.items(), reverse=True)]
+
+    def summary(self) -> list[Capture]:
+        """The frames now in the companion's summary, newest first."""
+        return [c for c in self.captures() if c.in_summary]
+
+    def missing_thumbnails(self) -> list[int]:
+        with self._lock:
+            return sorted(i for i, c in self._captures.items() if c.in_summary and c.thumbnail is None)
+
+    # --- writing -------------------------------------------------------------------------------------------
+
+    def announce(self, cap: Capture) -> bool:
+        """A capture was announced (or re-announced); True if it is new to us. Known tags are kept."""
+        with self._lock:
+            old = self._captures.get(cap.image_index)
+            if old is None:
+                cap.announced_at = cap.announced_at or time.time()
+                self._captures[cap.image_index] = cap
+                self._persist("added", cap)
+                return True
+            changed = False
+            for f in fields(Capture):
+                if f.name in ("thumbnail", "thumbnail_via", "thumbnail_bytes", "in_summary", "announced_at",
+                              "removed_at"):
+                    continue
+                value = getattr(cap, f.name)
+                if value is not None and getattr(old, f.name) != value:
+                    setattr(old, f.name, value)
+                    changed = True
+            if changed:
+                self._persist("tags", old)
+            return False
+
+    def update_tags(self, image_index: int, **tags) -> bool:
+        """Fill in tags learnt later (score and heading from index.json); True if anything changed."""
+        with self._lock:
+            cap = self._captures.get(image_index)
+            if cap is None:
+                return False
+            changed = False
+            for key, value in tags.items():
+                if value is not None and getattr(cap, key) != value:
+                    setattr(cap, key, value)
+                    changed = True
+            if changed:
+                self._persist("tags", cap)
+            return changed
+
+    def add_thumbnail(self, image_index: int, data: bytes, *, ext: str = "jpg", via: str = "push") -> Path:
+        """Store a thumbnail for a known capture (in summary/ or removed/, wherever the frame now is)."""
+        with self._lock:
+            cap = self._captures.get(image_index)
+            if cap is None:
+                cap = Capture(image_index=image_index, announced_at=time.time())
+                self._captures[image_index] = cap
+            folder = "summary" if cap.in_summary else "removed"
+            rel = f"{folder}/{image_index}.{ext}"
+            path = self.root / rel
+            atomic_write(path, data)
+            if cap.thumbnail and cap.thumbnail != rel:
+                (self.root / cap.thumbnail).unlink(missing_ok=True)
+            cap.thumbnail, cap.thumbnail_via, cap.thumbnail_bytes = rel, via, len(data)
+            self._persist("thumbnail", cap)
+            return path
+
+    def remove(self, image_index: int) -> bool:
+        """The frame was trimmed out of the summary: move its thumbnail aside; True if it was in the summary.
+
+        A trim of a frame not heard of yet (its capture lost or still on the way) is remembered, so that a late
+        capture or push for it lands in removed/ and never puts it back into the summary.
+        """
+        with self._lock:
+            cap = self._captures.get(image_index)
+            if cap is None:
+                now = time.time()
+                cap = Capture(image_index=image_index, in_summary=False, announced_at=now, removed_at=now)
+                self._captures[image_index] = cap
+                self._persist("removed", cap)
+                return False
+            if not cap.in_summary:
+                return False
+            cap.in_summary = False
+            cap.removed_at = time.time()
+            self._move_thumbnail(cap, "removed")
+            self._persist("removed", cap)
+            return True
+
+    def mirror(self, summary: list[int], announced_before: float | None = None) -> list[int]:
+        """Make the gallery's current summary ``summary`` (from index.json); return indices removed.
+
+        Frames announced after ``announced_before`` (when the index was asked for) are kept: the index was
+        built before they existed. Likewise frames whose trim arrived after that moment stay out: the index was
+        built before the trim, and a trimmed frame never comes back (a frame re-entering gets a new index).
+        """
+        wanted = set(summary)
+        with self._lock:
+            gone = [i for i, c in self._captures.items() if c.in_summary and i not in wanted
+                    and (announced_before is None or (c.announced_at or 0.0) < announced_before)]
+            back = [i for i, c in self._captures.items() if not c.in_summary and i in wanted
+                    and (announced_before is None or (c.removed_at or 0.0) < announced_before)]
+        for i in gone:
+            self.remove(i)
+        for i in back:
+            self._restore(i)
+        for i in wanted:
+            if self.get(i) is None:
+                self.announce(Capture(image_index=i))
+        return sorted(gone)
+
+    def _restore(self, image_index: int) -> None:
+        with self._lock:
+            cap = self._captures[image_index]
+            cap.in_summary, cap.removed_at = True, None
+            self._move_thumbnail(cap, "summary")
+            self._persist("added", cap)
+
+    def _move_thumbnail(self, cap: Capture, folder: str) -> None:
+        """Keep a capture's thumbnail in the folder that matches its state (caller holds the lock)."""
+        if cap.thumbnail:
+            src = self.root / cap.thumbnail
+            rel = f"{folder}/{Path(cap.thumbnail).name}"
+            if src.exists():
+                os.replace(src, self.root / rel)
+            cap.thumbnail = rel
+
+    def _persist(self, event: str, cap: Capture) -> None:
+        """Caller holds the lock. JSON first (the state), then the CSV row (the history)."""
+        doc = {
+            "updated": time.time(),
+            "summary": sorted(i for i, c in self._captures.items() if c.in_summary),
+            "captures": [asdict(c) for _, c in sorted(self._captures.items())],
+        }
+        atomic_write(self._json, json.dumps(doc, indent=1))
+        new = not self._csv.exists()
+        with self._csv.open("a", newline="", encoding="utf-8") as fh:
+            writer = csv.writer(fh)
+            if new:
+                writer.writerow(LOG_COLUMNS)
+            row = asdict(cap)
+            row.update(event=event, wall_time=f"{time.time():.3f}")
+            writer.writerow(["" if row.get(k) is None else row.get(k) for k in LOG_COLUMNS])

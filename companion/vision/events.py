@@ -1,0 +1,43 @@
+"""What the vision side tells the rest: a frame entered or left the summary."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from vehicle.autopilot.pose import Pose
+
+
+@dataclass
+class SummaryFrame:
+    """A frame that entered the summary, with everything the store and the surface link need."""
+
+    image_index: int
+    """Running index across restarts (the camera protocol's image_index; never reused)."""
+    frame_index: int
+    """0-based frame index in the source."""
+    time_s: float
+    """Seconds from the start of the source."""
+    capture_time: float
+    """Companion wall clock (seconds since epoch) at capture."""
+    score: float
+    """Semantic score ss_t (or ss_e after enhancement)."""
+    image: np.ndarray
+    """Full-resolution BGR frame (the enhanced one when enhancement ran)."""
+    feature: np.ndarray
+    """The sampler feature vector, kept so a restart resumes with the same summary."""
+    pose: Pose | None = None
+    raw_image: np.ndarray | None = None
+    """The frame before enhancement, when enhancement ran."""
+    enhanced: bool = False
+
+
+@dataclass
+class SummaryEvent:
+    """``added``: ``frame`` entered; ``removed``: ``frame`` was trimmed out. ``summary`` is the image indices now held."""
+
+    kind: Literal["added", "removed"]
+    frame: SummaryFrame
+    summary: list[int] = field(default_factory=list)

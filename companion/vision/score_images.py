@@ -1,0 +1,78 @@
+"""Scores still images against the queries: what `merlion score` prints, one image at a time.
+
+It uses the same encoder factory and pre-sampler as the pipeline, so a score printed here is the ss_t a frame
+with the same pixels would get in `merlion summarize` (before any resizing the source does).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.config import Config
+from companion.errors import UsageError
+from companion.sources.folder import IMAGE_SUFFIXES, list_images
+from companion.vision.encoders.base import Encoder
+from companion.vision.presampler import PreSampler
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ImageScore:
+    file: Path
+    score: float | None
+    """None when the file could not be decoded (``error`` says why)."""
+    error: str = ""
+
+
+def collect_images(paths: Sequence[str | Path]) -> list[Path]:
+    """Files as given and the images inside folders (natural order); a missing path is a usage error."""
+    out: list[Path] = []
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            found = list_images(path)
+            if not found:
+                raise UsageError(f"{path}: folder holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
+            out.extend(found)
+        elif path.is_file():
+            out.append(path)
+        else:
+            raise UsageError(f"{path}: no such file or folder")
+    return out
+
+
+def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | None = None) -> Iterator[ImageScore]:
+    """Yield each image's score as soon as its batch is encoded (batches of ``cfg.encoder.batch``)."""
+    files = collect_images(paths)
+    if encoder is None:
+        from companion.vision.encoders.factory import make_encoder
+
+        encoder = make_encoder(cfg.encoder)
+    presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+    batch = cfg.encoder.batch
+    for start in range(0, len(files), batch):
+        chunk = files[start:start + batch]
+        images: list[np.ndarray] = []
+        readable: list[Path] = []
+        errors: dict[Path, str] = {}
+        for f in chunk:
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if img is None:
+                errors[f] = "cannot decode as an image"
+            else:
+                images.append(img)
+                readable.append(f)
+        scores = presampler.scores(encoder.encode_images(images)) if images else np.zeros(0)
+        by_file = dict(zip(readable, scores, strict=True))
+        for f in chunk:
+            if f in errors:
+                yield ImageScore(f, None, errors[f])
+            else:
+                yield ImageScore(f, float(by_file[f]))

@@ -1,0 +1,180 @@
+"""``merlion summarize``: run a whole video or folder through the pipeline and write the summary to a directory.
+
+The output directory holds ``summary.json`` (source, encoder, parameters, and the summary frames in time order),
+the frames at full resolution under ``frames/`` and ``contact_sheet.jpg``. It is built in a temporary sibling
+directory and moved into place at the end, so a failure never leaves a half-written summary, and an existing
+directory is replaced only when the caller says ``force``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+
+from companion.config import Config
+from companion.errors import MerlionError
+from companion.sources.base import FrameSource
+from companion.sources.factory import open_source
+from companion.sources.frame_feed import FrameFeed
+from companion.vision.contact_sheet import Tile, contact_sheet
+from companion.vision.encoders.base import Encoder
+from companion.vision.events import SummaryFrame
+from companion.vision.pipeline import Pipeline
+
+log = logging.getLogger(__name__)
+
+JPEG_QUALITY = 95
+
+
+@dataclass
+class SummaryRun:
+    """What a summarize run produced, for the command's closing line and for tests."""
+
+    out_dir: Path
+    document: dict
+    frames_seen: int
+    frames_passed: int
+    frames_lost: int
+
+
+def expected_frames(source: FrameSource) -> int | None:
+    """About how many frames a file or folder source will yield (for the progress bar), or None if unknown."""
+    count = getattr(source, "frame_count", 0)
+    src_fps, fps = getattr(source, "source_fps", 0.0), getattr(source, "fps", 0.0)
+    if count and src_fps and fps:
+        return math.ceil(count * min(1.0, fps / src_fps))
+    files = getattr(source, "files", None)
+    return len(files) if files is not None else None
+
+
+def frame_file_name(frame: SummaryFrame) -> str:
+    return f"frame_{frame.frame_index:06d}.jpg"
+
+
+def _check_out_dir(out_dir: Path, force: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise MerlionError(f"{out_dir}: exists and is not a directory")
+    if out_dir.exists() and not force:
+        raise MerlionError(f"{out_dir}: already exists; use --force to replace it")
+    parent = out_dir.parent
+    if not parent.is_dir():
+        raise MerlionError(f"{out_dir}: parent directory {parent} does not exist")
+
+
+def _progress(total: int | None, enabled: bool | None):
+    from tqdm import tqdm
+
+    show = sys.stderr.isatty() if enabled is None else enabled
+    return tqdm(total=total, unit="frame", desc="summarize", disable=not show, file=sys.stderr)
+
+
+def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: list[SummaryFrame],
+                   stats: dict) -> dict:
+    """summary.json: the issue's schema, frames in time order."""
+    return {
+        "source": cfg.source.uri,
+        "encoder": encoder.name,
+        "params": {
+            "k": pipeline.sampler.k,
+            "query": pipeline.presampler.positive,
+            "negatives": pipeline.presampler.negatives,
+            "tau_ss": pipeline.presampler.tau_ss,
+            "distance": pipeline.sampler.distance,
+            "threshold": pipeline.sampler.threshold,
+            "fps": cfg.source.fps,
+            "enhance": cfg.enhance.mode,
+            "tau_ses": pipeline.tau_ses if cfg.enhance.mode == "selective" else None,
+            "encoder": encoder.describe(),
+            "stats": stats,
+        },
+        "frames": [
+            {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
+             "file": f"frames/{frame_file_name(f)}"}
+            for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index))
+        ],
+    }
+
+
+def _write(out_tmp: Path, document: dict, frames: list[SummaryFrame]) -> None:
+    (out_tmp / "frames").mkdir()
+    for f in frames:
+        path = out_tmp / "frames" / frame_file_name(f)
+        if not cv2.imwrite(str(path), f.image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
+            raise MerlionError(f"{path}: could not write the frame")
+    ordered = sorted(frames, key=lambda f: (f.time_s, f.frame_index))
+    sheet = contact_sheet([Tile(f.image, f.time_s, f.score) for f in ordered],
+                          title=f"{document['source']}  |  {document['params']['query']}")
+    if not cv2.imwrite(str(out_tmp / "contact_sheet.jpg"), sheet, [cv2.IMWRITE_JPEG_QUALITY, 90]):
+        raise MerlionError(f"{out_tmp / 'contact_sheet.jpg'}: could not write the contact sheet")
+    (out_tmp / "summary.json").write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
+
+
+def _move_into_place(out_tmp: Path, out_dir: Path) -> None:
+    """Put the finished directory where it belongs; an old one (``--force``) goes only once the new one is ready."""
+    old = None
+    if out_dir.exists():
+        old = out_dir.with_name(f".{out_dir.name}.old-{out_tmp.name}")
+        out_dir.rename(old)
+    try:
+        out_tmp.rename(out_dir)
+    except OSError:
+        if old is not None:
+            old.rename(out_dir)  # the previous summary stays where it was
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder: Encoder | None = None,
+              progress: bool | None = None) -> SummaryRun:
+    """Summarize ``cfg.source.uri`` into ``out_dir``; raises MerlionError (one line) for anything the user can fix."""
+    out_dir = Path(out_dir)
+    _check_out_dir(out_dir, force)
+    try:  # made first, so an output folder that cannot be written fails now, not after the whole video
+        out_tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    except OSError as err:
+        raise MerlionError(f"{out_dir}: cannot write there ({err.strerror or err})") from None
+    try:
+        return _summarize_into(cfg, out_dir, out_tmp, encoder, progress)
+    finally:
+        if out_tmp.exists():
+            shutil.rmtree(out_tmp, ignore_errors=True)
+
+
+def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder | None,
+                    progress: bool | None) -> SummaryRun:
+    source = open_source(cfg.source, realtime=False)
+    if encoder is None:
+        from companion.vision.encoders.factory import make_encoder
+
+        encoder = make_encoder(cfg.encoder)
+    pipeline = Pipeline.from_config(cfg, encoder)
+    seen = passed = 0
+    with FrameFeed(source, pipeline.prepare) as feed, _progress(expected_frames(source), progress) as bar:
+        for batch in feed.batches(cfg.encoder.batch):
+            out = pipeline.process([f for f, _ in batch], [s for _, s in batch])
+            seen += len(batch)
+            passed += sum(r.passed for r in out.results)
+            bar.update(len(batch))
+            bar.set_postfix(passed=passed, held=len(pipeline.sampler))
+    lost = int(getattr(source, "lost", 0))
+    if lost:
+        log.warning("%s: %d frames could not be decoded and were skipped", cfg.source.uri, lost)
+    frames = pipeline.summary
+    stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
+             "frames_added": pipeline.counts["added"]}
+    document = build_document(cfg, encoder, pipeline, frames, stats)
+    try:
+        _write(out_tmp, document, frames)
+        _move_into_place(out_tmp, out_dir)
+    except OSError as err:
+        raise MerlionError(f"{out_dir}: cannot write the summary ({err.strerror or err})") from None
+    return SummaryRun(out_dir, document, seen, passed, lost)

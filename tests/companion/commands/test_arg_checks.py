@@ -1,0 +1,37 @@
+"""Command-line numbers: NaN, infinities and out-of-range values are one-line usage errors (exit 2)."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.commands.arg_checks import require_non_negative, require_positive
+from companion.errors import UsageError
+from tests.conftest import run_merlion
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf")])
+def test_require_positive_refuses(value: float) -> None:
+    with pytest.raises(UsageError, match=r"^--duration .*: must be positive$"):
+        require_positive("--duration", value)
+
+
+def test_require_positive_and_non_negative_accept() -> None:
+    require_positive("--duration", 0.5)
+    require_positive("--duration", None)  # not given
+    require_non_negative("--start", 0.0)
+    with pytest.raises(UsageError, match="must be zero or more"):
+        require_non_negative("--start", float("nan"))
+
+
+@pytest.mark.parametrize("args, message", [
+    (("run", "--duration", "nan"), "merlion: error: --duration nan: must be positive"),
+    (("sim-vehicle", "--connect", "udpout:127.0.0.1:9", "--fluid-density", "-5"),
+     "merlion: error: --fluid-density -5.0: must be positive"),
+    (("bench", "enhance", "--seconds", "nan"), "merlion: error: --seconds nan: must be positive"),
+    (("eval", "labels", "--labels", "none.csv", "--summary", "1", "--label-fps", "nan"),
+     "merlion: error: --label-fps nan: must be positive"),
+])
+def test_commands_refuse_nan_and_negative_numbers(args: tuple[str, ...], message: str) -> None:
+    done = run_merlion(*args, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [message]

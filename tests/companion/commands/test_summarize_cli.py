@@ -1,0 +1,151 @@
+"""`merlion summarize` end to end on the survey video: summary.json schema, frames, contact sheet, refusals."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from companion.config import load_config
+from companion.errors import MerlionError
+from companion.vision.contact_sheet import Tile, contact_sheet, format_time
+from companion.vision.encoders.visual import VisualEncoder
+from companion.vision.summarize import summarize
+from tests.conftest import run_merlion, shared_file
+
+SURVEY = "survey/survey_480x270.mp4"
+
+
+def one_error_line(stderr: str) -> str:
+    lines = [line for line in stderr.splitlines() if line.startswith("merlion: error:")]
+    assert len(lines) == 1, stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def summary_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "dive"
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--encoder", "imagenet",
+                       "--fps", "1", "-k", "3", "--threshold", "45")
+    assert proc.returncode == 0, proc.stderr
+    assert "%|" not in proc.stderr  # no progress bar when stderr is not a terminal
+    assert str(out) in proc.stdout
+    return out
+
+
+def test_summary_json_schema_and_frames(summary_dir):
+    doc = json.loads((summary_dir / "summary.json").read_text())
+    assert set(doc) == {"source", "encoder", "params", "frames"}
+    assert doc["source"].endswith("survey_480x270.mp4")
+    assert doc["encoder"].startswith("imagenet")
+    params = doc["params"]
+    assert params["k"] == 3 and params["tau_ss"] == pytest.approx(0.45) and params["fps"] == 1
+    assert params["query"] == "underwater image with fish"
+    assert params["negatives"] == ["underwater image without fish"]
+    frames = doc["frames"]
+    assert 1 <= len(frames) <= 3
+    assert [f["time_s"] for f in frames] == sorted(f["time_s"] for f in frames)
+    labels = {}
+    for line in shared_file("survey/survey_480x270_labels.csv").read_text().splitlines()[1:]:
+        cells = line.split(",")
+        labels[int(cells[0])] = cells[-1].strip() == "1"
+    for f in frames:
+        assert set(f) == {"index", "time_s", "score", "file"}
+        assert f["index"] % 10 == 0  # 10 fps source at --fps 1
+        assert f["time_s"] == pytest.approx(f["index"] / 10.0)
+        assert 0.45 < f["score"] <= 1.0
+        assert f["file"].startswith("frames/") and f["file"].endswith(".jpg")
+        image = cv2.imread(str(summary_dir / f["file"]))
+        assert image is not None and image.shape == (270, 480, 3)  # full resolution
+    assert sum(labels[f["index"]] for f in frames) >= len(frames) - 1  # fish frames, at most one stray
+    assert sorted(p.name for p in (summary_dir / "frames").iterdir()) == sorted(
+        f["file"].split("/")[1] for f in frames)
+    sheet = cv2.imread(str(summary_dir / "contact_sheet.jpg"))
+    assert sheet is not None and sheet.shape[1] >= 320
+
+
+def test_existing_dir_is_refused_without_force_and_left_alone(summary_dir):
+    before = (summary_dir / "summary.json").read_bytes()
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(summary_dir), "--encoder", "visual")
+    assert proc.returncode != 0
+    assert "--force" in one_error_line(proc.stderr)
+    assert (summary_dir / "summary.json").read_bytes() == before
+
+
+def test_force_replaces_the_directory(tmp_path):
+    out = tmp_path / "again"
+    out.mkdir()
+    (out / "stale.txt").write_text("old")
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--encoder", "visual",
+                       "--fps", "1", "-k", "3", "--force")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["encoder"] == "visual" and len(doc["frames"]) == 3
+    assert not (out / "stale.txt").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary left behind
+
+
+def test_bad_input_is_one_line_and_nonzero(tmp_path):
+    out = tmp_path / "out"
+    missing = tmp_path / "missing.mp4"
+    proc = run_merlion("summarize", str(missing), "--out", str(out), "--encoder", "visual")
+    assert proc.returncode != 0
+    assert str(missing) in one_error_line(proc.stderr)
+    assert not out.exists()
+    broken = tmp_path / "broken.mp4"
+    data = shared_file(SURVEY).read_bytes()
+    broken.write_bytes(data[: len(data) // 3])
+    proc = run_merlion("summarize", str(broken), "--out", str(out), "--encoder", "visual")
+    assert proc.returncode != 0
+    assert "broken.mp4" in one_error_line(proc.stderr)
+    assert not out.exists()
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--threshold", "0")
+    assert proc.returncode == 2
+    assert "tau_ss" in one_error_line(proc.stderr)
+
+
+def test_an_output_folder_that_cannot_be_written_fails_before_the_work():
+    """Its parent exists but nothing can be made in it (/proc/self refuses new entries, even to root)."""
+    cfg = load_config(None, overrides={"source": {"uri": "synthetic://dive?seconds=1&width=64&height=64"}})
+    with pytest.raises(MerlionError, match=r"^/proc/self/summary: cannot write there \("):
+        summarize(cfg, "/proc/self/summary", encoder=VisualEncoder())
+
+
+def test_progress_bar_only_when_asked_or_on_a_terminal(tmp_path, capsys):
+    cfg = load_config(None, overrides={"source": {"uri": str(shared_file(SURVEY)), "fps": 1}, "sampler": {"k": 2}})
+    encoder = VisualEncoder()
+    summarize(cfg, tmp_path / "quiet", encoder=encoder)  # stderr is not a terminal under pytest
+    assert "%|" not in capsys.readouterr().err
+    run = summarize(cfg, tmp_path / "loud", encoder=encoder, progress=True)
+    assert "%|" in capsys.readouterr().err
+    assert run.frames_seen == 10 and run.frames_lost == 0
+    with pytest.raises(MerlionError, match="already exists"):
+        summarize(cfg, tmp_path / "loud", encoder=encoder)
+
+
+def test_contact_sheet_grid_and_labels():
+    tiles = [Tile(np.full((270, 480, 3), 200, np.uint8), t, 0.5) for t in (0.0, 1.5, 62.0, 3725.0, 9.0)]
+    sheet = contact_sheet(tiles, tile_width=160)
+    assert sheet.shape[1] == 3 * 160 + 4 * 4  # 5 tiles: 3 columns, 2 rows
+    assert sheet.shape[0] > 2 * 90
+    assert format_time(62.0) == "1:02.0" and format_time(3725.0) == "1:02:05.0"
+    band = sheet[4 + 90:4 + 90 + 24, 4:164]
+    assert (band > 200).any()  # label text drawn under the first tile
+    empty = contact_sheet([])
+    assert empty.ndim == 3 and empty.size > 0
+
+
+def test_truncated_video_is_summarized_and_the_loss_reported(tmp_path):
+    from tests.companion.sources.test_sources import faststart
+
+    whole = faststart(shared_file(SURVEY).read_bytes())
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(whole[: int(len(whole) * 0.6)])
+    proc = run_merlion("summarize", str(cut), "--out", str(tmp_path / "out"), "--encoder", "visual", "--fps", "2")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "out" / "summary.json").read_text())
+    stats = doc["params"]["stats"]
+    assert stats["frames_lost"] > 0 and stats["frames_seen"] > 0
+    assert f"{stats['frames_lost']} lost" in proc.stdout

@@ -1,0 +1,116 @@
+"""`merlion run` as a real process: config errors before anything starts, a live run, clean stop, resume."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.config import StoreConfig
+from companion.live.udp_hub import UdpHub
+from companion.storage.store import Store
+from tests.companion.live_harness import Companion, Listener, store_summary, wait_until, write_config
+from tests.conftest import run_merlion
+from vehicle.sim.vehicle import SimVehicle
+
+
+@pytest.mark.parametrize("text, message", [
+    ("sampler:\n  kk: 3\n", "sampler.kk: unknown key"),
+    ("sampler:\n  k: many\n", "sampler.k: "),
+    ("sampler:\n  k: 0\n", "sampler.k: "),
+    ("queries:\n  tau_ss: 250\n", "queries.tau_ss: "),
+    ("source: [1, 2\n", "line"),
+])
+def test_bad_config_is_one_line_and_exit_2_before_anything_starts(tmp_path: Path, text: str, message: str) -> None:
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(text)
+    store = tmp_path / "store"
+    done = run_merlion("run", "--config", str(cfg), "--store", str(store), timeout=60)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"merlion: error: {cfg}") and message in lines[0], done.stderr
+    assert not store.exists(), "nothing may start (not even the store) on a bad config"
+
+
+def test_missing_config_file_and_bad_environment_value(tmp_path: Path) -> None:
+    done = run_merlion("run", "--config", str(tmp_path / "none.yaml"), timeout=60)
+    assert done.returncode == 2 and "no such config file" in done.stderr
+    done = run_merlion("run", "--store", str(tmp_path / "s"), env={"MERLION__SAMPLER__K": "-4"}, timeout=60)
+    assert done.returncode == 2 and "sampler.k" in done.stderr and "MERLION__" in done.stderr
+
+
+@pytest.mark.parametrize("source, mavlink, message", [
+    ("synthetic://dive?seconds=abc", "none", "source 'synthetic://dive?seconds=abc': could not convert string to float"),
+    ("synthetic://dive", "bogus:xx", "mavlink connection 'bogus:xx': expected udpin:"),
+])
+def test_malformed_source_or_connection_is_one_line_and_exit_2_before_anything_starts(
+        tmp_path: Path, source: str, mavlink: str, message: str) -> None:
+    store = tmp_path / "store"
+    done = run_merlion("run", "--source", source, "--store", str(store), "--mavlink", mavlink, "--duration", "30",
+                       timeout=60)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"merlion: error: {message}"), done.stderr
+    assert not store.exists(), "a malformed source is not retried like an unplugged camera; nothing starts"
+
+
+@pytest.fixture
+def vehicle():
+    """A UDP hub (the router), the simulated ArduSub on it, and a ground-station listener on it."""
+    listener = Listener()
+    hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
+    sim = SimVehicle(hub.url)
+    sim.start()
+    yield hub, sim, listener
+    sim.stop()
+    hub.stop()
+    listener.close()
+
+
+def test_run_tags_frames_stores_them_sends_captures_and_stops_cleanly_then_resumes(tmp_path: Path, vehicle) -> None:
+    hub, sim, listener = vehicle
+    store = tmp_path / "store"
+    cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)})
+    first = Companion("--config", str(cfg))
+    first.wait_for("companion running")
+    first.wait_for("autopilot heartbeat back")
+    wait_until(lambda: len(store_summary(store).get("summary", [])) >= 4, 90, "four summary frames on disk")
+    # frames taken once telemetry flows carry the simulated ArduSub's pose (depth, attitude), never a made-up one
+    wait_until(lambda: any(json.loads(p.read_text())["pose"]["depth_m"] is not None
+                           for p in (store / "frames").glob("*.json")), 60, "a frame tagged with depth")
+    capture = listener.wait_for(lambda m: m.get_type() == "CAMERA_IMAGE_CAPTURED", 60, "CAMERA_IMAGE_CAPTURED")
+    assert capture.get_srcComponent() == 100 and capture.file_url.startswith("mftp://")
+    assert first.terminate() == 0, first.output
+    assert "merlion run: seen" in first.output
+    before = store_summary(store)
+    for p in (store / "frames").glob("*.json"):
+        pose = json.loads(p.read_text())["pose"]
+        assert pose["stale"] == (pose["depth_m"] is None)
+    features = {i: np.load(store / "frames" / f"{i:06d}.npy") for i in before["summary"]}
+
+    # restart on a source that is not there (yet): the resumed summary is served, nothing is lost or renumbered
+    second = Companion("--config", str(cfg), "--source", str(tmp_path / "camera-not-plugged.mp4"))
+    second.wait_for("resuming with")
+    second.wait_for("retrying in")
+    assert second.terminate() == 0, second.output
+    after = Store(StoreConfig(dir=str(store)))
+    assert after.summary == before["summary"]
+    assert after.next_image_index == before["next_image_index"]
+    for frame in after.resume_state().frames:
+        np.testing.assert_array_equal(frame.feature, features[frame.image_index])
+
+
+def test_selective_enhancement_runs_on_its_worker_and_stores_raw_beside_enhanced(tmp_path: Path) -> None:
+    store = tmp_path / "store"
+    cfg = write_config(tmp_path / "c.yaml", enhance={"mode": "selective", "method": "classic", "tau_ses": 0.5},
+                       mavlink={"connection": None}, store={"dir": str(store)})
+    companion = Companion("--config", str(cfg))
+    companion.wait_for("companion running")
+    wait_until(lambda: len(store_summary(store).get("summary", [])) >= 3, 90, "three enhanced summary frames")
+    assert companion.terminate() == 0, companion.output
+    for index in store_summary(store)["summary"]:
+        sidecar = json.loads((store / "frames" / f"{index:06d}.json").read_text())
+        assert sidecar["enhanced"] is True and sidecar["raw_file"] == f"frames/{index:06d}.raw.jpg"
+        assert (store / sidecar["raw_file"]).is_file()

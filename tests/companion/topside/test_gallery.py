@@ -1,0 +1,93 @@
+"""The gallery folder: thumbnails and tags written, mirrored, and read back after a restart."""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+
+import pytest
+
+from companion.errors import MerlionError
+from companion.topside.gallery import Capture, Gallery
+
+
+def test_round_trip_add_thumbnail_remove_reopen(tmp_path):
+    g = Gallery(tmp_path)
+    assert g.announce(Capture(image_index=1, depth_m=3.5, heading_deg=45.0, time_utc=1.7e9))
+    assert g.announce(Capture(image_index=2, depth_m=4.0))
+    assert not g.announce(Capture(image_index=2, heading_deg=90.0))  # known: tags merged, not duplicated
+    g.add_thumbnail(1, b"\xff\xd8one", via="push")
+    g.add_thumbnail(2, b"\xff\xd8two", via="ftp")
+    g.update_tags(2, score=0.75)
+    assert (tmp_path / "summary" / "1.jpg").read_bytes() == b"\xff\xd8one"
+    assert g.remove(1)
+    assert not (tmp_path / "summary" / "1.jpg").exists()
+    assert (tmp_path / "removed" / "1.jpg").read_bytes() == b"\xff\xd8one"
+
+    again = Gallery(tmp_path)
+    assert [c.image_index for c in again.summary()] == [2]
+    two = again.get(2)
+    assert (two.depth_m, two.heading_deg, two.score, two.thumbnail_via, two.thumbnail) == (
+        4.0, 90.0, 0.75, "ftp", "summary/2.jpg")
+    one = again.get(1)
+    assert not one.in_summary and one.thumbnail == "removed/1.jpg"
+
+    doc = json.loads((tmp_path / "gallery.json").read_text())
+    assert doc["summary"] == [2]
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    assert [r["event"] for r in rows] == ["added", "added", "tags", "thumbnail", "thumbnail", "tags", "removed"]
+    assert rows[-1]["image_index"] == "1" and rows[-1]["in_summary"] == "False"
+
+
+def test_mirror_makes_the_summary_exactly_the_given_frames(tmp_path):
+    g = Gallery(tmp_path)
+    for i in (1, 2, 3):
+        g.announce(Capture(image_index=i))
+        g.add_thumbnail(i, bytes([i]))
+    g.remove(2)
+    assert g.mirror([2, 3, 4]) == [1]
+    assert [c.image_index for c in g.summary()] == [4, 3, 2]  # newest first; 2 came back, 4 is new
+    assert (tmp_path / "summary" / "2.jpg").exists() and (tmp_path / "removed" / "1.jpg").exists()
+    assert g.missing_thumbnails() == [4]
+
+
+def test_a_damaged_gallery_file_is_a_one_line_error(tmp_path):
+    (tmp_path / "gallery.json").write_text("{not json")
+    with pytest.raises(MerlionError, match="gallery.json"):
+        Gallery(tmp_path)
+
+
+def test_mirror_keeps_frames_announced_after_the_index_was_asked_for(tmp_path):
+    g = Gallery(tmp_path)
+    g.announce(Capture(image_index=1, announced_at=100.0))
+    g.announce(Capture(image_index=2, announced_at=200.0))
+    assert g.mirror([], announced_before=150.0) == [1]  # 2 is newer than the index: not yet in it, kept
+    assert [c.image_index for c in g.summary()] == [2]
+
+
+def test_a_stale_index_never_brings_back_a_frame_trimmed_after_it_was_asked_for(tmp_path):
+    """The demo's 7-vs-6: index.json asked for, the trim STATUSTEXT arrives while the index is on its way (FTP
+    is the lowest priority), then the index, built before the trim, still lists the frame."""
+    g = Gallery(tmp_path)
+    for i in (1, 2, 3):
+        g.announce(Capture(image_index=i, announced_at=100.0))
+    asked = time.time()
+    assert g.remove(2)  # the trim arrives after the index was asked for
+    assert g.mirror([1, 2, 3], announced_before=asked) == []
+    assert [c.image_index for c in g.summary()] == [3, 1]
+    g.remove(3)
+    later = time.time() + 1  # an index asked for after both trims is the authority: 3 is held again
+    g.mirror([1, 3], announced_before=later)
+    assert [c.image_index for c in g.summary()] == [3, 1]
+
+
+def test_a_capture_or_push_arriving_after_its_trim_goes_to_removed(tmp_path):
+    g = Gallery(tmp_path)
+    assert not g.remove(5)  # trimmed before we heard of it
+    assert not g.announce(Capture(image_index=5, depth_m=3.0))  # the late capture: tags kept, not held
+    g.add_thumbnail(5, b"\xff\xd8late\xff\xd9")
+    five = Gallery(tmp_path).get(5)
+    assert not five.in_summary and five.depth_m == 3.0 and five.thumbnail == "removed/5.jpg"
+    assert (tmp_path / "removed" / "5.jpg").is_file() and not (tmp_path / "summary" / "5.jpg").exists()
+    assert Gallery(tmp_path).summary() == []

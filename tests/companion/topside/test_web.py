@@ -1,0 +1,138 @@
+"""``merlion surface`` as a real subprocess, fed by a companion over UDP, its page rendered by headless Chromium."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+
+from companion.config import MavlinkConfig, SurfaceConfig
+from companion.vision.events import SummaryEvent
+from tests.companion.surface_peer import summary_frame
+from tests.conftest import REPO, free_udp_port, run_merlion
+from vehicle.camera.downlink import Downlink
+from vehicle.link.connection import MavLink
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+
+
+def _chromium() -> str:
+    for name in CHROMIUM_NAMES:
+        path = shutil.which(name)
+        if path:
+            return path
+    pytest.skip("no Chromium binary found (apt-get install chromium) - the live page test needs a real browser")
+
+
+def _headless(browser: str, url: str, *extra: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """Chromium with its JavaScript given time to poll the state and draw, then the DOM (or a screenshot)."""
+    args = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+            "--no-first-run", "--virtual-time-budget=5000", "--window-size=1280,800", *extra, url]
+    return subprocess.run(args, capture_output=True, text=True, timeout=timeout)
+
+
+def _state(port: int) -> dict:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as r:
+        return json.load(r)
+
+
+def _wait(predicate, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.1)
+    return predicate()
+
+
+def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
+    browser = _chromium()
+    port = free_udp_port()
+    out = tmp_path / "gallery"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "companion", "surface", "--connect", f"udpin:127.0.0.1:{port}", "--out", str(out),
+         "--web", "0", "--web-host", "127.0.0.1", "--duration", "120", "--push-timeout", "3"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ),
+    )
+    link = surface = None
+    try:
+        line = proc.stdout.readline()
+        match = re.search(r"live page at http://127\.0\.0\.1:(\d+)/", line)
+        assert match, line + proc.stderr.read() if proc.poll() is not None else line
+        web = int(match.group(1))
+        # the real companion side: its MAVLink link and Downlink, at the default 2,000 B/s budget
+        link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
+        link.start()
+        surface = Downlink(link, SurfaceConfig())
+        surface.start()
+        frames = {5: summary_frame(5, depth=21.4, yaw_deg=135, score=0.88),
+                  6: summary_frame(6, depth=22.6, yaw_deg=270, score=0.77),
+                  7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66)}
+        assert _wait(lambda: _state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
+        surface.publish(SummaryEvent("added", frames[5], summary=[5]))
+        surface.publish(SummaryEvent("added", frames[6], summary=[5, 6]))
+        surface.publish(SummaryEvent("added", frames[7], summary=[5, 6, 7]))
+        surface.update_status(fps=4.8, score=0.66, summary=2, depth_m=23.0)
+        surface.publish(SummaryEvent("removed", frames[7], summary=[5, 6]))
+
+        def ready() -> bool:
+            s = _state(web)
+            return [f["image_index"] for f in s["summary"]] == [6, 5] and all(
+                f["thumbnail"] and f["score"] is not None for f in s["summary"])
+
+        assert _wait(ready, 30), _state(web)
+        # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
+        assert _wait(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
+        assert _state(web)["link"]["mismatched"] == 0
+        dom = _headless(browser, f"http://127.0.0.1:{web}/", "--dump-dom").stdout
+        figures = re.findall(r'<figure class="frame" data-index="(\d+)"', dom)
+        assert figures == ["6", "5"]  # newest first, the trimmed #7 gone
+        assert "depth 22.6 m" in dom and "heading 270°" in dom and "score 0.77" in dom
+        assert "depth 21.4 m" in dom and "heading 135°" in dom and "score 0.88" in dom
+        assert re.search(r'<img src="files/summary/6\.jpg\?b=\d+"', dom)
+        assert "MRL_FPS" in dom and "companion: 1/100" in dom and "Summary -#7" in dom
+        if os.environ.get("MERLION_SURFACE_SCREENSHOT"):
+            _headless(browser, f"http://127.0.0.1:{web}/", f"--screenshot={os.environ['MERLION_SURFACE_SCREENSHOT']}")
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/summary/6.jpg", timeout=5) as r:
+            assert r.headers["Content-Type"] == "image/jpeg" and r.read() == surface.tree.read("/summary/6.jpg")
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/log.csv", timeout=5) as r:
+            assert r.read().startswith(b"event,wall_time,image_index")
+        for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp"):
+            with pytest.raises(urllib.error.HTTPError):
+                urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=20)
+    finally:
+        if surface is not None:
+            surface.stop()
+        if link is not None:
+            link.stop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, stderr
+    assert "2 frames in the summary, 2 with thumbnails" in stdout
+    assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6]
+
+
+def test_bad_arguments_are_one_line_errors_before_anything_is_created(tmp_path):
+    out = tmp_path / "never"
+    bad = run_merlion("surface", "--connect", "bogus:1", "--out", str(out), timeout=60)
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].startswith("merlion: error: mavlink connection")
+    assert not out.exists()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:  # e.g. QGroundControl on the port
+        held.bind(("127.0.0.1", 0))
+        port = held.getsockname()[1]
+        busy = run_merlion("surface", "--connect", f"udpin:127.0.0.1:{port}", "--out", str(out), timeout=60)
+    assert busy.returncode == 1 and f"UDP port {port} is taken" in busy.stderr
+    assert len(busy.stderr.strip().splitlines()) == 1

@@ -1,0 +1,150 @@
+"""The packaged EfficientNet-Lite0 encoder on real underwater images, and its marine concept vocabulary."""
+
+from __future__ import annotations
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+
+from companion.config import EncoderConfig
+from companion.errors import MerlionError
+from companion.evaluation.roc import auroc
+from companion.vision.encoders.imagenet import CLASSES, FEATURES, ImageNetEncoder
+from companion.vision.encoders.marine_concepts import CONCEPTS, IMAGENET_CLASSES, parse_query
+from tests.conftest import shared_file
+
+FISH = "underwater image with fish"
+NO_FISH = "underwater image without fish"
+
+
+@pytest.fixture(scope="module")
+def encoder() -> ImageNetEncoder:
+    return ImageNetEncoder(EncoderConfig(name="imagenet"))
+
+
+@pytest.fixture(scope="module")
+def suim() -> tuple[list[np.ndarray], np.ndarray]:
+    labels = shared_file("suim/labels.csv")
+    rows = list(csv.DictReader(labels.open()))
+    images = [cv2.imread(str(labels.parent / "images" / r["image"])) for r in rows]
+    return images, np.array([int(r["fish_present"]) for r in rows])
+
+
+def test_fish_images_outscore_no_fish_images_on_suim(encoder, suim):
+    images, fish = suim
+    emb = encoder.encode_images(images)
+    assert emb.shape == (len(images), FEATURES + encoder.views * CLASSES) and emb.dtype == np.float32
+    scores = encoder.semantic_scores(emb, encoder.encode_texts([FISH, NO_FISH]))
+    assert np.all((scores > 0) & (scores < 1))
+    assert scores[fish == 1].mean() > scores[fish == 0].mean() + 0.2
+    assert auroc(scores, fish) >= 0.75
+
+
+@pytest.mark.slow
+def test_survey_video_fish_frames_separate_from_no_fish(encoder):
+    video = shared_file("survey/survey_480x270.mp4")
+    labels = [int(r["fish_present"]) for r in csv.DictReader(
+        shared_file("survey/survey_480x270_labels.csv").open())]
+    cap = cv2.VideoCapture(str(video))
+    frames, fish = [], []
+    for i in range(len(labels)):
+        ok, frame = cap.read()
+        if not ok:
+            break
+        if i % 4 == 0:
+            frames.append(frame)
+            fish.append(labels[i])
+    cap.release()
+    scores = encoder.semantic_scores(encoder.encode_images(frames), encoder.encode_texts([FISH, NO_FISH]))
+    assert auroc(scores, fish) > 0.9
+
+
+def test_regions_find_a_small_fish_the_whole_frame_misses(encoder):
+    """A 1/16-area corner of an aquarium frame, pasted into a no-fish ROV frame: the region views see it."""
+    fish_frame = cv2.imread(str(shared_file("aquarium_fish/frames/000010.jpg")))
+    cap = cv2.VideoCapture(str(shared_file("rov_clips/V4361_20211006T162656Z_h265_1sec.mp4")))
+    ok, rov = cap.read()
+    cap.release()
+    assert ok
+    rov = cv2.resize(rov, (960, 540), interpolation=cv2.INTER_AREA)
+    texts = encoder.encode_texts([FISH, NO_FISH])
+    whole_only = ImageNetEncoder(EncoderConfig(name="imagenet"), regions=False)
+    base = encoder.semantic_scores(encoder.encode_images([rov]), texts)[0]
+    h, w = fish_frame.shape[:2]
+    patch = cv2.resize(fish_frame[h // 4: 3 * h // 4, w // 4: 3 * w // 4], (240, 135))
+    pasted = rov.copy()
+    pasted[20:155, 700:940] = patch
+    with_regions = encoder.semantic_scores(encoder.encode_images([pasted]), texts)[0]
+    without = whole_only.semantic_scores(whole_only.encode_images([pasted]), texts)[0]
+    assert with_regions > base
+    assert with_regions > without
+
+
+def test_default_queries_map_and_negation_is_the_complement(encoder, suim):
+    pos, neg = parse_query(FISH), parse_query(NO_FISH)
+    assert [c.name for c in pos.concepts] == ["fish"] and not pos.negated
+    assert [c.name for c in neg.concepts] == ["fish"] and neg.negated
+    emb = encoder.encode_images(suim[0][:3])
+    pair = encoder.semantic_scores(emb, encoder.encode_texts([FISH, NO_FISH]))
+    alone = encoder.semantic_scores(emb, encoder.encode_texts([FISH]))
+    np.testing.assert_allclose(pair, alone, atol=1e-6)  # fish vs "not fish": the share is the fish mass
+    texts = encoder.encode_texts([FISH, "a diver", "a coral reef"])
+    mass = encoder.concept_masses(emb, texts)  # (N, 3): each concept's probability mass in the chosen view
+    assert np.all(mass.sum(axis=1) <= 1 + 1e-5)  # disjoint class sets: their masses cannot exceed 1
+    np.testing.assert_allclose(encoder.semantic_scores(emb, texts), mass[:, 0] / mass.sum(axis=1), rtol=1e-5)
+    np.testing.assert_allclose(mass[:, 0], alone, atol=1e-6)
+
+
+@pytest.mark.parametrize(("query", "names", "negated"), [
+    ("sharks", ["shark"], False),
+    ("a sea urchin on rocks", ["sea urchin"], False),
+    ("no fish or sharks", ["fish", "shark"], True),
+    ("Scuba DIVERS near a shipwreck", ["diver", "wreck"], False),
+    ("empty of jellyfish", ["jellyfish"], True),
+    ("sea stars and sea cucumbers", ["starfish", "sea cucumber"], False),
+    ("an anemone fish", ["fish"], False),
+    ("clownfish in a sea anemone", ["fish", "sea anemone"], False),
+])
+def test_query_words_map_to_concepts(query, names, negated):
+    parsed = parse_query(query)
+    assert [c.name for c in parsed.concepts] == names and parsed.negated is negated
+
+
+@pytest.mark.parametrize("query", ["a cat on a sofa", "an underwater image", ""])
+def test_unmappable_query_is_refused_with_the_known_concepts(encoder, query):
+    with pytest.raises(MerlionError, match=r"names no concept .* known concepts: fish, shark, ray"):
+        encoder.encode_texts([FISH, query])
+
+
+def test_mixed_negation_is_refused():
+    with pytest.raises(MerlionError, match="mixes wanted and negated"):
+        parse_query("fish without divers")
+
+
+def test_vocabulary_uses_only_named_imagenet_classes():
+    fish = next(c for c in CONCEPTS if c.name == "fish")
+    assert {IMAGENET_CLASSES[i] for i in fish.classes} >= {"tench", "great white shark", "stingray", "lionfish",
+                                                            "anemone fish", "puffer", "eel", "barracouta"}
+    for concept in CONCEPTS:
+        assert concept.classes and all(i in IMAGENET_CLASSES for i in concept.classes), concept.name
+
+
+def test_sampler_features_are_the_pooled_1280(encoder, suim):
+    emb = encoder.encode_images(suim[0][:2])
+    feats = encoder.sampler_features(emb)
+    assert feats.shape == (2, FEATURES)
+    assert not np.allclose(feats[0], feats[1])
+    assert encoder.encode_images([]).shape == (0, FEATURES + encoder.views * CLASSES)
+
+
+def test_mixed_portrait_and_landscape_batches_keep_frame_order(suim):
+    enc = ImageNetEncoder(EncoderConfig(name="imagenet", batch=2))
+    land = suim[0][4]
+    port = np.ascontiguousarray(land.transpose(1, 0, 2))
+    frames = [land, port, land, port, land]
+    together = enc.encode_images(frames)
+    alone = np.concatenate([enc.encode_images([f]) for f in frames])
+    np.testing.assert_allclose(together, alone, atol=1e-4)
+    assert not np.allclose(together[0], together[1])

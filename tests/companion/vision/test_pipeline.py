@@ -1,0 +1,151 @@
+"""The pipeline on real frames with the packaged encoder: results, events, indices, resume, live K, MERLION-E."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from companion.config import Config, EncoderConfig
+from companion.sources.frame_feed import FrameFeed
+from companion.sources.video import VideoSource
+from companion.vision.encoders.imagenet import ImageNetEncoder
+from companion.vision.enhancers.base import Enhancer
+from companion.vision.pipeline import Pipeline, downscale_for
+from tests.conftest import shared_file
+
+
+@pytest.fixture(scope="module")
+def encoder():
+    return ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), regions=False)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return list(VideoSource(shared_file("survey/survey_480x270.mp4"), fps=2))  # 19 frames over both fish segments
+
+
+def make(encoder, k=3, tau=0.25, first=0, **enhance):
+    cfg = Config.model_validate({"sampler": {"k": k}, "queries": {"tau_ss": tau}, "enhance": enhance})
+    return Pipeline.from_config(cfg, encoder, first_image_index=first)
+
+
+def run(pipe, frames, batch=8):
+    results, events = [], []
+    for start in range(0, len(frames), batch):
+        out = pipe.process(frames[start:start + batch])
+        results += out.results
+        events += out.events
+    return results, events
+
+
+@pytest.fixture(scope="module")
+def baseline(encoder, frames):
+    pipe = make(encoder, first=100)
+    results, events = run(pipe, frames)
+    return pipe, results, events
+
+
+def test_results_follow_the_frames_and_the_threshold(baseline, frames):
+    pipe, results, _ = baseline
+    assert [r.frame_index for r in results] == [f.index for f in frames]
+    assert all(r.passed == (r.score > 0.25) for r in results)
+    assert all(r.offered == r.passed for r in results)
+    assert any(r.passed for r in results) and not all(r.passed for r in results)
+    assert not any(r.added and not r.passed for r in results)
+    assert pipe.counts["frames"] == len(frames) and pipe.counts["passed"] == sum(r.passed for r in results)
+
+
+def test_events_replay_to_the_summary_with_running_indices(baseline):
+    pipe, results, events = baseline
+    held: list[int] = []
+    for ev in events:
+        if ev.kind == "added":
+            held.append(ev.frame.image_index)
+        else:
+            held.remove(ev.frame.image_index)
+        assert sorted(held) == sorted(ev.summary) or ev.kind == "added"
+    assert held == [f.image_index for f in pipe.summary] == pipe.sampler.keys
+    added = [r.image_index for r in results if r.added]
+    assert added == list(range(100, 100 + len(added)))  # running index, never reused
+    assert len(pipe.summary) == 3
+    for f in pipe.summary:
+        assert f.image.shape == (270, 480, 3)  # full resolution, not the encoder's copy
+        assert f.feature.ndim == 1 and np.isclose(np.linalg.norm(f.feature), 1.0)
+        assert f.score > 0.25 and not f.enhanced
+
+
+def test_batching_and_the_decode_thread_give_the_same_summary(encoder, baseline):
+    pipe, results, _ = baseline
+    other = make(encoder, first=100)
+    got = []
+    with FrameFeed(VideoSource(shared_file("survey/survey_480x270.mp4"), fps=2), other.prepare) as feed:
+        for batch in feed.batches(5):
+            got += other.process([f for f, _ in batch], [s for _, s in batch]).results
+    assert [r.frame_index for r in got] == [r.frame_index for r in results]
+    assert np.allclose([r.score for r in got], [r.score for r in results], atol=1e-4)
+    assert other.sampler.keys == pipe.sampler.keys
+
+
+def test_restore_resumes_with_the_same_summary_and_higher_indices(encoder, frames, baseline):
+    pipe, _, _ = baseline
+    first = make(encoder, first=100)
+    run(first, frames[:10])
+    resumed = make(encoder)
+    resumed.restore(first.summary)
+    assert resumed.next_image_index == first.next_image_index
+    run(resumed, frames[10:])
+    assert resumed.sampler.keys == pipe.sampler.keys
+
+
+def test_changing_k_and_tau_while_running(encoder, frames):
+    pipe = make(encoder, k=4)
+    run(pipe, frames[4:14])
+    before = pipe.sampler.keys
+    events = pipe.set_k(2)
+    assert [e.kind for e in events] == ["removed", "removed"]
+    assert len(pipe.summary) == 2 and pipe.sampler.keys[-1] == before[-1]
+    pipe.tau_ss = 99.9
+    out = pipe.process(frames[6:8])
+    assert not any(r.passed for r in out.results) and out.events == []
+
+
+def test_downscale_keeps_aspect_and_covers_the_input():
+    img = np.zeros((1080, 1920, 3), np.uint8)
+    assert downscale_for(img, (224, 224)).shape == (224, 398, 3)
+    small = np.zeros((100, 120, 3), np.uint8)
+    assert downscale_for(small, (224, 224)) is small
+
+
+class CountingEnhancer(Enhancer):
+    """The real classic enhancer, counting the frames it is given (selective mode must skip failures)."""
+
+    def __init__(self, inner: Enhancer) -> None:
+        self.inner, self.name, self.seen = inner, inner.name, 0
+
+    def enhance(self, image):
+        self.seen += 1
+        return self.inner.enhance(image)
+
+
+def test_selective_enhancement_only_touches_passing_frames(encoder, frames):
+    pipe = make(encoder, mode="selective", tau_ses=0.3)
+    pipe.enhancer = CountingEnhancer(pipe.enhancer)
+    results, _ = run(pipe, frames[4:12])
+    assert 0 < pipe.enhancer.seen < len(results)
+    assert pipe.enhancer.seen == sum(r.passed for r in results)
+    assert pipe.summary, "some enhanced frame should pass tau_ses"
+    assert all(r.enhanced == r.passed for r in results)
+    assert all(r.offered == (r.passed and r.enhanced_score > 0.3) for r in results)
+    for f in pipe.summary:
+        assert f.enhanced and f.raw_image is not None and f.image is not f.raw_image
+        assert f.score > 0.3  # ss_e
+    strict = make(encoder, mode="selective", tau_ses=0.999)
+    results, events = run(strict, frames[4:8])
+    assert events == [] and not any(r.offered for r in results)
+
+
+def test_always_enhances_every_frame(encoder, frames):
+    pipe = make(encoder, mode="always")
+    out = pipe.process(frames[:2])
+    assert all(r.enhanced for r in out.results)
+    assert pipe.clock.items["enhance"] == 2

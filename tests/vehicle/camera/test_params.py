@@ -1,0 +1,99 @@
+"""Live tuning over the MAVLink parameter protocol: list, read, set, echo, persistence across a restart."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.config import Config, SurfaceConfig
+from companion.live.tunables import default_params
+from companion.storage.params_file import ParamsFile
+from tests.conftest import free_udp_port
+from tests.vehicle.surface_env import companion_link, ground_station, wait_for
+from vehicle.camera.downlink import Downlink
+from vehicle.camera.params import ParamServer, ParamSpec
+
+
+def _values(gcs, n: int) -> dict[str, object]:
+    out = {}
+    while len(out) < n:
+        msg = wait_for(gcs, "PARAM_VALUE")
+        assert msg is not None, f"only {len(out)} of {n} PARAM_VALUE arrived"
+        out[msg.param_id] = msg
+    return out
+
+
+def test_list_read_set_and_restart(tmp_path):
+    path = tmp_path / "params.json"
+    cfg = Config()
+    port = free_udp_port()
+    link = companion_link(port)
+    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=20000), params=default_params(cfg),
+                          saved_params=ParamsFile(path).load(),
+                       persist_params=ParamsFile(path).save)
+    seen = []
+    surface.on_param_changed(lambda name, value: seen.append((name, value)))
+    surface.start()
+    gcs = ground_station(port)
+    try:
+        gcs.mav.param_request_list_send(1, 100)
+        listed = _values(gcs, 6)
+        assert set(listed) == {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B", "MERL_LINK_BPS",
+                               "MERL_ENHANCE"}
+        assert all(len(name) <= 16 and m.param_count == 6 for name, m in listed.items())
+        assert listed["MERL_K"].param_value == 6 and listed["MERL_K"].param_type == mav.MAV_PARAM_TYPE_INT32
+        assert listed["MERL_TAU_SS"].param_value == pytest.approx(0.5)
+
+        gcs.mav.param_set_send(1, 100, b"MERL_TAU_SS", 0.42, mav.MAV_PARAM_TYPE_REAL32)
+        echo = wait_for(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "MERL_TAU_SS")
+        assert echo.param_value == pytest.approx(0.42)
+        assert seen == [("MERL_TAU_SS", pytest.approx(0.42))]
+        gcs.mav.param_set_send(1, 100, b"MERL_LINK_BPS", 3000, mav.MAV_PARAM_TYPE_INT32)
+        assert wait_for(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "MERL_LINK_BPS").param_value == 3000
+        assert surface.budget.rate == 3000  # took effect at once
+        gcs.mav.param_set_send(1, 100, b"MERL_K", 2.5, mav.MAV_PARAM_TYPE_INT32)  # not a whole number
+        assert wait_for(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "MERL_K").param_value == 6
+        gcs.mav.param_set_send(1, 101, b"MERL_K", 9, mav.MAV_PARAM_TYPE_INT32)  # another component's
+        gcs.mav.param_request_read_send(1, 100, b"", 2)  # by index
+        assert wait_for(gcs, "PARAM_VALUE").param_id == "MERL_K"
+        gcs.mav.param_request_read_send(1, 100, b"MERL_ENHANCE", -1)  # by name
+        assert wait_for(gcs, "PARAM_VALUE").param_id == "MERL_ENHANCE"
+        assert surface.params.value("MERL_K") == 6
+    finally:
+        gcs.close()
+        surface.stop()
+        link.stop()
+
+    saved = json.loads(path.read_text())
+    assert saved["params"]["MERL_TAU_SS"] == pytest.approx(0.42) and saved["version"] == 1
+    assert not [p for p in tmp_path.iterdir() if p.name != "params.json"]  # no temp files left behind
+    link2 = companion_link(free_udp_port())
+    again = Downlink(link2, SurfaceConfig(), params=default_params(cfg), saved_params=ParamsFile(path).load(),
+                       persist_params=ParamsFile(path).save)
+    replayed = []
+    again.on_param_changed(lambda name, value: replayed.append((name, value)))
+    assert again.params.value("MERL_TAU_SS") == pytest.approx(0.42)
+    assert again.budget.rate == 3000
+    assert dict(replayed) == {"MERL_TAU_SS": pytest.approx(0.42), "MERL_LINK_BPS": 3000}
+    link2.stop()
+
+
+def test_refusals_and_bad_files(tmp_path):
+    path = tmp_path / "p.json"
+    path.write_text("{not json")
+    server = ParamServer([ParamSpec("MERL_K", 6, 1, 10, integer=True)], system_id=lambda: 1, component_id=100,
+                         path=path)
+    assert server.value("MERL_K") == 6  # a corrupt file is ignored, never fatal
+
+    def veto(name, value):
+        if value == 7:
+            raise ValueError("seven is unlucky")
+
+    server.on_change(veto)
+    assert not server.set("MERL_K", 7) and server.value("MERL_K") == 6
+    assert not server.set("MERL_K", float("nan")) and not server.set("MERL_K", 11)
+    assert server.set("MERL_K", 8) and json.loads(path.read_text())["params"] == {"MERL_K": 8}
+    with pytest.raises(ValueError, match="longer than 16"):
+        ParamServer([ParamSpec("MERL_THIS_IS_TOO_LONG", 1, 0, 2)], system_id=lambda: 1, component_id=100)

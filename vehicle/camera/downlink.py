@@ -1,0 +1,350 @@
+"""Everything the companion says to the surface, on one MAVLink link and one byte budget.
+
+The live loop hands ``Downlink.publish`` each summary event and ``update_status`` its latest numbers; this
+object turns them into the camera protocol (CAMERA_IMAGE_CAPTURED, answers to requests), pushed thumbnails
+(DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA), a MAVLink FTP tree (/summary/index.json, thumbnails, full
+frames, /config/queries.txt), STATUSTEXT lines, 1 Hz NAMED_VALUE_FLOAT values and the parameter protocol, and
+queues all of it through one ``LinkBudget`` so the link is never asked for more than it has.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+import cv2
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from vehicle.camera import status as st
+from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
+from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
+from vehicle.camera.component import CameraComponent, CameraIdentity
+from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
+from vehicle.camera.image_push import push_messages
+from vehicle.camera.params import ParamServer, ParamSpec
+from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
+from vehicle.link.budget import LinkBudget, Priority
+from vehicle.protocol.ftp import Op
+from vehicle.settings import SurfaceConfig
+
+log = logging.getLogger(__name__)
+
+QUERIES_PATH = "/config/queries.txt"
+INDEX_PATH = "/summary/index.json"
+FULL_QUALITY = 90
+_FTP_BULK_OPS = frozenset({Op.READ_FILE, Op.BURST_READ_FILE, Op.LIST_DIRECTORY})
+_REQUEST_TYPES = ("COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET",
+                  "FILE_TRANSFER_PROTOCOL")
+
+
+def parse_queries(text: str) -> tuple[str, list[str]]:
+    """A queries file: the first non-empty, non-# line is the positive query, the others the negatives."""
+    lines = [ln.strip() for ln in text.replace("\r", "").split("\n")]
+    lines = [ln for ln in lines if ln and not ln.startswith("#")]
+    if len(lines) < 2:
+        raise ValueError("a queries file needs a positive line and at least one negative line")
+    if any(len(ln) > 300 for ln in lines):
+        raise ValueError("a query line is longer than 300 characters")
+    return lines[0], lines[1:]
+
+
+def format_queries(positive: str, negatives: list[str]) -> str:
+    return "# first line: positive query; following lines: negative queries\n" + "\n".join(
+        [positive, *negatives]) + "\n"
+
+
+@dataclass
+class _Held:
+    frame: CaptureFrame
+    thumb: Thumbnail
+    encoded: dict[str, bytes] = field(default_factory=dict)
+
+
+def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
+    pose = frame.pose
+    tags: dict[str, Any] = {
+        "image_index": frame.image_index, "frame_index": frame.frame_index, "time_s": round(frame.time_s, 3),
+        "capture_time": frame.capture_time,
+        "utc": datetime.fromtimestamp(frame.capture_time, timezone.utc).isoformat(timespec="milliseconds"),
+        "score": _json_safe(round(float(frame.score), 4)), "enhanced": bool(frame.enhanced),
+    }
+    if pose is not None:
+        tags["pose"] = {k: _json_safe(v) for k, v in pose.to_dict().items() if v is not None}
+    return tags
+
+
+def _json_safe(value: Any) -> Any:
+    """Strict JSON has no NaN or Infinity (a browser's JSON.parse rejects them): unknown becomes null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+class Downlink:
+    """Camera, image push, FTP, status and parameters on ``link``, within ``cfg.budget_bytes_per_s``.
+
+    ``params`` is the tunable set; ``saved_params`` what an earlier run persisted and ``persist_params`` how to
+    save a change (both from the app: this side touches no files);
+    ``loader`` fetches an old capture's frame from the store by image index; ``image_count`` is how many summary
+    frames earlier runs took; ``queries`` the text queries in force (positive, negatives).
+    """
+
+    def __init__(self, link: Any, cfg: SurfaceConfig, *, params: list[ParamSpec] | None = None,
+                 saved_params: dict[str, float] | None = None,
+                 persist_params: Callable[[dict[str, float]], None] | None = None, loader: Callable[[int], CaptureFrame | None] | None = None,
+                 image_count: int = 0, queries: tuple[str, list[str]] | None = None,
+                 identity: CameraIdentity | None = None, version: str = "",
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.link = link
+        self.cfg = cfg
+        self.clock = clock
+        self.version = version
+        self.thumbnail_bytes = cfg.thumbnail_bytes
+        self.ext = "webp" if cfg.thumbnail_format == "webp" else "jpg"
+        self.budget = LinkBudget(link, cfg.budget_bytes_per_s, clock=clock)
+        self.captures = CaptureLog(clock=clock, initial_count=image_count, loader=loader, ext=self.ext)
+        self._earlier_runs = image_count
+        self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
+                                      component_id=link.component_id, identity=identity)
+        self.status = st.StatusReporter(self.captures.time_boot_ms)
+        self.params = ParamServer(params or [], system_id=lambda: link.system_id,
+                                  component_id=link.component_id, saved=saved_params,
+                                  persist=persist_params)
+        self.params.on_change(self._own_param)
+        self.tree = VirtualTree()
+        self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable)
+        self._held: dict[int, _Held] = {}
+        self._lock = threading.Lock()
+        self._queries = queries or ("", [])
+        self._query_cbs: list[Callable[[str, list[str]], None]] = []
+        self._unsubscribe: Callable[[], None] | None = None
+        self._stop = threading.Event()
+        self._status_thread: threading.Thread | None = None
+        self.tree.put(INDEX_PATH, self.index_json)
+        self.tree.put(QUERIES_PATH, lambda: format_queries(*self._queries).encode())
+        self.tree.uploadable(QUERIES_PATH, self._upload_queries)
+        self.budget.add_source(Priority.BULK, self._next_burst)
+        for name, value in self.params.restored.items():
+            self._own_param(name, value)
+
+    # ---- wiring ---------------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Listen for requests, start the budget's sender and the status tick; announce the start."""
+        if self._unsubscribe is not None:
+            return
+        self._stop.clear()
+        self._unsubscribe = self.link.subscribe(self._on_message, _REQUEST_TYPES)
+        self.budget.start()
+        self._status_thread = threading.Thread(target=self._status_loop, name="surface-status", daemon=True)
+        self._status_thread.start()
+        self.event(*st.started_text(self.version or "companion"))
+
+    def stop(self) -> None:
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
+        self._stop.set()
+        if self._status_thread is not None:
+            self._status_thread.join(timeout=5)
+            self._status_thread = None
+        self.budget.stop()
+
+    def __enter__(self) -> Downlink:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def on_queries_changed(self, callback: Callable[[str, list[str]], None]) -> None:
+        """``callback(positive, negatives)`` after a client uploaded a valid queries file (raise ValueError to refuse)."""
+        self._query_cbs.append(callback)
+
+    def on_param_changed(self, callback: Callable[[str, float], None], *, replay: bool = True) -> None:
+        """``callback(name, value)`` on every accepted PARAM_SET; ``replay`` first hands it the values restored
+        from the parameter file, so a restart resumes with what the operator last set."""
+        self.params.on_change(callback)
+        if replay:
+            for name, value in self.params.restored.items():
+                callback(name, value)
+
+    def set_queries(self, positive: str, negatives: list[str]) -> None:
+        """The queries in force, as /config/queries.txt shows them."""
+        self._queries = (positive, list(negatives))
+
+    # ---- outgoing -------------------------------------------------------------------------------------------
+
+    def publish(self, event: CaptureEvent) -> None:
+        """Announce a frame that entered (capture, thumbnail, push) or left (STATUSTEXT, files gone) the summary.
+
+        A frame an earlier run took (``image_index`` below the ``image_count`` given at start, i.e. the resumed
+        summary) goes back on the FTP tree and answers re-requests, but is neither counted nor announced again.
+        """
+        frame = event.frame
+        idx = frame.image_index
+        if event.kind == "added":
+            ident = self.camera.identity
+            if not ident.width and frame.image is not None:  # CAMERA_INFORMATION reports what frames really are
+                ident.height, ident.width = frame.image.shape[:2]
+            thumb = make_thumbnail(frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side,
+                                   fmt=self.cfg.thumbnail_format)
+            with self._lock:
+                self._held[idx] = _Held(frame, thumb)
+                gone = self._prune(event.summary)
+            for old in gone:
+                self._forget(old)
+            self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
+            self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
+            if frame.raw_image is not None:
+                self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True))
+            resumed = idx < self._earlier_runs
+            capture = self.captures.record(frame, count=not resumed)
+            if resumed:
+                self.status.update(summary=len(self._held))
+                return
+            self.budget.submit(capture, Priority.STATUS)
+            self.event(added_text(frame, len(event.summary) or len(self._held)))
+            if self.cfg.push:
+                push = thumb if thumb.format == "jpeg" else make_thumbnail(
+                    frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side)
+                # the image protocol carries no image index: a NAMED_VALUE_INT right before the handshake says
+                # which frame follows (a repeated CAMERA_IMAGE_CAPTURED would put a second QGC map marker down)
+                marker = st.push_marker(idx, self.captures.time_boot_ms())
+                for msg in [marker, *push_messages(push.data, push.width, push.height, push.quality)]:
+                    self.budget.submit(msg, Priority.THUMBNAIL, tag=("thumb", idx))
+        else:
+            with self._lock:
+                self._held.pop(idx, None)
+                gone = self._prune(event.summary)
+            for old in [idx, *gone]:
+                self._forget(old)
+            self.event(trimmed_text(frame, len(event.summary)))
+        self.status.update(summary=len(self._held))
+
+    def _prune(self, summary: list[int]) -> list[int]:
+        """Drop frames the event's summary list no longer holds; called with the lock held, so it only
+        returns them: their files and queued pushes are forgotten after the lock is released (the FTP server
+        reads the tree, which takes this lock, while holding its own)."""
+        if not summary:
+            return []
+        gone = [i for i in self._held if i not in summary]
+        for old in gone:
+            self._held.pop(old)
+        return gone
+
+    def _forget(self, idx: int) -> None:
+        self.tree.remove(thumbnail_path(idx, self.ext))
+        self.tree.remove(f"/summary/full/{idx}.jpg")
+        self.tree.remove(f"/summary/raw/{idx}.jpg")
+        self.budget.drop(("thumb", idx))
+
+    def _full(self, idx: int, raw: bool = False) -> bytes:
+        """The full-resolution frame as JPEG, encoded on first request and kept while the frame is held."""
+        with self._lock:
+            held = self._held.get(idx)
+        if held is None:
+            return b""
+        image = held.frame.raw_image if raw else held.frame.image
+        if image is None:
+            return b""
+        key = "raw" if raw else "full"
+        if key not in held.encoded:
+            ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
+            held.encoded[key] = buf.tobytes() if ok else b""
+        return held.encoded[key]
+
+    def index_json(self) -> bytes:
+        """The current summary with its tags, newest first (what /summary/index.json serves)."""
+        with self._lock:
+            held = sorted(self._held.values(), key=lambda h: h.frame.image_index, reverse=True)
+        items = []
+        for h in held:
+            tags = _frame_tags(h.frame)
+            idx = h.frame.image_index
+            tags.update(thumbnail=thumbnail_path(idx, self.ext), full=f"/summary/full/{idx}.jpg",
+                        thumbnail_bytes=len(h.thumb.data), thumbnail_crc32=crc32_ardupilot(h.thumb.data),
+                        width=h.thumb.width, height=h.thumb.height)
+            if h.frame.raw_image is not None:
+                tags["raw"] = f"/summary/raw/{idx}.jpg"
+            items.append(tags)
+        body = {"image_count": self.captures.image_count, "summary": items}
+        return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
+
+    def event(self, text: str, severity: int = st.INFO) -> None:
+        """One STATUSTEXT line (cut to 50 characters)."""
+        self.budget.submit(st.status_text(text, severity), Priority.STATUS)
+
+    def update_status(self, **values: float | None) -> None:
+        """Latest fps, score, summary, depth_m (see ``StatusReporter.update``); sent on the next tick."""
+        self.status.update(**values)
+
+    def _status_loop(self) -> None:
+        period = 1.0 / self.cfg.status_hz
+        while not self._stop.wait(period):
+            self.status.update(link_bps=self.budget.in_use_bps())
+            for msg in self.status.messages():
+                self.budget.submit(msg, Priority.STATUS, tag=("nvf", msg.name), replace=True)
+
+    # ---- incoming -------------------------------------------------------------------------------------------
+
+    def _on_message(self, msg: mav.MAVLink_message) -> None:
+        kind = msg.get_type()
+        if kind == "FILE_TRANSFER_PROTOCOL":
+            self._on_ftp(msg)
+            return
+        handler = self.camera.handle if kind.startswith("COMMAND") else self.params.handle
+        for reply in handler(msg):
+            self.budget.submit(reply, Priority.CONTROL)
+
+    def _on_ftp(self, msg: mav.MAVLink_message) -> None:
+        if not self.cfg.ftp:
+            return
+        if msg.target_system not in (0, self.link.system_id) or msg.target_component != self.link.component_id:
+            return
+        who = (msg.get_srcSystem(), msg.get_srcComponent())
+        request = bytes(msg.payload)
+        replies = self.ftp.handle(request, who)
+        if not replies:
+            self.budget.wake()  # a burst may have started
+            return
+        # data replies are bulk; the small answers (open, close, CRC, write acks, refusals) are command answers
+        opcode = request[3] if len(request) > 3 else 0
+        prio = Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL
+        for payload in replies:
+            reply = mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload))
+            # a client retransmits while our answer still waits for budget: one copy in the queue is enough
+            self.budget.submit(reply, prio, tag=("ftp", who, bytes(payload[:12])), unique=True)
+
+    def _next_burst(self) -> mav.MAVLink_message | None:
+        got = self.ftp.next_burst()
+        if got is None:
+            return None
+        (sysid, compid), payload = got
+        return mav.MAVLink_file_transfer_protocol_message(0, sysid, compid, list(payload))
+
+    def _upload_queries(self, data: bytes) -> None:
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ValueError("queries file is not UTF-8 text") from None
+        positive, negatives = parse_queries(text)
+        for callback in self._query_cbs:
+            callback(positive, negatives)
+        self._queries = (positive, negatives)
+        self.event(f"Queries set: {positive}"[:50])
+
+    def _own_param(self, name: str, value: float) -> None:
+        if name == "MERL_THUMB_B":
+            self.thumbnail_bytes = int(value)
+        elif name == "MERL_LINK_BPS":
+            self.budget.set_rate(value)

@@ -1,0 +1,350 @@
+"""A MAVLink FTP server core over a virtual, read-mostly file tree (no transport in here).
+
+``FtpServer.handle`` turns one request payload into its immediate replies; BurstReadFile replies are produced one
+at a time by ``next_burst`` so the link budget decides when each bulk packet goes (and a newer burst request
+replaces an older one instead of piling up). The interoperability rules come from REFERENCE.md section 3: replies
+echo the request opcode and carry seq + 1, OpenFileRO's ACK carries the size as uint32 LE, reads return at most
+239 bytes, TerminateSession is acknowledged, a retransmitted request is answered again, paths are NUL terminated
+and ``..`` cannot leave the tree (nothing on disk is reachable at all: every file is a callable in memory).
+"""
+
+from __future__ import annotations
+
+import logging
+import posixpath
+import struct
+import threading
+import zlib
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, nak
+
+log = logging.getLogger(__name__)
+
+Requester = tuple[int, int]
+"""(system id, component id) of the client; replies are addressed to it."""
+
+BURST_PACKETS = 32
+"""Packets per BurstReadFile answer before burst_complete asks the client for more."""
+
+
+def crc32_ardupilot(data: bytes) -> int:
+    """CRC-32 as ArduPilot and PX4 compute it for CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor)."""
+    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
+
+
+def clean_path(raw: str) -> str | None:
+    """An absolute, normalised path inside the served root, or None when it tries to climb out with ``..``."""
+    parts = [p for p in raw.replace("\\", "/").split("/") if p not in ("", ".")]
+    if ".." in parts:
+        return None
+    return posixpath.join("/", *parts)
+
+
+class VirtualTree:
+    """Files as callables returning bytes, and upload slots as callables taking bytes; directories are implied.
+
+    The surface link keeps it current (a thumbnail appears when a frame enters the summary, goes when it leaves);
+    reading through a callable means the index and full frames are produced only when someone asks.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._files: dict[str, Callable[[], bytes]] = {}
+        self._uploads: dict[str, Callable[[bytes], None]] = {}
+
+    def put(self, path: str, content: bytes | Callable[[], bytes]) -> None:
+        getter = content if callable(content) else (lambda data=bytes(content): data)
+        with self._lock:
+            self._files[clean_path(path) or path] = getter
+
+    def remove(self, path: str) -> None:
+        with self._lock:
+            self._files.pop(clean_path(path) or path, None)
+
+    def uploadable(self, path: str, on_upload: Callable[[bytes], None]) -> None:
+        """``path`` may be written by a client (when the server is writable); ``on_upload`` gets the whole file."""
+        with self._lock:
+            self._uploads[clean_path(path) or path] = on_upload
+
+    def read(self, path: str) -> bytes | None:
+        with self._lock:
+            getter = self._files.get(path)
+        return None if getter is None else getter()
+
+    def is_dir(self, path: str) -> bool:
+        prefix = path.rstrip("/") + "/"
+        with self._lock:
+            names = list(self._files) + list(self._uploads)
+        return path == "/" or any(n.startswith(prefix) for n in names)
+
+    def listdir(self, path: str) -> list[tuple[str, bool, int]] | None:
+        """Sorted (name, is_dir, size) below ``path``, or None when it is not a directory."""
+        if not self.is_dir(path):
+            return None
+        prefix = path.rstrip("/") + "/"
+        with self._lock:
+            files = dict(self._files)
+            names = set(files) | set(self._uploads)
+        entries: dict[str, tuple[str, bool, int]] = {}
+        for name in names:
+            if not name.startswith(prefix):
+                continue
+            head, _, rest = name[len(prefix):].partition("/")
+            if rest:
+                entries[head] = (head, True, 0)
+            elif head not in entries:
+                getter = files.get(name)
+                entries[head] = (head, False, len(getter()) if getter else 0)
+        return [entries[k] for k in sorted(entries)]
+
+    def upload_target(self, path: str) -> Callable[[bytes], None] | None:
+        with self._lock:
+            return self._uploads.get(path)
+
+
+@dataclass
+class _Session:
+    requester: Requester
+    path: str
+    data: bytearray
+    writing: bool
+    burst_offset: int | None = None
+    burst_seq: int = 0
+    burst_left: int = 0
+    burst_session: int = 0
+
+
+class FtpServer:
+    """MAVLink FTP over a ``VirtualTree``: read-only unless ``writable``; ``max_sessions`` open files at once.
+
+    Sessions are kept per client, and an open is granted the session number the client asked with: pymavlink's
+    mavftp adopts whatever the ACK says, but MAVSDK 4 keeps using its own number, so echoing it serves both. An
+    open on a number the same client still holds replaces that session (the client has abandoned it). When every
+    session is taken the oldest is closed rather than the open refused: on a lossy link a TerminateSession is
+    easily lost, and a server that locks clients out is worse than one that forgets a stale session.
+    """
+
+    def __init__(self, tree: VirtualTree, *, writable: bool = False, max_sessions: int = 4) -> None:
+        self.tree = tree
+        self.writable = writable
+        self.max_sessions = max_sessions
+        self._lock = threading.Lock()
+        self._sessions: OrderedDict[tuple[Requester, int], _Session] = OrderedDict()
+        self._recent: OrderedDict[tuple, list[bytes]] = OrderedDict()
+        self.requests = 0
+        self.retransmits_answered = 0
+
+    # ---- requests -------------------------------------------------------------------------------------------
+
+    def handle(self, payload: bytes, requester: Requester) -> list[bytes]:
+        """Immediate reply payloads (251 bytes each) for one request; bursts continue through ``next_burst``."""
+        try:
+            req = FtpPacket.unpack(payload)
+        except ValueError as err:
+            log.debug("FTP: ignoring malformed request: %s", err)
+            return []
+        if req.opcode in (Op.ACK, Op.NAK):
+            return []
+        pre = self._prefetch(req)  # outside the lock: a file may be produced on demand (a full frame's JPEG)
+        key = (requester, req.seq, req.opcode, req.session, req.offset, req.size)
+        with self._lock:
+            self.requests += 1
+            if req.opcode != Op.BURST_READ_FILE and key in self._recent:
+                self.retransmits_answered += 1
+                return list(self._recent[key])
+            upload = self._finished_upload(req, requester)
+            if upload is None:
+                replies = [p.pack() for p in self._dispatch(req, requester, pre)]
+        if upload is not None:  # the receiver of an upload may take its time (new queries are encoded)
+            replies = [self._commit(req, upload).pack()]
+        if req.opcode != Op.BURST_READ_FILE:
+            with self._lock:
+                self._recent[key] = replies
+                while len(self._recent) > 64:
+                    self._recent.popitem(last=False)
+        return replies
+
+    def _prefetch(self, req: FtpPacket) -> object:
+        """What the tree holds for a request that reads it: bytes, a listing, or None (not there / no such op)."""
+        if req.opcode not in (Op.LIST_DIRECTORY, Op.OPEN_FILE_RO, Op.CALC_FILE_CRC32):
+            return None
+        path = clean_path(req.path())
+        if path is None:
+            return None
+        return self.tree.listdir(path) if req.opcode == Op.LIST_DIRECTORY else self.tree.read(path)
+
+    def _dispatch(self, req: FtpPacket, who: Requester, pre: object = None) -> list[FtpPacket]:
+        op = req.opcode
+        if op == Op.NONE:
+            return [ack(req)]
+        if op == Op.RESET_SESSIONS:
+            for key in [k for k in self._sessions if k[0] == who]:
+                del self._sessions[key]
+            return [ack(req)]
+        if op == Op.TERMINATE_SESSION:
+            return [self._terminate(req, who)]
+        if op == Op.LIST_DIRECTORY:
+            return [self._list(req, pre)]
+        if op == Op.OPEN_FILE_RO:
+            return [self._open_ro(req, who, pre)]
+        if op == Op.READ_FILE:
+            return [self._read(req, who)]
+        if op == Op.BURST_READ_FILE:
+            return self._burst_start(req, who)
+        if op == Op.CALC_FILE_CRC32:
+            return [self._crc(req, pre)]
+        if op in (Op.CREATE_FILE, Op.OPEN_FILE_WO, Op.WRITE_FILE, Op.TRUNCATE_FILE, Op.REMOVE_FILE):
+            if not self.writable:
+                return [nak(req, FtpErr.FILE_PROTECTED)]
+            return [self._write_op(req, who)]
+        return [nak(req, FtpErr.UNKNOWN_COMMAND)]
+
+    def _session(self, req: FtpPacket, who: Requester) -> _Session | None:
+        return self._sessions.get((who, req.session))
+
+    def _new_session(self, req: FtpPacket, who: Requester, path: str, data: bytes, writing: bool) -> int:
+        key = (who, req.session)
+        self._sessions.pop(key, None)
+        while len(self._sessions) >= self.max_sessions:
+            old, _ = self._sessions.popitem(last=False)
+            log.info("FTP: all %d sessions taken, closing the oldest (%s)", self.max_sessions, old)
+        self._sessions[key] = _Session(who, path, bytearray(data), writing)
+        return req.session
+
+    def _terminate(self, req: FtpPacket, who: Requester) -> FtpPacket:
+        if self._session(req, who) is None:
+            return nak(req, FtpErr.INVALID_SESSION)
+        del self._sessions[(who, req.session)]
+        return ack(req)
+
+    def _finished_upload(self, req: FtpPacket, who: Requester) -> _Session | None:
+        """A TerminateSession that closes a written file: the session, taken out (called with the lock held)."""
+        if req.opcode != Op.TERMINATE_SESSION:
+            return None
+        sess = self._session(req, who)
+        if sess is None or not sess.writing:
+            return None
+        del self._sessions[(who, req.session)]
+        return sess
+
+    def _commit(self, req: FtpPacket, sess: _Session) -> FtpPacket:
+        """Hand a closed upload to its receiver (without the lock held); its refusal is the client's NAK."""
+        target = self.tree.upload_target(sess.path)
+        try:
+            if target is None:
+                raise ValueError("not uploadable")
+            target(bytes(sess.data))
+        except ValueError as err:
+            log.warning("FTP: upload to %s refused: %s", sess.path, err)
+            return nak(req, FtpErr.FAIL)
+        return ack(req)
+
+    def _list(self, req: FtpPacket, entries) -> FtpPacket:
+        if entries is None:
+            return nak(req, FtpErr.FILE_NOT_FOUND)
+        if req.offset >= len(entries):
+            return nak(req, FtpErr.EOF)
+        out = b""
+        for name, is_dir, size in entries[req.offset:]:
+            item = (f"D{name}" if is_dir else f"F{name}\t{size}").encode("utf-8") + b"\0"
+            if len(out) + len(item) > MAX_DATA:
+                break
+            out += item
+        if not out:
+            return nak(req, FtpErr.FAIL)
+        return ack(req, data=out)
+
+    def _open_ro(self, req: FtpPacket, who: Requester, data) -> FtpPacket:
+        if data is None:
+            return nak(req, FtpErr.FILE_NOT_FOUND)
+        sid = self._new_session(req, who, clean_path(req.path()) or "", data, writing=False)
+        return ack(req, session=sid, data=struct.pack("<I", len(data)))
+
+    def _read(self, req: FtpPacket, who: Requester) -> FtpPacket:
+        sess = self._session(req, who)
+        if sess is None or sess.writing:
+            return nak(req, FtpErr.INVALID_SESSION)
+        if req.offset >= len(sess.data):
+            return nak(req, FtpErr.EOF)
+        want = req.size if 0 < req.size <= MAX_DATA else MAX_DATA
+        return ack(req, data=bytes(sess.data[req.offset: req.offset + want]))
+
+    def _burst_start(self, req: FtpPacket, who: Requester) -> list[FtpPacket]:
+        sess = self._session(req, who)
+        if sess is None or sess.writing:
+            return [nak(req, FtpErr.INVALID_SESSION)]
+        if req.offset >= len(sess.data):
+            sess.burst_offset = None
+            return [nak(req, FtpErr.EOF)]
+        sess.burst_offset = req.offset
+        sess.burst_seq = (req.seq + 1) & 0xFFFF
+        sess.burst_left = BURST_PACKETS
+        sess.burst_session = req.session
+        return []
+
+    def _crc(self, req: FtpPacket, data) -> FtpPacket:
+        if data is None:
+            return nak(req, FtpErr.FILE_NOT_FOUND)
+        return ack(req, data=struct.pack("<I", crc32_ardupilot(data)))
+
+    def _write_op(self, req: FtpPacket, who: Requester) -> FtpPacket:
+        op = req.opcode
+        if op == Op.WRITE_FILE:
+            sess = self._session(req, who)
+            if sess is None or not sess.writing:
+                return nak(req, FtpErr.INVALID_SESSION)
+            end = req.offset + len(req.data)
+            if end > 1 << 20:
+                return nak(req, FtpErr.INVALID_DATA_SIZE)
+            if len(sess.data) < end:
+                sess.data.extend(b"\0" * (end - len(sess.data)))
+            sess.data[req.offset:end] = req.data
+            return ack(req)
+        path = clean_path(req.path())
+        target = None if path is None else self.tree.upload_target(path)
+        if target is None:
+            exists = path is not None and self.tree.read(path) is not None
+            return nak(req, FtpErr.FILE_PROTECTED if exists else FtpErr.FAIL)
+        if op == Op.REMOVE_FILE:
+            return nak(req, FtpErr.FILE_PROTECTED)
+        current = self.tree.read(path) or b""
+        if op == Op.TRUNCATE_FILE:
+            try:
+                target(current[: req.offset])
+            except ValueError:
+                return nak(req, FtpErr.FAIL)
+            return ack(req)
+        start = b"" if op == Op.CREATE_FILE else current
+        sid = self._new_session(req, who, path, start, writing=True)
+        return ack(req, session=sid)
+
+    # ---- bursts ---------------------------------------------------------------------------------------------
+
+    def has_burst(self) -> bool:
+        with self._lock:
+            return any(s.burst_offset is not None for s in self._sessions.values())
+
+    def next_burst(self) -> tuple[Requester, bytes] | None:
+        """The next bulk packet of the oldest running burst, or None when no burst is running."""
+        with self._lock:
+            for sess in self._sessions.values():
+                if sess.burst_offset is None:
+                    continue
+                offset = sess.burst_offset
+                chunk = bytes(sess.data[offset: offset + MAX_DATA])
+                nxt = offset + len(chunk)
+                sess.burst_left -= 1
+                last = nxt >= len(sess.data) or sess.burst_left <= 0
+                pkt = FtpPacket(seq=sess.burst_seq, session=sess.burst_session, opcode=Op.ACK,
+                                req_opcode=Op.BURST_READ_FILE, offset=offset, data=chunk, burst_complete=last)
+                sess.burst_seq = (sess.burst_seq + 1) & 0xFFFF
+                sess.burst_offset = None if last else nxt
+                return sess.requester, pkt.pack()
+        return None
+
+    def close_all(self) -> None:
+        with self._lock:
+            self._sessions.clear()

@@ -1,0 +1,208 @@
+"""Ask the autopilot for the telemetry rates the companion needs, and keep them.
+
+MAV_CMD_SET_MESSAGE_INTERVAL (ArduPilot 4.0+) is sent per message and its COMMAND_ACK checked; an autopilot that
+answers UNSUPPORTED (or never answers) gets the legacy REQUEST_DATA_STREAM for the stream holding that message.
+The ground station may change the same rates later, so the rates that actually arrive are watched, and a message
+arriving at less than half the asked rate is asked for again (with back-off, so a message the vehicle cannot
+produce, such as LOCAL_POSITION_NED without a DVL, costs a few bytes a minute, not a flood). After an autopilot
+reboot (heartbeat lost, then found) everything is asked for again.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+from vehicle.link.connection import MavLink
+
+log = logging.getLogger(__name__)
+
+# The REQUEST_DATA_STREAM group ArduSub puts each message in (the fallback for old firmware).
+STREAM_OF: dict[str, int] = {
+    "SCALED_PRESSURE2": mav2.MAV_DATA_STREAM_RAW_SENSORS,
+    "SYS_STATUS": mav2.MAV_DATA_STREAM_EXTENDED_STATUS,
+    "GLOBAL_POSITION_INT": mav2.MAV_DATA_STREAM_POSITION,
+    "LOCAL_POSITION_NED": mav2.MAV_DATA_STREAM_POSITION,
+    "ATTITUDE": mav2.MAV_DATA_STREAM_EXTRA1,
+    "VFR_HUD": mav2.MAV_DATA_STREAM_EXTRA2,
+    "SYSTEM_TIME": mav2.MAV_DATA_STREAM_EXTRA3,
+    "BATTERY_STATUS": mav2.MAV_DATA_STREAM_EXTRA3,
+}
+
+
+class RateKeeper:
+    """Requests ``wanted`` (message name -> Hz) from the link's autopilot and re-requests what falls short."""
+
+    def __init__(
+        self,
+        link: MavLink,
+        wanted: dict[str, float],
+        *,
+        ack_timeout_s: float = 1.0,
+        retries: int = 2,
+        window_s: float = 5.0,
+        grace_s: float = 3.0,
+        backoff_max_s: float = 60.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.link = link
+        self.wanted = {name: hz for name, hz in wanted.items() if hz > 0}
+        for name in self.wanted:
+            if not hasattr(mav2, f"MAVLINK_MSG_ID_{name}"):
+                raise ValueError(f"unknown MAVLink message {name!r}")
+        self.ack_timeout_s = ack_timeout_s
+        self.retries = retries
+        self.window_s = window_s
+        self.grace_s = grace_s
+        self.backoff_max_s = backoff_max_s
+        self.clock = clock
+        self.method: dict[str, str] = {}
+        """How each message was last asked for: interval | data_stream."""
+        self.requests: dict[str, int] = dict.fromkeys(self.wanted, 0)
+        self.acks: dict[str, int] = {}
+        """The last COMMAND_ACK result per message (MAV_RESULT_*)."""
+        self._arrivals: dict[str, deque[float]] = {name: deque() for name in self.wanted}
+        self._asked_at: dict[str, float] = {}
+        self._backoff: dict[str, float] = {}
+        self._ack_cv = threading.Condition()
+        self._last_ack: tuple[int, int] | None = None
+        self._ack_serial = 0
+        self._interval_supported = True
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._unsubs: list[Callable[[], None]] = []
+
+    def start(self) -> None:
+        self._unsubs = [
+            self.link.subscribe(self._on_message, [*self.wanted, "COMMAND_ACK"]),
+        ]
+        self.link.on_autopilot(self._on_autopilot)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="mavlink-rates", daemon=True)
+        self._thread.start()
+        if self.link.autopilot_alive:
+            self._wake.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        for unsub in self._unsubs:
+            unsub()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def observed_hz(self, name: str) -> float:
+        """Messages per second over the last ``window_s`` seconds."""
+        now = self.clock()
+        q = self._arrivals.get(name)
+        if not q:
+            return 0.0
+        while q and q[0] < now - self.window_s:
+            q.popleft()
+        return len(q) / self.window_s
+
+    # ------------------------------------------------------------------------------------------- internals
+    def _on_message(self, msg: mav2.MAVLink_message) -> None:
+        mtype = msg.get_type()
+        if mtype == "COMMAND_ACK":
+            if msg.target_system in (0, self.link.system_id) and msg.target_component in (0, self.link.component_id):
+                with self._ack_cv:
+                    self._last_ack = (msg.command, msg.result)
+                    self._ack_serial += 1
+                    self._ack_cv.notify_all()
+            return
+        if self.link.autopilot is not None and (msg.get_srcSystem(), msg.get_srcComponent()) != self.link.autopilot:
+            return
+        q = self._arrivals[mtype]
+        q.append(self.clock())
+        if len(q) > 4 * self.wanted[mtype] * self.window_s + 16:
+            q.popleft()
+
+    def _on_autopilot(self, alive: bool) -> None:
+        if alive:  # found, or back after a loss (maybe a reboot that reset every rate): ask for everything
+            self._asked_at.clear()
+            self._backoff.clear()
+            self._interval_supported = True
+            self._wake.set()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self._wake.wait(1.0)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            if not self.link.autopilot_alive or self.link.autopilot is None:
+                continue
+            now = self.clock()
+            for name, hz in self.wanted.items():
+                if self._stop.is_set() or not self.link.autopilot_alive:
+                    break
+                asked = self._asked_at.get(name)
+                if asked is not None:
+                    if now - asked < max(self.grace_s, self._backoff.get(name, 0.0)):
+                        continue
+                    if self.observed_hz(name) >= 0.5 * hz:
+                        continue
+                    self._backoff[name] = min(2 * max(self._backoff.get(name, self.grace_s), self.grace_s),
+                                              self.backoff_max_s)
+                    log.info("rates: %s arrives at %.1f Hz, asked %.1f Hz: asking again", name,
+                             self.observed_hz(name), hz)
+                self._request(name, hz)
+                self._asked_at[name] = self.clock()
+
+    def _request(self, name: str, hz: float) -> None:
+        self.requests[name] += 1
+        target_sys, target_comp = self.link.autopilot or (self.link.system_id, 1)
+        if self._interval_supported:
+            msg_id = getattr(mav2, f"MAVLINK_MSG_ID_{name}")
+            for _attempt in range(self.retries + 1):
+                result = self._command(mav2.MAVLink_command_long_message(
+                    target_sys, target_comp, mav2.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                    float(msg_id), 1e6 / hz, 0, 0, 0, 0, 0))
+                if result is not None:
+                    break
+            if result is not None:
+                self.acks[name] = result
+            if result == mav2.MAV_RESULT_ACCEPTED:
+                self.method[name] = "interval"
+                return
+            if result in (mav2.MAV_RESULT_UNSUPPORTED, None):
+                self._interval_supported = False
+                log.info("rates: SET_MESSAGE_INTERVAL %s; using REQUEST_DATA_STREAM",
+                         "unsupported" if result is not None else "not answered")
+            else:
+                log.warning("rates: autopilot refused %s at %.1f Hz (result %d); trying REQUEST_DATA_STREAM",
+                            name, hz, result)
+        stream = STREAM_OF.get(name)
+        if stream is None:
+            log.warning("rates: no data stream carries %s; leaving its rate to the autopilot", name)
+            return
+        rate = max(1, min(65535, math.ceil(hz)))
+        self.link.send(mav2.MAVLink_request_data_stream_message(target_sys, target_comp, stream, rate, 1))
+        self.method[name] = "data_stream"
+
+    def _command(self, msg: mav2.MAVLink_message) -> int | None:
+        """Send a COMMAND_LONG and wait for its ACK; the MAV_RESULT, or None after ``ack_timeout_s``."""
+        with self._ack_cv:
+            serial = self._ack_serial
+        if not self.link.send(msg):
+            self._stop.wait(self.ack_timeout_s)
+            return None
+        deadline = time.monotonic() + self.ack_timeout_s
+        with self._ack_cv:
+            while not self._stop.is_set():
+                if self._ack_serial != serial and self._last_ack is not None and self._last_ack[0] == msg.command:
+                    return self._last_ack[1]
+                serial = self._ack_serial
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._ack_cv.wait(left)
+        return None
