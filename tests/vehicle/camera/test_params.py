@@ -83,8 +83,9 @@ def test_list_read_set_and_restart(tmp_path):
 def test_refusals_and_bad_files(tmp_path):
     path = tmp_path / "p.json"
     path.write_text("{not json")
+    params_file = ParamsFile(path)
     server = ParamServer([ParamSpec("MERL_K", 6, 1, 10, integer=True)], system_id=lambda: 1, component_id=100,
-                         path=path)
+                         saved=params_file.load(), persist=params_file.save)
     assert server.value("MERL_K") == 6  # a corrupt file is ignored, never fatal
 
     def veto(name, value):
