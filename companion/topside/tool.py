@@ -29,7 +29,13 @@ from companion.config import MavlinkConfig
 from companion.topside.ftp_client import FtpClient, crc32_mavftp
 from companion.topside.gallery import Capture, Gallery
 from companion.topside.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
-from companion.topside.messages import capture_from_message, mftp_path, parse_index, parse_statustext
+from companion.topside.messages import (
+    capture_from_message,
+    index_dive,
+    mftp_path,
+    parse_index,
+    parse_statustext,
+)
 from vehicle.link.connection import MavLink, is_autopilot_heartbeat
 
 log = logging.getLogger("merlion.surface")
@@ -114,7 +120,7 @@ class SurfaceTool:
         self._bound: dict[int, int] = {}  # handshake number -> image index
         self._orphans: dict[int, PushedImage] = {}  # finished pushes not yet paired
         self._lost_push: dict[int, Abandoned] = {}  # pushes abandoned before pairing, by handshake number
-        self._fetching: set[int] = set()
+        self._fetching: set[tuple[str | None, int]] = set()  # (dive, image index) being pulled by FTP
         self._marker: int | None = None  # image index named by the last MRL_PUSH, until its handshake comes
         self._crc: dict[int, int] = {}  # thumbnail CRC32 by image index, from index.json (JPEG only)
         self._unverified: dict[int, bytes] = {}  # pushed thumbnails waiting for an index.json with their CRC
@@ -256,8 +262,23 @@ class SurfaceTool:
 
     # --- captures and pushes -------------------------------------------------------------------------------
 
+    def _dive_ok(self, dive: str | None) -> bool:
+        """False for a late message of an earlier dive; a new dive (the vehicle's store was reset, image indices
+        start again) files the old one away and forgets every pairing made under the old indices."""
+        verdict = self.gallery.use_dive(dive)
+        if verdict == "new":
+            log.info("dive %s: the vehicle's store was reset; earlier captures filed under dives/", dive)
+            for pending in (self._waiting, self._early, self._expected, self._bound, self._orphans,
+                            self._lost_push, self._crc, self._unverified):
+                pending.clear()
+            self._last_announced = None
+            self._want_index()
+        return verdict != "old"
+
     def _on_capture(self, msg) -> None:
         cap = capture_from_message(msg)
+        if not self._dive_ok(cap.dive):
+            return
         known = self.gallery.get(cap.image_index)
         if known is not None and not known.in_summary:
             return  # a re-sent announcement of a frame already trimmed out
@@ -437,17 +458,18 @@ class SurfaceTool:
     def _fetch_thumbnail(self, index: int, *, replace: bool = False, partial: Abandoned | None = None) -> None:
         """Pull the thumbnail by FTP; with the ``partial`` push it came from, only the packets the push lost."""
         cap = self.gallery.get(index)
-        if cap is None or not cap.in_summary or index in self._fetching:
+        dive = self.gallery.dive
+        if cap is None or not cap.in_summary or (dive, index) in self._fetching:
             return
         if cap.thumbnail is not None and not replace:
             return
         if self._ftp is None:
             return
         path = mftp_path(cap.file_url or "") or f"/summary/{index}.jpg"
-        self._fetching.add(index)
+        self._fetching.add((dive, index))
 
         def done(_path: str, data: bytes | None, error: str) -> None:
-            self._fetching.discard(index)
+            self._fetching.discard((dive, index))
             with self.lock:
                 if data is None:
                     self.status.ftp_failed += 1
@@ -456,6 +478,8 @@ class SurfaceTool:
             if data is None:
                 log.warning("FTP %s: %s", path, error)
                 return
+            if self.gallery.dive != dive:
+                return  # the vehicle's store was reset meanwhile: this index now names another frame
             now_cap = self.gallery.get(index)
             if now_cap is not None and (replace or now_cap.thumbnail is None):
                 ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
@@ -500,9 +524,12 @@ class SurfaceTool:
             return
         try:
             captures = parse_index(data)
+            dive = index_dive(data)
         except (ValueError, UnicodeDecodeError) as err:
             log.warning("%s: not JSON this tool understands (%s)", INDEX_PATH, err)
             return
+        if not self._dive_ok(dive):
+            return  # asked for before the store was reset: it lists the earlier dive
         with self.lock:
             self.status.index_pulls += 1
             self.status.ftp_ok += 1
@@ -579,7 +606,7 @@ class SurfaceTool:
                 "statustext": list(s.statustext)[::-1],
             }
         summary = [_capture_view(c) for c in self.gallery.summary()]
-        return {"time": now, "link": link, "companion": companion, "summary": summary,
+        return {"time": now, "link": link, "companion": companion, "dive": self.gallery.dive, "summary": summary,
                 "thumbnails_waiting": self.gallery.missing_thumbnails()}
 
 
@@ -589,7 +616,7 @@ def _age(now: float, then: float | None) -> float | None:
 
 def _capture_view(c: Capture) -> dict:
     return {
-        "image_index": c.image_index, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
+        "image_index": c.image_index, "dive": c.dive, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
         "score": c.score, "lat": c.lat, "lon": c.lon, "thumbnail": c.thumbnail, "via": c.thumbnail_via,
         "bytes": c.thumbnail_bytes,
     }

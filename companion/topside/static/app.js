@@ -40,6 +40,7 @@ function card(frame) {
   const cap = document.createElement("figcaption");
   const rows = [
     ["idx", "#" + frame.image_index + (frame.via ? " (" + frame.via + ")" : "")],
+    ["dive", "dive " + (frame.dive || "?")],
     ["depth", "depth " + fmt(frame.depth_m, 1, " m")],
     ["heading", "heading " + (frame.heading_deg === null || frame.heading_deg === undefined
       ? "?" : (Math.round(frame.heading_deg) % 360) + "\u00b0")],
@@ -66,6 +67,7 @@ function render(state) {
     + (link.lost_packets ? ", " + link.lost_packets + " lost" : ""));
   setLight("companion", ageState(comp.heartbeat_age_s, 3),
     "companion: " + (comp.id ? comp.id.join("/") + ", heartbeat " + comp.heartbeat_age_s + " s ago" : "not seen"));
+  document.getElementById("dive").textContent = "dive " + (state.dive || "?");
   document.getElementById("counts").textContent =
     "push " + link.pushed_ok + " ok (" + link.verified + " CRC-checked) / " + link.pushed_lost + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";
   const values = document.getElementById("values");
