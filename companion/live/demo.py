@@ -174,7 +174,7 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
                 log.warning("%s exited early (code %s); see %s", name, proc.returncode, logs / f"{name}.log")
         companion.stop_pipeline()
         companion.drain(timeout=20.0)
-        held = companion.storage.store.summary if companion.storage.store is not None else []
+        held = companion.store.summary if companion.store is not None else []
         _surface_settled(out / "surface", held, timeout=10.0)  # the last trims and thumbnails still on the way
     finally:
         if companion is not None:
