@@ -30,6 +30,7 @@ from typing import Any
 from companion.commands.arg_checks import require_positive
 from companion.config import Config, build_config
 from companion.errors import MerlionError, UsageError
+from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
 
@@ -83,9 +84,12 @@ def _merlion(*args: str) -> list[str]:
 
 
 def _spawn(args: list[str], log_path: Path) -> subprocess.Popen:
+    """A child in its own session (a terminal's Ctrl-C reaches only the demo, which stops the children in order)
+    that still dies with the demo when the demo is killed outright (``die_with_parent``)."""
     # the child gets its own copy of the descriptor; the demo's copy is closed at once instead of leaking
     with open(log_path, "w", encoding="utf-8") as fh:
-        return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+        return subprocess.Popen(die_with_parent.command(args), stdout=fh, stderr=subprocess.STDOUT,
+                                start_new_session=True)
 
 
 def _end(proc: subprocess.Popen | None, timeout: float = 15.0) -> int | None:
