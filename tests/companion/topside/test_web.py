@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -19,26 +18,12 @@ import pytest
 from companion.config import MavlinkConfig, SurfaceConfig
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
+from tests.companion.topside.browser import Page, chromium_or_skip
 from tests.conftest import REPO, free_udp_port, run_merlion
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
 
-CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
-
-
-def _chromium() -> str:
-    for name in CHROMIUM_NAMES:
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.skip("no Chromium binary found (apt-get install chromium) - the live page test needs a real browser")
-
-
-def _headless(browser: str, url: str, *extra: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    """Chromium with its JavaScript given time to poll the state and draw, then the DOM (or a screenshot)."""
-    args = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-            "--no-first-run", "--virtual-time-budget=5000", "--window-size=1280,800", *extra, url]
-    return subprocess.run(args, capture_output=True, text=True, timeout=timeout)
+DIVE = "5e1f0c2a"
 
 
 def _state(port: int) -> dict:
@@ -56,7 +41,7 @@ def _wait(predicate, timeout: float) -> bool:
 
 
 def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
-    browser = _chromium()
+    chromium_or_skip()
     port = free_udp_port()
     out = tmp_path / "gallery"
     proc = subprocess.Popen(
@@ -73,11 +58,12 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         # the real companion side: its MAVLink link and Downlink, at the default 2,000 B/s budget
         link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
         link.start()
-        surface = Downlink(link, SurfaceConfig())
+        surface = Downlink(link, SurfaceConfig(), dive=DIVE)
         surface.start()
         frames = {5: summary_frame(5, depth=21.4, yaw_deg=135, score=0.88),
                   6: summary_frame(6, depth=22.6, yaw_deg=270, score=0.77),
-                  7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66)}
+                  7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66),
+                  8: summary_frame(8, depth=24.2, yaw_deg=45, score=0.71)}
         assert _wait(lambda: _state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
         surface.publish(SummaryEvent("added", frames[5], summary=[5]))
         surface.publish(SummaryEvent("added", frames[6], summary=[5, 6]))
@@ -94,19 +80,35 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
         assert _wait(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
         assert _state(web)["link"]["mismatched"] == 0
-        dom = _headless(browser, f"http://127.0.0.1:{web}/", "--dump-dom").stdout
-        figures = re.findall(r'<figure class="frame" data-index="(\d+)"', dom)
-        assert figures == ["6", "5"]  # newest first, the trimmed #7 gone
-        assert "depth 22.6 m" in dom and "heading 270°" in dom and "score 0.77" in dom
-        assert "depth 21.4 m" in dom and "heading 135°" in dom and "score 0.88" in dom
-        assert re.search(r'<img src="files/summary/6\.jpg\?b=\d+"', dom)
-        assert "MRL_FPS" in dom and "companion: 1/100" in dom and "Summary -#7" in dom
-        if os.environ.get("MERLION_SURFACE_SCREENSHOT"):
-            _headless(browser, f"http://127.0.0.1:{web}/", f"--screenshot={os.environ['MERLION_SURFACE_SCREENSHOT']}")
+        with Page(f"http://127.0.0.1:{web}/") as page:
+            # thumbnails really decode in the browser, newest first, each with its depth tag and dive
+            loaded = ("[...document.querySelectorAll('#gallery figure.frame img')]"
+                      ".every(i => i.complete && i.naturalWidth > 0)")
+            assert page.wait_for(f"document.querySelectorAll('#gallery figure.frame img').length == 2 && {loaded}")
+            cards = page.evaluate("[...document.querySelectorAll('#gallery figure.frame')]"
+                                  ".map(f => [f.dataset.index, f.innerText])")
+            assert [i for i, _ in cards] == ["6", "5"], cards  # newest first, the trimmed #7 gone
+            text = dict(cards)
+            assert "depth 22.6 m" in text["6"] and "heading 270°" in text["6"] and "score 0.77" in text["6"]
+            assert "depth 21.4 m" in text["5"] and "heading 135°" in text["5"] and "score 0.88" in text["5"]
+            assert all(f"dive {DIVE}" in t for t in text.values()), text
+            assert page.evaluate("document.querySelector('#gallery img').getAttribute('src')").startswith(
+                "files/summary/6.jpg")
+            body = page.evaluate("document.body.innerText")
+            assert "MRL_FPS" in body and "companion: 1/100" in body and "Summary -#7" in body
+            # a new capture appears on the same page, with no reload (a reload would clear this mark)
+            page.evaluate("window.notReloaded = true")
+            surface.publish(SummaryEvent("added", frames[8], summary=[5, 6, 8]))
+            assert page.wait_for("document.querySelector('#gallery figure.frame[data-index=\"8\"] img') !== null"
+                                 " && document.querySelector('#gallery figure.frame img').naturalWidth > 0", 30)
+            assert page.evaluate("window.notReloaded === true")
+            assert "depth 24.2 m" in page.evaluate("document.querySelector('#gallery figure.frame').innerText")
+            if os.environ.get("MERLION_SURFACE_SCREENSHOT"):
+                page.screenshot(os.environ["MERLION_SURFACE_SCREENSHOT"])
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/summary/6.jpg", timeout=5) as r:
             assert r.headers["Content-Type"] == "image/jpeg" and r.read() == surface.tree.read("/summary/6.jpg")
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/log.csv", timeout=5) as r:
-            assert r.read().startswith(b"event,wall_time,image_index")
+            assert r.read().startswith(b"event,wall_time,dive,image_index")
         for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp"):
             with pytest.raises(urllib.error.HTTPError):
                 urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
@@ -121,8 +123,8 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, stderr
-    assert "2 frames in the summary, 2 with thumbnails" in stdout
-    assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6]
+    assert "3 frames in the summary, 3 with thumbnails" in stdout
+    assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6, 8]
 
 
 def test_bad_arguments_are_one_line_errors_before_anything_is_created(tmp_path):
