@@ -134,7 +134,17 @@ class Gallery:
         with self._lock:
             return sorted(i for i, c in self._captures.items() if c.in_summary and c.thumbnail is None)
 
+    def full_path(self, image_index: int, dive: str | None) -> Path:
+        """Where a full-resolution frame fetched on demand is kept: ``full/<dive>/<n>.jpg``."""
+        return self.root / "full" / (dive or "unknown") / f"{image_index}.jpg"
+
     # --- writing -------------------------------------------------------------------------------------------
+
+    def add_full(self, image_index: int, data: bytes, dive: str | None) -> Path:
+        path = self.full_path(image_index, dive)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, data)
+        return path
 
     def use_dive(self, dive: str | None) -> str:
         """What a message of ``dive`` means here: ``"current"`` (file it), ``"new"`` (the vehicle's store was reset:

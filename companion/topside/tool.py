@@ -17,11 +17,13 @@ whose packets never all arrive is fetched by FTP instead.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
@@ -36,6 +38,7 @@ from companion.topside.messages import (
     parse_index,
     parse_statustext,
 )
+from companion.topside.offline_page import write_offline_page
 from vehicle.link.connection import MavLink, is_autopilot_heartbeat
 
 log = logging.getLogger("merlion.surface")
@@ -44,6 +47,11 @@ MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
 MAV_TYPE_GCS = mav.MAV_TYPE_GCS
 INDEX_PATH = "/summary/index.json"
 PUSH_MARKER = "MRL_PUSH"
+DEPTH_VALUE = "MRL_DEPTH"
+SEVERITY_WARNING = 4
+FULL_FRAME_TIMEOUT_S = 120.0
+"""A full frame (tens of kB) at a 2,000 B/s budget, sent after everything else: give it time."""
+OFFLINE_EVERY_S = 2.0
 
 
 @dataclass
@@ -78,6 +86,10 @@ class LinkStatus:
     values: dict[str, float] = field(default_factory=dict)
     values_at: float | None = None
     statustext: deque = field(default_factory=lambda: deque(maxlen=20))
+    warnings: deque = field(default_factory=lambda: deque(maxlen=20))
+    """Status lines of severity WARNING or worse, kept apart: summary churn never pushes them out."""
+    depth_track: deque = field(default_factory=lambda: deque(maxlen=7200))
+    """(surface time, depth m) from the companion's 1 Hz MRL_DEPTH: the page's depth-over-time plot."""
     pushed_ok: int = 0
     pushed_lost: int = 0
     ftp_ok: int = 0
@@ -126,6 +138,8 @@ class SurfaceTool:
         self._unverified: dict[int, bytes] = {}  # pushed thumbnails waiting for an index.json with their CRC
         self._index_due: float | None = None
         self._index_pulled_at = -1e9
+        self._requests: queue.Queue = queue.Queue()  # work handed to the receive loop by other threads (web)
+        self._offline_at = -1e9
 
     # --- connection ----------------------------------------------------------------------------------------
 
@@ -160,9 +174,18 @@ class SurfaceTool:
                 self.housekeeping()
         finally:
             self.close()
+            self.write_offline_page()
 
     def housekeeping(self) -> None:
         now = self._clock()
+        while True:
+            try:
+                self._requests.get_nowait()()
+            except queue.Empty:
+                break
+        if now - self._offline_at >= OFFLINE_EVERY_S:
+            self._offline_at = now
+            self.write_offline_page()
         if self._ftp is not None:
             self._ftp.tick()
         for stalled in self.images.expire(self.options.push_stall_s):
@@ -223,6 +246,8 @@ class SurfaceTool:
             with self.lock:
                 self.status.values[name] = float(msg.value)
                 self.status.values_at = now
+                if name == DEPTH_VALUE and math.isfinite(float(msg.value)):
+                    self.status.depth_track.append((round(now, 2), round(float(msg.value), 2)))
         elif kind == "FILE_TRANSFER_PROTOCOL" and self._ftp is not None:
             self._ftp.handle(msg)
 
@@ -498,7 +523,10 @@ class SurfaceTool:
         text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else msg.text
         text = text.rstrip("\0")
         with self.lock:
-            self.status.statustext.append({"time": now, "severity": int(msg.severity), "text": text})
+            line = {"time": now, "severity": int(msg.severity), "text": text}
+            self.status.statustext.append(line)
+            if line["severity"] <= SEVERITY_WARNING:
+                self.status.warnings.append(line)
         facts = parse_statustext(text)
         for index in facts.removed:
             if self.gallery.remove(index):
@@ -580,7 +608,47 @@ class SurfaceTool:
                 self._verify_by_request(index, data)
             # else: announced after this index was built; the next pull lists it
 
+    # --- full frames on demand -----------------------------------------------------------------------------
+
+    def full_frame(self, index: int, timeout: float = FULL_FRAME_TIMEOUT_S) -> Path | None:
+        """The full-resolution frame of a summary frame of the current dive, fetched by FTP
+        (``/summary/full/<n>.jpg``) the first time it is asked for and kept in DIR/full/; None when the companion
+        no longer has it or the link did not deliver it in time. Called from the web server's threads: the fetch
+        itself runs on the receive loop, which owns the FTP client."""
+        dive = self.gallery.dive
+        cached = self.gallery.full_path(index, dive)
+        if cached.is_file():
+            return cached
+        done = threading.Event()
+        result: list[Path | None] = [None]
+
+        def start() -> None:
+            cap = self.gallery.get(index)
+            if self._ftp is None or cap is None or not cap.in_summary or self.gallery.dive != dive:
+                done.set()
+                return
+
+            def fetched(_path: str, data: bytes | None, error: str) -> None:
+                if data and self.gallery.dive == dive:
+                    result[0] = self.gallery.add_full(index, data, dive)
+                else:
+                    log.info("full frame %d: %s", index, error or "not fetched")
+                done.set()
+
+            self._ftp.fetch(f"/summary/full/{index}.jpg", fetched)
+
+        self._requests.put(start)
+        done.wait(timeout)
+        return result[0]
+
     # --- for the web page ----------------------------------------------------------------------------------
+
+    def write_offline_page(self) -> None:
+        """DIR/index.html (+ app.js, state.js): the page as of now, opened from disk without a server."""
+        try:
+            write_offline_page(self.gallery.root, self.snapshot())
+        except OSError as err:
+            log.warning("%s: cannot write the offline page (%s)", self.gallery.root, err.strerror or err)
 
     def snapshot(self) -> dict:
         """A JSON-ready view of the link, the companion and the summary (newest first)."""
@@ -601,9 +669,11 @@ class SurfaceTool:
             companion = {
                 "id": list(s.companion) if s.companion else None,
                 "heartbeat_age_s": _age(now, s.companion_heartbeat),
-                "values": dict(s.values),
+                "values": {k: (v if math.isfinite(v) else None) for k, v in s.values.items()},  # strict JSON
                 "values_age_s": _age(now, s.values_at),
                 "statustext": list(s.statustext)[::-1],
+                "warnings": list(s.warnings)[::-1],
+                "depth_track": list(s.depth_track),
             }
         summary = [_capture_view(c) for c in self.gallery.summary()]
         return {"time": now, "link": link, "companion": companion, "dive": self.gallery.dive, "summary": summary,
@@ -617,6 +687,7 @@ def _age(now: float, then: float | None) -> float | None:
 def _capture_view(c: Capture) -> dict:
     return {
         "image_index": c.image_index, "dive": c.dive, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
-        "score": c.score, "lat": c.lat, "lon": c.lon, "thumbnail": c.thumbnail, "via": c.thumbnail_via,
+        "score": c.score, "lat": c.lat, "lon": c.lon, "alt_m": c.alt_m, "thumbnail": c.thumbnail,
+        "via": c.thumbnail_via,
         "bytes": c.thumbnail_bytes,
     }

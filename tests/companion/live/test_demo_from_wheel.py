@@ -72,5 +72,5 @@ def test_wheel_installs_the_service_and_runs_the_demo(tmp_path: Path) -> None:
     assert "merlion demo: done" in demo.stdout
     report = json.loads((out / "report.json").read_text())
     assert report["frames_seen"] > 0
-    # page = (out / "surface" / "index.html")
-    # assert page.is_file() and "MERLION" in page.read_text()  # the web assets came with the wheel
+    page = (out / "surface" / "index.html")
+    assert page.is_file() and "MERLION" in page.read_text()  # the web assets came with the wheel
