@@ -135,7 +135,8 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             assert r.headers["Content-Type"] == "image/jpeg" and r.read() == surface.tree.read("/summary/6.jpg")
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/log.csv", timeout=5) as r:
             assert r.read().startswith(b"event,wall_time,dive,image_index")
-        for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp"):
+        for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp",
+                    "full/7.jpg"):  # a full frame of a frame no longer in the summary: not fetched
             with pytest.raises(urllib.error.HTTPError):
                 urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
         proc.send_signal(signal.SIGTERM)
