@@ -19,6 +19,9 @@ def register(add_command) -> None:
                    "dive, the config's 0.5 on real video)")
     p.add_argument("--encoder", default="auto", choices=["auto", "clip", "imagenet", "visual"],
                    help="encoder (default auto: CLIP when its weights are here, else the packaged one)")
+    p.add_argument("--web", type=int, default=0, metavar="PORT",
+                   help="serve the surface page on this port of 127.0.0.1 (default 0: a free port; the URL is "
+                        "printed at the start)")
     p.set_defaults(func=run)
 
 
@@ -30,4 +33,4 @@ def run(args: argparse.Namespace) -> int:
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,
-                            encoder=args.encoder))
+                            encoder=args.encoder, web_port=args.web))

@@ -89,7 +89,7 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     tool.open()
     web = None
     if web_port is not None:
-        web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host)
+        web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame)
         web.start()
         # the line the demo and tests wait for (the port matters when 0 was asked)
         print(f"merlion surface: live page at http://127.0.0.1:{web.port}/", flush=True)

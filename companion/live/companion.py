@@ -148,6 +148,7 @@ class LiveCompanion:
             persist_params=params_file.save,
             loader=self.store.frame, image_count=image_count,
             queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
+            dive=self.store.dive,
         )
         self.surface.on_param_changed(self._on_param)
         self.surface.on_queries_changed(self._on_queries)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -27,11 +28,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
+
 from companion.commands.arg_checks import require_positive
 from companion.config import Config, build_config
 from companion.errors import MerlionError, UsageError
+from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
+from companion.storage.atomic_write import atomic_write
+from companion.storage.store import Store
+from companion.vision.contact_sheet import Tile, contact_sheet
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +60,8 @@ class DemoOptions:
     fps: float = 5.0
     realtime: bool = True
     quiet: bool = False
+    web_port: int = 0
+    """The surface tool's live page (0: a free port); its URL is printed at the start."""
 
 
 def check_source(opts: DemoOptions) -> None:
@@ -83,9 +92,12 @@ def _merlion(*args: str) -> list[str]:
 
 
 def _spawn(args: list[str], log_path: Path) -> subprocess.Popen:
+    """A child in its own session (a terminal's Ctrl-C reaches only the demo, which stops the children in order)
+    that still dies with the demo when the demo is killed outright (``die_with_parent``)."""
     # the child gets its own copy of the descriptor; the demo's copy is closed at once instead of leaking
     with open(log_path, "w", encoding="utf-8") as fh:
-        return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+        return subprocess.Popen(die_with_parent.command(args), stdout=fh, stderr=subprocess.STDOUT,
+                                start_new_session=True)
 
 
 def _end(proc: subprocess.Popen | None, timeout: float = 15.0) -> int | None:
@@ -99,6 +111,41 @@ def _end(proc: subprocess.Popen | None, timeout: float = 15.0) -> int | None:
             proc.kill()
             proc.wait(5)
     return proc.returncode
+
+
+def _page_url(proc: subprocess.Popen, log_path: Path, timeout: float = 30.0) -> str | None:
+    """The live page's URL, from the line the surface tool prints once it listens (None if it never does)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and proc.poll() is None:
+        try:
+            match = re.search(r"live page at (\S+)", log_path.read_text(encoding="utf-8", errors="replace"))
+        except OSError:
+            match = None
+        if match:
+            return match.group(1)
+        time.sleep(0.1)
+    return None
+
+
+def write_contact_sheet(store: Store, path: Path) -> Path | None:
+    """The summary as one image, each frame with its time, score and depth drawn on it (None: cannot write)."""
+    tiles = []
+    for index in store.summary:
+        frame = store.frame(index)
+        if frame is None:
+            continue
+        depth = frame.pose.depth_m if frame.pose is not None and not frame.pose.stale else None
+        tiles.append(Tile(frame.image, frame.time_s, frame.score, depth))
+    sheet = contact_sheet(tiles, title=f"MERLION summary, dive {store.dive}: {len(tiles)} frames")
+    ok, buf = cv2.imencode(".jpg", sheet, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    if not ok:
+        return None
+    try:
+        atomic_write(path, buf.tobytes())
+    except OSError as err:
+        log.warning("%s: cannot write the contact sheet (%s)", path, err.strerror or err)
+        return None
+    return path
 
 
 def _free_udp_port() -> int:
@@ -160,7 +207,13 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
     try:
         sim = _spawn(_merlion("sim-vehicle", "--connect", hub.url), logs / "sim-vehicle.log")
         surface = _spawn(_merlion("surface", "--connect", f"udpin:127.0.0.1:{surface_port}", "--out",
-                                  str(out / "surface"), "--companion", "1:100"), logs / "surface.log")
+                                  str(out / "surface"), "--companion", "1:100", "--web", str(opts.web_port),
+                                  "--web-host", "127.0.0.1"), logs / "surface.log")
+        page = _page_url(surface, logs / "surface.log")
+        if page:
+            _say(opts, f"merlion demo: surface page at {page} (live while the demo runs)")
+        else:
+            log.warning("the surface tool did not start its page; see %s", logs / "surface.log")
         companion = LiveCompanion(cfg, LiveOptions())
         companion.start()
         _say(opts, f"merlion demo: companion running on {cfg.source.uri} with {companion.encoder.name}; "
@@ -183,11 +236,13 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
         _end(sim)
         hub.stop()
     report = companion.report()
+    sheet = write_contact_sheet(companion.store, out / "contact_sheet.jpg") if companion.store is not None else None
     announced, held, thumbs = _gallery_counts(out / "surface")
     report.update({
         "duration_s": round(time.monotonic() - started, 1), "source": cfg.source.uri, "tau_ss": cfg.queries.tau_ss,
         "surface_captures": announced, "surface_summary": held, "thumbnails_delivered": thumbs,
-        "surface_exit": surface_rc, "out": str(out),
+        "surface_exit": surface_rc, "out": str(out), "web_url": page,
+        "offline_page": str(out / "surface" / "index.html"), "contact_sheet": str(sheet) if sheet else None,
     })
     (out / "report.json").write_text(json.dumps(report, indent=1, default=str))
     return report
@@ -212,15 +267,20 @@ def format_report(report: dict[str, Any], *, survey_hint: bool) -> str:
         f"  bytes sent         {report['bytes_sent']} on the MAVLink link",
         f"  on-board store     {report['out']}/store",
         f"  surface gallery    {report['out']}/surface (gallery.json, log.csv, thumbnails)",
+        f"  surface page       {report['offline_page']} (opens from disk)",
         f"  report             {report['out']}/report.json; process logs in {report['out']}/logs",
     ]
     if survey_hint:
         lines.append(f"  real video         merlion demo --source {SURVEY_HINT}")
+    if report.get("contact_sheet"):
+        lines.append(f"  contact sheet      {report['contact_sheet']}")
     return "\n".join(lines)
 
 
 def main(opts: DemoOptions) -> int:
     require_positive("--duration", opts.duration)
+    if not 0 <= opts.web_port <= 65535:
+        raise UsageError(f"--web {opts.web_port}: not a port (0-65535; 0 picks a free one)")
     if opts.out.exists() and not opts.out.is_dir():
         raise UsageError(f"--out {opts.out}: exists and is not a folder")
     stop = threading.Event()

@@ -15,13 +15,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from companion.errors import MerlionError, UsageError
+from companion.packaged import config_file, unit_template
 
 log = logging.getLogger(__name__)
 
-REPO = Path(__file__).resolve().parents[2]
 UNIT_NAME = "merlion-companion.service"
-UNIT_TEMPLATE = REPO / "systemd" / UNIT_NAME
-VEHICLE_CONFIG = REPO / "config" / "bluerov2-orin.yaml"
+UNIT_TEMPLATE = unit_template(UNIT_NAME)
+VEHICLE_CONFIG = config_file("bluerov2-orin.yaml")
+"""Both are package data (companion/packaged/), so an installed wheel has them; no checkout is needed."""
 USER_NAME = re.compile(r"[a-z_][a-z0-9_-]{0,31}")
 """What useradd accepts by default; anything else would also break the User= line of the unit."""
 
@@ -39,6 +40,11 @@ class InstallPlan:
 
 
 def merlion_command() -> str:
+    """This installation's own ``merlion`` (beside its Python: a venv need not be on PATH), else the one on PATH,
+    else this Python with -m companion."""
+    own = Path(sys.executable).parent / "merlion"
+    if own.is_file():
+        return str(own)
     found = shutil.which("merlion")
     return found if found else f"{sys.executable} -m companion"
 
@@ -63,10 +69,14 @@ def install(plan: InstallPlan) -> list[str]:
         unit_dir.mkdir(parents=True, exist_ok=True)
         conf_dir.mkdir(parents=True, exist_ok=True)
         if plan.config is not None or not conf_path.exists():
-            source = plan.config or VEHICLE_CONFIG
-            if not source.is_file():
-                raise MerlionError(f"{source}: no such config file")
-            shutil.copyfile(source, conf_path)
+            if plan.config is not None:
+                if not plan.config.is_file():
+                    raise MerlionError(f"{plan.config}: no such config file")
+                shutil.copyfile(plan.config, conf_path)
+                source = str(plan.config)
+            else:
+                conf_path.write_bytes(VEHICLE_CONFIG.read_bytes())
+                source = f"packaged {VEHICLE_CONFIG.name}"
             plan.done.append(f"config {source} -> {conf_path}")
         else:
             plan.done.append(f"config {conf_path} kept")

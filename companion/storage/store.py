@@ -6,7 +6,7 @@ Layout of the store directory::
     frames/000042.raw.jpg    the frame before enhancement (when enhanced and store.keep_raw)
     frames/000042.npy        the sampler feature, so a restart resumes with the same summary
     frames/000042.json       the sidecar: tags, pose, score, times; written last, so it marks a complete frame
-    summary.json             the current summary (image indices) and the next image index
+    summary.json             the current summary (image indices), the next image index and the dive id
     changes.jsonl            append-only log of every change (one JSON object a line)
 
 Every file is written atomically (temp file, fsync, rename, fsync of the directory), so a crash leaves either the
@@ -21,6 +21,7 @@ import io
 import json
 import logging
 import os
+import secrets
 import threading
 import time
 from dataclasses import dataclass, field
@@ -132,6 +133,9 @@ class Store:
         self._held: dict[int, _Held] = {}
         self._summary: list[int] = []
         self._next_index = 0
+        self.dive = ""
+        """This store's dive id: made when the store is created (or its summary file is gone), kept across
+        restarts, so the surface can tell a new dive's image 0 from the last dive's."""
         self._open()
 
     # ---- start-up -------------------------------------------------------------------------------------------
@@ -168,11 +172,13 @@ class Store:
         summary_path = self.dir / SUMMARY_FILE
         indices: list[int] = []
         next_index = 0
+        dive = ""
         if summary_path.exists():
             try:
                 data = json.loads(summary_path.read_text(encoding="utf-8"))
                 indices = [int(i) for i in data.get("summary", [])]
                 next_index = int(data.get("next_image_index", 0))
+                dive = str(data.get("dive") or "")
             except (OSError, ValueError, TypeError, AttributeError) as err:  # AttributeError: JSON but not an object
                 log.warning("store %s: %s unreadable (%s); rebuilding from the change log", self.dir, SUMMARY_FILE, err)
                 indices = self._summary_from_changes()
@@ -185,6 +191,9 @@ class Store:
                 continue
             self._held[index] = held
             self._summary.append(index)
+        self.dive = dive or secrets.token_hex(4)
+        if not dive:
+            self._write_summary()  # the new dive id is fixed now, not at the first frame
         self.stats.bytes_on_disk = self._disk_usage()
 
     def _summary_from_changes(self) -> list[int]:
@@ -286,6 +295,7 @@ class Store:
         with self._lock:
             return {
                 "version": FORMAT_VERSION,
+                "dive": self.dive,
                 "summary": list(self._summary),
                 "next_image_index": self._next_index,
                 "updated": time.time(),
@@ -408,6 +418,7 @@ class Store:
         with self._lock:
             return {
                 "dir": str(self.dir),
+                "dive": self.dive,
                 "memory_only": self.memory_only,
                 "reason": self.memory_only_reason,
                 "summary": list(self._summary),

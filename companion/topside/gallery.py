@@ -4,7 +4,13 @@ Layout of DIR:
 - ``summary/<n>.<ext>``: the thumbnails of the frames now in the companion's summary (exactly those);
 - ``removed/<n>.<ext>``: thumbnails of frames trimmed out since (kept: nothing received is thrown away);
 - ``gallery.json``: every capture ever seen with its tags and whether it is in the summary (rewritten atomically);
-- ``log.csv``: one appended row per event (added, thumbnail, tags, removed), for spreadsheets and audits.
+- ``log.csv``: one appended row per event (added, thumbnail, tags, removed, dive), for spreadsheets and audits;
+- ``dives/<dive>/summary|removed/<n>.<ext>``: the thumbnails of earlier dives.
+
+Image indices restart when the vehicle's store is reset (a new dive), so a capture is known by its dive id (from
+its ``file_url``, ``mftp://summary/<dive>/<n>.jpg``, or index.json) plus its index. The gallery holds one
+current dive; a capture of a dive never seen before files the current one away under ``dives/`` first, and a
+late message of an earlier dive is ignored, so old thumbnails never show under new captures.
 
 A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing.
 """
@@ -23,7 +29,7 @@ from companion.errors import MerlionError
 from companion.storage.atomic_write import atomic_write
 
 LOG_COLUMNS = [
-    "event", "wall_time", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
+    "event", "wall_time", "dive", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
     "lat", "lon", "alt_m", "thumbnail", "thumbnail_via", "file_url",
 ]
 
@@ -33,6 +39,8 @@ class Capture:
     """One summary frame as the surface knows it; fields the companion has not told us yet are None."""
 
     image_index: int
+    dive: str | None = None
+    """The vehicle store's dive id; None from a companion that sends none."""
     time_utc: float | None = None
     """Seconds since epoch at capture (companion clock)."""
     depth_m: float | None = None
@@ -75,6 +83,10 @@ class Gallery:
             raise MerlionError(f"{self.root}: cannot create the gallery folder ({err.strerror})") from None
         self._lock = threading.Lock()
         self._captures: dict[int, Capture] = {}
+        self._archived: list[Capture] = []
+        self.dive: str | None = None
+        """The dive now shown (None until a companion names one)."""
+        self._dives: list[str] = []
         self._json = self.root / "gallery.json"
         self._csv = self.root / "log.csv"
         self._load()
@@ -87,6 +99,9 @@ class Gallery:
             for item in data.get("captures", []):
                 cap = Capture.from_dict(item)
                 self._captures[cap.image_index] = cap
+            self._archived = [Capture.from_dict(item) for item in data.get("archived", [])]
+            self.dive = data.get("dive")
+            self._dives = [str(d) for d in data.get("dives", [])]
         except (OSError, ValueError, TypeError, AttributeError) as err:
             raise MerlionError(f"{self._json}: not a gallery file this tool can read ({err})") from None
 
@@ -106,16 +121,62 @@ class Gallery:
         """The frames now in the companion's summary, newest first."""
         return [c for c in self.captures() if c.in_summary]
 
+    def archived(self) -> list[Capture]:
+        """Captures of earlier dives, oldest dive first."""
+        with self._lock:
+            return [Capture(**asdict(c)) for c in self._archived]
+
+    def dives(self) -> list[str]:
+        with self._lock:
+            return list(self._dives)
+
     def missing_thumbnails(self) -> list[int]:
         with self._lock:
             return sorted(i for i, c in self._captures.items() if c.in_summary and c.thumbnail is None)
 
+    def full_path(self, image_index: int, dive: str | None) -> Path:
+        """Where a full-resolution frame fetched on demand is kept: ``full/<dive>/<n>.jpg``."""
+        return self.root / "full" / (dive or "unknown") / f"{image_index}.jpg"
+
     # --- writing -------------------------------------------------------------------------------------------
+
+    def add_full(self, image_index: int, data: bytes, dive: str | None) -> Path:
+        path = self.full_path(image_index, dive)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, data)
+        return path
+
+    def use_dive(self, dive: str | None) -> str:
+        """What a message of ``dive`` means here: ``"current"`` (file it), ``"new"`` (the vehicle's store was reset:
+        the gallery now shows that dive, the old one is filed under ``dives/``) or ``"old"`` (a late message of an
+        earlier dive: ignore it). A companion that names no dive is always current."""
+        if not dive:
+            return "current"
+        with self._lock:
+            if dive == self.dive:
+                return "current"
+            if dive in self._dives:
+                return "old"
+            if self._captures:
+                folder = f"dives/{self.dive or 'unknown'}"
+                for cap in self._captures.values():
+                    cap.dive = cap.dive or self.dive
+                    self._move_thumbnail(cap, f"{folder}/{'summary' if cap.in_summary else 'removed'}")
+                    cap.in_summary = False
+                    self._archived.append(cap)
+                self._captures = {}
+            if self.dive and self.dive not in self._dives:
+                self._dives.append(self.dive)
+            self.dive = dive
+            self._dives.append(dive)
+            self._persist("dive", Capture(image_index=-1, dive=dive))
+            return "new"
 
     def announce(self, cap: Capture) -> bool:
         """A capture was announced (or re-announced); True if it is new to us. Known tags are kept."""
         with self._lock:
             old = self._captures.get(cap.image_index)
+            cap.dive = cap.dive or self.dive
             if old is None:
                 cap.announced_at = cap.announced_at or time.time()
                 self._captures[cap.image_index] = cap
@@ -154,7 +215,7 @@ class Gallery:
         with self._lock:
             cap = self._captures.get(image_index)
             if cap is None:
-                cap = Capture(image_index=image_index, announced_at=time.time())
+                cap = Capture(image_index=image_index, dive=self.dive, announced_at=time.time())
                 self._captures[image_index] = cap
             folder = "summary" if cap.in_summary else "removed"
             rel = f"{folder}/{image_index}.{ext}"
@@ -176,7 +237,8 @@ class Gallery:
             cap = self._captures.get(image_index)
             if cap is None:
                 now = time.time()
-                cap = Capture(image_index=image_index, in_summary=False, announced_at=now, removed_at=now)
+                cap = Capture(image_index=image_index, dive=self.dive, in_summary=False, announced_at=now,
+                              removed_at=now)
                 self._captures[image_index] = cap
                 self._persist("removed", cap)
                 return False
@@ -223,6 +285,7 @@ class Gallery:
             src = self.root / cap.thumbnail
             rel = f"{folder}/{Path(cap.thumbnail).name}"
             if src.exists():
+                (self.root / rel).parent.mkdir(parents=True, exist_ok=True)
                 os.replace(src, self.root / rel)
             cap.thumbnail = rel
 
@@ -230,8 +293,11 @@ class Gallery:
         """Caller holds the lock. JSON first (the state), then the CSV row (the history)."""
         doc = {
             "updated": time.time(),
+            "dive": self.dive,
+            "dives": self._dives,
             "summary": sorted(i for i, c in self._captures.items() if c.in_summary),
             "captures": [asdict(c) for _, c in sorted(self._captures.items())],
+            "archived": [asdict(c) for c in self._archived],
         }
         atomic_write(self._json, json.dumps(doc, indent=1))
         new = not self._csv.exists()

@@ -39,6 +39,15 @@ def mftp_path(url: str) -> str | None:
     return "/" + rest if rest else None
 
 
+_DIVE = re.compile(r"/summary/([^/]+)/\d+\.\w+$")
+
+
+def dive_of(url: str | None) -> str | None:
+    """The dive id in a thumbnail URL (``mftp://summary/<dive>/<n>.jpg``); None when it names none."""
+    match = _DIVE.search(url or "")
+    return match.group(1) if match and match.group(1) not in ("full", "raw") else None
+
+
 def capture_from_message(msg) -> Capture:
     """CAMERA_IMAGE_CAPTURED -> Capture. Depth comes from relative_alt (mm, negative underwater)."""
     q = [float(v) for v in msg.q]
@@ -50,6 +59,7 @@ def capture_from_message(msg) -> Capture:
     lon = msg.lon / 1e7 if msg.lon else None
     return Capture(
         image_index=int(msg.image_index),
+        dive=dive_of(url),
         time_utc=msg.time_utc / 1e6 if msg.time_utc else None,
         depth_m=round(-msg.relative_alt / 1000.0, 3),
         heading_deg=heading_from_q(q),
@@ -127,10 +137,18 @@ def _epoch_s(value) -> float | None:
     return t
 
 
+def index_dive(data: bytes) -> str | None:
+    """The dive id an index.json names (top-level ``dive``), else None."""
+    doc = json.loads(data.decode("utf-8"))
+    dive = doc.get("dive") if isinstance(doc, dict) else None
+    return str(dive) if dive else None
+
+
 def parse_index(data: bytes) -> list[Capture]:
     """/summary/index.json -> the captures now in the summary (with score, heading, depth, time where given)."""
     doc = json.loads(data.decode("utf-8"))
     items = doc
+    dive = doc.get("dive") if isinstance(doc, dict) else None
     if isinstance(doc, dict):
         items = _first(doc, "frames", "summary", "captures", "images", "items") or []
     if isinstance(items, dict):
@@ -158,6 +176,7 @@ def parse_index(data: bytes) -> list[Capture]:
         size = _first(tags, "thumbnail_bytes", "thumb_bytes", "bytes")
         cap = Capture(
             image_index=int(index),
+            dive=str(dive) if dive else dive_of(url if isinstance(url, str) else None),
             time_utc=_epoch_s(_first(tags, "time_utc", "capture_time", "time", "timestamp")),
             depth_m=depth, heading_deg=heading,
             q=[float(v) for v in q] if isinstance(q, list) and len(q) == 4 else None,

@@ -17,11 +17,13 @@ whose packets never all arrive is fetched by FTP instead.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
@@ -29,7 +31,14 @@ from companion.config import MavlinkConfig
 from companion.topside.ftp_client import FtpClient, crc32_mavftp
 from companion.topside.gallery import Capture, Gallery
 from companion.topside.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
-from companion.topside.messages import capture_from_message, mftp_path, parse_index, parse_statustext
+from companion.topside.messages import (
+    capture_from_message,
+    index_dive,
+    mftp_path,
+    parse_index,
+    parse_statustext,
+)
+from companion.topside.offline_page import write_offline_page
 from vehicle.link.connection import MavLink, is_autopilot_heartbeat
 
 log = logging.getLogger("merlion.surface")
@@ -38,6 +47,11 @@ MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
 MAV_TYPE_GCS = mav.MAV_TYPE_GCS
 INDEX_PATH = "/summary/index.json"
 PUSH_MARKER = "MRL_PUSH"
+DEPTH_VALUE = "MRL_DEPTH"
+SEVERITY_WARNING = 4
+FULL_FRAME_TIMEOUT_S = 120.0
+"""A full frame (tens of kB) at a 2,000 B/s budget, sent after everything else: give it time."""
+OFFLINE_EVERY_S = 2.0
 
 
 @dataclass
@@ -72,6 +86,10 @@ class LinkStatus:
     values: dict[str, float] = field(default_factory=dict)
     values_at: float | None = None
     statustext: deque = field(default_factory=lambda: deque(maxlen=20))
+    warnings: deque = field(default_factory=lambda: deque(maxlen=20))
+    """Status lines of severity WARNING or worse, kept apart: summary churn never pushes them out."""
+    depth_track: deque = field(default_factory=lambda: deque(maxlen=7200))
+    """(surface time, depth m) from the companion's 1 Hz MRL_DEPTH: the page's depth-over-time plot."""
     pushed_ok: int = 0
     pushed_lost: int = 0
     ftp_ok: int = 0
@@ -114,12 +132,14 @@ class SurfaceTool:
         self._bound: dict[int, int] = {}  # handshake number -> image index
         self._orphans: dict[int, PushedImage] = {}  # finished pushes not yet paired
         self._lost_push: dict[int, Abandoned] = {}  # pushes abandoned before pairing, by handshake number
-        self._fetching: set[int] = set()
+        self._fetching: set[tuple[str | None, int]] = set()  # (dive, image index) being pulled by FTP
         self._marker: int | None = None  # image index named by the last MRL_PUSH, until its handshake comes
         self._crc: dict[int, int] = {}  # thumbnail CRC32 by image index, from index.json (JPEG only)
         self._unverified: dict[int, bytes] = {}  # pushed thumbnails waiting for an index.json with their CRC
         self._index_due: float | None = None
         self._index_pulled_at = -1e9
+        self._requests: queue.Queue = queue.Queue()  # work handed to the receive loop by other threads (web)
+        self._offline_at = -1e9
 
     # --- connection ----------------------------------------------------------------------------------------
 
@@ -154,9 +174,18 @@ class SurfaceTool:
                 self.housekeeping()
         finally:
             self.close()
+            self.write_offline_page()
 
     def housekeeping(self) -> None:
         now = self._clock()
+        while True:
+            try:
+                self._requests.get_nowait()()
+            except queue.Empty:
+                break
+        if now - self._offline_at >= OFFLINE_EVERY_S:
+            self._offline_at = now
+            self.write_offline_page()
         if self._ftp is not None:
             self._ftp.tick()
         for stalled in self.images.expire(self.options.push_stall_s):
@@ -217,6 +246,8 @@ class SurfaceTool:
             with self.lock:
                 self.status.values[name] = float(msg.value)
                 self.status.values_at = now
+                if name == DEPTH_VALUE and math.isfinite(float(msg.value)):
+                    self.status.depth_track.append((round(now, 2), round(float(msg.value), 2)))
         elif kind == "FILE_TRANSFER_PROTOCOL" and self._ftp is not None:
             self._ftp.handle(msg)
 
@@ -256,8 +287,23 @@ class SurfaceTool:
 
     # --- captures and pushes -------------------------------------------------------------------------------
 
+    def _dive_ok(self, dive: str | None) -> bool:
+        """False for a late message of an earlier dive; a new dive (the vehicle's store was reset, image indices
+        start again) files the old one away and forgets every pairing made under the old indices."""
+        verdict = self.gallery.use_dive(dive)
+        if verdict == "new":
+            log.info("dive %s: the vehicle's store was reset; earlier captures filed under dives/", dive)
+            for pending in (self._waiting, self._early, self._expected, self._bound, self._orphans,
+                            self._lost_push, self._crc, self._unverified):
+                pending.clear()
+            self._last_announced = None
+            self._want_index()
+        return verdict != "old"
+
     def _on_capture(self, msg) -> None:
         cap = capture_from_message(msg)
+        if not self._dive_ok(cap.dive):
+            return
         known = self.gallery.get(cap.image_index)
         if known is not None and not known.in_summary:
             return  # a re-sent announcement of a frame already trimmed out
@@ -437,17 +483,18 @@ class SurfaceTool:
     def _fetch_thumbnail(self, index: int, *, replace: bool = False, partial: Abandoned | None = None) -> None:
         """Pull the thumbnail by FTP; with the ``partial`` push it came from, only the packets the push lost."""
         cap = self.gallery.get(index)
-        if cap is None or not cap.in_summary or index in self._fetching:
+        dive = self.gallery.dive
+        if cap is None or not cap.in_summary or (dive, index) in self._fetching:
             return
         if cap.thumbnail is not None and not replace:
             return
         if self._ftp is None:
             return
         path = mftp_path(cap.file_url or "") or f"/summary/{index}.jpg"
-        self._fetching.add(index)
+        self._fetching.add((dive, index))
 
         def done(_path: str, data: bytes | None, error: str) -> None:
-            self._fetching.discard(index)
+            self._fetching.discard((dive, index))
             with self.lock:
                 if data is None:
                     self.status.ftp_failed += 1
@@ -456,6 +503,8 @@ class SurfaceTool:
             if data is None:
                 log.warning("FTP %s: %s", path, error)
                 return
+            if self.gallery.dive != dive:
+                return  # the vehicle's store was reset meanwhile: this index now names another frame
             now_cap = self.gallery.get(index)
             if now_cap is not None and (replace or now_cap.thumbnail is None):
                 ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
@@ -474,7 +523,10 @@ class SurfaceTool:
         text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else msg.text
         text = text.rstrip("\0")
         with self.lock:
-            self.status.statustext.append({"time": now, "severity": int(msg.severity), "text": text})
+            line = {"time": now, "severity": int(msg.severity), "text": text}
+            self.status.statustext.append(line)
+            if line["severity"] <= SEVERITY_WARNING:
+                self.status.warnings.append(line)
         facts = parse_statustext(text)
         for index in facts.removed:
             if self.gallery.remove(index):
@@ -500,9 +552,12 @@ class SurfaceTool:
             return
         try:
             captures = parse_index(data)
+            dive = index_dive(data)
         except (ValueError, UnicodeDecodeError) as err:
             log.warning("%s: not JSON this tool understands (%s)", INDEX_PATH, err)
             return
+        if not self._dive_ok(dive):
+            return  # asked for before the store was reset: it lists the earlier dive
         with self.lock:
             self.status.index_pulls += 1
             self.status.ftp_ok += 1
@@ -553,7 +608,47 @@ class SurfaceTool:
                 self._verify_by_request(index, data)
             # else: announced after this index was built; the next pull lists it
 
+    # --- full frames on demand -----------------------------------------------------------------------------
+
+    def full_frame(self, index: int, timeout: float = FULL_FRAME_TIMEOUT_S) -> Path | None:
+        """The full-resolution frame of a summary frame of the current dive, fetched by FTP
+        (``/summary/full/<n>.jpg``) the first time it is asked for and kept in DIR/full/; None when the companion
+        no longer has it or the link did not deliver it in time. Called from the web server's threads: the fetch
+        itself runs on the receive loop, which owns the FTP client."""
+        dive = self.gallery.dive
+        cached = self.gallery.full_path(index, dive)
+        if cached.is_file():
+            return cached
+        done = threading.Event()
+        result: list[Path | None] = [None]
+
+        def start() -> None:
+            cap = self.gallery.get(index)
+            if self._ftp is None or cap is None or not cap.in_summary or self.gallery.dive != dive:
+                done.set()
+                return
+
+            def fetched(_path: str, data: bytes | None, error: str) -> None:
+                if data and self.gallery.dive == dive:
+                    result[0] = self.gallery.add_full(index, data, dive)
+                else:
+                    log.info("full frame %d: %s", index, error or "not fetched")
+                done.set()
+
+            self._ftp.fetch(f"/summary/full/{index}.jpg", fetched)
+
+        self._requests.put(start)
+        done.wait(timeout)
+        return result[0]
+
     # --- for the web page ----------------------------------------------------------------------------------
+
+    def write_offline_page(self) -> None:
+        """DIR/index.html (+ app.js, state.js): the page as of now, opened from disk without a server."""
+        try:
+            write_offline_page(self.gallery.root, self.snapshot())
+        except OSError as err:
+            log.warning("%s: cannot write the offline page (%s)", self.gallery.root, err.strerror or err)
 
     def snapshot(self) -> dict:
         """A JSON-ready view of the link, the companion and the summary (newest first)."""
@@ -574,12 +669,14 @@ class SurfaceTool:
             companion = {
                 "id": list(s.companion) if s.companion else None,
                 "heartbeat_age_s": _age(now, s.companion_heartbeat),
-                "values": dict(s.values),
+                "values": {k: (v if math.isfinite(v) else None) for k, v in s.values.items()},  # strict JSON
                 "values_age_s": _age(now, s.values_at),
                 "statustext": list(s.statustext)[::-1],
+                "warnings": list(s.warnings)[::-1],
+                "depth_track": list(s.depth_track),
             }
         summary = [_capture_view(c) for c in self.gallery.summary()]
-        return {"time": now, "link": link, "companion": companion, "summary": summary,
+        return {"time": now, "link": link, "companion": companion, "dive": self.gallery.dive, "summary": summary,
                 "thumbnails_waiting": self.gallery.missing_thumbnails()}
 
 
@@ -589,7 +686,8 @@ def _age(now: float, then: float | None) -> float | None:
 
 def _capture_view(c: Capture) -> dict:
     return {
-        "image_index": c.image_index, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
-        "score": c.score, "lat": c.lat, "lon": c.lon, "thumbnail": c.thumbnail, "via": c.thumbnail_via,
+        "image_index": c.image_index, "dive": c.dive, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
+        "score": c.score, "lat": c.lat, "lon": c.lon, "alt_m": c.alt_m, "thumbnail": c.thumbnail,
+        "via": c.thumbnail_via,
         "bytes": c.thumbnail_bytes,
     }

@@ -1,10 +1,14 @@
-"""The live page: a stdlib HTTP server in a thread, serving the static page, the gallery's thumbnails and
-``/api/state`` (the JSON the page polls once a second). Nothing to install topside beyond this package."""
+"""The live page: a stdlib HTTP server in a thread, serving the static page, the gallery's thumbnails,
+``/api/state`` (the JSON the page polls once a second; ``/state.js`` is the same as a script, what the page
+loads first and what the offline copy in DIR holds) and ``/full/<n>.jpg`` (a summary frame at full resolution,
+fetched from the vehicle over MAVLink FTP the first time it is asked for). Nothing to install topside beyond
+this package."""
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
@@ -24,7 +28,13 @@ LOGS = {"gallery.json": "application/json", "log.csv": "text/csv; charset=utf-8"
 """The gallery's tag logs, downloadable from the page."""
 
 
-def _make_handler(state: Callable[[], dict], gallery_dir: Path) -> type[BaseHTTPRequestHandler]:
+FullFrame = Callable[[int], "Path | None"]
+"""Image index -> the full frame's file once fetched, or None (trimmed meanwhile, or the link too slow)."""
+_FULL = re.compile(r"/full/(\d+)\.jpg")
+
+
+def _make_handler(state: Callable[[], dict], gallery_dir: Path,
+                  full_frame: FullFrame | None = None) -> type[BaseHTTPRequestHandler]:
     root = gallery_dir.resolve()
 
     class Handler(BaseHTTPRequestHandler):
@@ -49,6 +59,15 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path) -> type[BaseHTTP
                 self._send(body, ctype)
             elif path == "/api/state":
                 self._send(json.dumps(state()).encode(), "application/json")
+            elif path == "/state.js":
+                self._send(b"window.MERLION_STATE = " + json.dumps(state()).encode() + b";\n",
+                           "text/javascript; charset=utf-8")
+            elif (match := _FULL.fullmatch(path)) and full_frame is not None:
+                found = full_frame(int(match.group(1)))  # blocks this request's thread while FTP fetches it
+                if found is None:
+                    self._send(b"full frame not available", "text/plain", HTTPStatus.NOT_FOUND)
+                else:
+                    self._send(found.read_bytes(), "image/jpeg")
             elif path.startswith("/files/"):
                 name = path[len("/files/"):]
                 target = (root / name).resolve()
@@ -67,9 +86,10 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path) -> type[BaseHTTP
 class WebServer:
     """Serves the live page on ``host:port`` until ``close``; port 0 picks a free one (see ``port``)."""
 
-    def __init__(self, state: Callable[[], dict], gallery_dir: str | Path, port: int, host: str = "0.0.0.0") -> None:
+    def __init__(self, state: Callable[[], dict], gallery_dir: str | Path, port: int, host: str = "0.0.0.0",
+                 *, full_frame: FullFrame | None = None) -> None:
         try:
-            self._server = ThreadingHTTPServer((host, port), _make_handler(state, Path(gallery_dir)))
+            self._server = ThreadingHTTPServer((host, port), _make_handler(state, Path(gallery_dir), full_frame))
         except OSError as err:
             raise MerlionError(f"--web {port}: cannot listen on {host}:{port} ({err.strerror})") from None
         self._server.daemon_threads = True

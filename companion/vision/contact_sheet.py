@@ -19,6 +19,8 @@ class Tile:
     """BGR uint8, any size."""
     time_s: float
     score: float
+    depth_m: float | None = None
+    """Drawn when known (the live companion's frames carry a pose)."""
 
 
 def format_time(seconds: float) -> str:
@@ -57,5 +59,7 @@ def contact_sheet(tiles: Sequence[Tile], *, tile_width: int = 320, columns: int 
         interp = cv2.INTER_AREA if tile.image.shape[1] > tile_width else cv2.INTER_LINEAR
         sheet[y:y + h, x:x + tile_width] = cv2.resize(tile.image, (tile_width, h), interpolation=interp)
         label = f"t {format_time(tile.time_s)}   score {tile.score:.2f}"
+        if tile.depth_m is not None and math.isfinite(tile.depth_m):
+            label += f"   {tile.depth_m:.1f} m"
         cv2.putText(sheet, label, (x + 4, y + h + 17), font, scale, TEXT, thick, cv2.LINE_AA)
     return sheet

@@ -24,13 +24,15 @@ UNKNOWN_Q = (float("nan"), 0.0, 0.0, 0.0)
 """MAVLink's way to say "attitude unknown": NaN in the first quaternion element."""
 
 
-def thumbnail_path(image_index: int, ext: str = "jpg") -> str:
-    return f"/summary/{image_index}.{ext}"
+def thumbnail_path(image_index: int, ext: str = "jpg", dive: str = "") -> str:
+    """``/summary/<n>.<ext>``, or ``/summary/<dive>/<n>.<ext>``: the dive makes the name unique across store
+    resets (a new dive's image 0 is not the last dive's)."""
+    return f"/summary/{dive}/{image_index}.{ext}" if dive else f"/summary/{image_index}.{ext}"
 
 
-def file_url(image_index: int, ext: str = "jpg") -> str:
+def file_url(image_index: int, ext: str = "jpg", dive: str = "") -> str:
     """The ``mftp://`` URL a client fetches the thumbnail from (the FTP server serves the same path)."""
-    return f"mftp:/{thumbnail_path(image_index, ext)}"
+    return f"mftp:/{thumbnail_path(image_index, ext, dive)}"
 
 
 def quaternion(pose: Pose | None) -> tuple[float, float, float, float]:
@@ -52,8 +54,8 @@ def _finite(value: float | None) -> bool:
     return value is not None and math.isfinite(value)
 
 
-def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg",
-                     camera_id: int = 1) -> mav.MAVLink_camera_image_captured_message:
+def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg", camera_id: int = 1,
+                     dive: str = "") -> mav.MAVLink_camera_image_captured_message:
     """CAMERA_IMAGE_CAPTURED for a summary frame; fields the pose lacks are 0 (position) or NaN (attitude)."""
     pose = None if frame.pose is None or frame.pose.stale else frame.pose
     lat = int(round(pose.lat * 1e7)) if pose is not None and _finite(pose.lat) else 0
@@ -62,7 +64,7 @@ def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg"
     rel = int(round(-pose.depth_m * 1000)) if pose is not None and _finite(pose.depth_m) else 0
     return mav.MAVLink_camera_image_captured_message(
         time_boot_ms & 0xFFFFFFFF, int(frame.capture_time * 1e6), camera_id, lat, lon, alt, rel,
-        list(quaternion(pose)), frame.image_index, CAPTURE_OK, file_url(frame.image_index, ext).encode())
+        list(quaternion(pose)), frame.image_index, CAPTURE_OK, file_url(frame.image_index, ext, dive).encode())
 
 
 def trimmed_text(frame: CaptureFrame, held: int) -> str:
@@ -85,8 +87,9 @@ class CaptureLog:
 
     def __init__(self, *, clock: Callable[[], float] = time.monotonic, initial_count: int = 0,
                  loader: Callable[[int], CaptureFrame | None] | None = None, keep: int = 2000,
-                 ext: str = "jpg") -> None:
+                 ext: str = "jpg", dive: str = "") -> None:
         self._clock = clock
+        self.dive = dive
         self._t0 = clock()
         self._lock = threading.Lock()
         self._messages: OrderedDict[int, mav.MAVLink_camera_image_captured_message] = OrderedDict()
@@ -102,7 +105,7 @@ class CaptureLog:
 
     def record(self, frame: CaptureFrame, *, count: bool = True) -> mav.MAVLink_camera_image_captured_message:
         """Keep the capture message of a summary frame for re-requests; ``count`` it unless an earlier run did."""
-        msg = captured_message(frame, self.time_boot_ms(), ext=self.ext)
+        msg = captured_message(frame, self.time_boot_ms(), ext=self.ext, dive=self.dive)
         with self._lock:
             self._messages[frame.image_index] = msg
             self._messages.move_to_end(frame.image_index)
@@ -125,4 +128,4 @@ class CaptureLog:
         if msg is not None or self._loader is None:
             return msg
         frame = self._loader(image_index)
-        return None if frame is None else captured_message(frame, self.time_boot_ms(), ext=self.ext)
+        return None if frame is None else captured_message(frame, self.time_boot_ms(), ext=self.ext, dive=self.dive)

@@ -102,7 +102,7 @@ class Downlink:
                  saved_params: dict[str, float] | None = None,
                  persist_params: Callable[[dict[str, float]], None] | None = None, loader: Callable[[int], CaptureFrame | None] | None = None,
                  image_count: int = 0, queries: tuple[str, list[str]] | None = None,
-                 identity: CameraIdentity | None = None, version: str = "",
+                 identity: CameraIdentity | None = None, version: str = "", dive: str = "",
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.link = link
         self.cfg = cfg
@@ -111,7 +111,10 @@ class Downlink:
         self.thumbnail_bytes = cfg.thumbnail_bytes
         self.ext = "webp" if cfg.thumbnail_format == "webp" else "jpg"
         self.budget = LinkBudget(link, cfg.budget_bytes_per_s, clock=clock)
-        self.captures = CaptureLog(clock=clock, initial_count=image_count, loader=loader, ext=self.ext)
+        self.dive = dive
+        """The store's dive id (``Store.dive``): in every file_url and in index.json, so the surface never files a
+        new dive's frames under an old dive's image indices."""
+        self.captures = CaptureLog(clock=clock, initial_count=image_count, loader=loader, ext=self.ext, dive=dive)
         self._earlier_runs = image_count
         self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
                                       component_id=link.component_id, identity=identity)
@@ -204,6 +207,8 @@ class Downlink:
             for old in gone:
                 self._forget(old)
             self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
+            if self.dive:
+                self.tree.put(thumbnail_path(idx, self.ext, self.dive), thumb.data)
             self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
             if frame.raw_image is not None:
                 self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True))
@@ -244,6 +249,7 @@ class Downlink:
 
     def _forget(self, idx: int) -> None:
         self.tree.remove(thumbnail_path(idx, self.ext))
+        self.tree.remove(thumbnail_path(idx, self.ext, self.dive))
         self.tree.remove(f"/summary/full/{idx}.jpg")
         self.tree.remove(f"/summary/raw/{idx}.jpg")
         self.budget.drop(("thumb", idx))
@@ -271,13 +277,13 @@ class Downlink:
         for h in held:
             tags = _frame_tags(h.frame)
             idx = h.frame.image_index
-            tags.update(thumbnail=thumbnail_path(idx, self.ext), full=f"/summary/full/{idx}.jpg",
+            tags.update(thumbnail=thumbnail_path(idx, self.ext, self.dive), full=f"/summary/full/{idx}.jpg",
                         thumbnail_bytes=len(h.thumb.data), thumbnail_crc32=crc32_ardupilot(h.thumb.data),
                         width=h.thumb.width, height=h.thumb.height)
             if h.frame.raw_image is not None:
                 tags["raw"] = f"/summary/raw/{idx}.jpg"
             items.append(tags)
-        body = {"image_count": self.captures.image_count, "summary": items}
+        body = {"image_count": self.captures.image_count, "dive": self.dive, "summary": items}
         return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
 
     def event(self, text: str, severity: int = st.INFO) -> None:

@@ -1,14 +1,54 @@
-// Polls /api/state once a second and redraws the summary (newest first) and the status bar.
+// The surface page. Served by `merlion surface --web`, it polls api/state once a second; opened from disk
+// (DIR/index.html, no server), it draws the state.js written beside it once. Same drawing either way.
 "use strict";
 
-function fmt(value, digits, unit) {
-  return value === null || value === undefined ? "?" : value.toFixed(digits) + unit;
+const LIVE = location.protocol !== "file:";
+const FILES = LIVE ? "files/" : "";
+
+// the companion's NAMED_VALUE_FLOAT names, as a pilot reads them: label, decimals, unit
+const VALUE_LABELS = {
+  MRL_FPS: ["Frames", 1, "fps"],
+  MRL_SCORE: ["Score", 2, ""],
+  MRL_SUMN: ["Summary", 0, "frames"],
+  MRL_LINKBS: ["Link", 0, "B/s"],
+  MRL_DEPTH: ["Depth", 1, "m"],
+};
+
+function known(value) {
+  return value !== null && value !== undefined && !Number.isNaN(value);
 }
 
+function fmt(value, digits, unit) {
+  return known(value) ? value.toFixed(digits) + unit : "?";
+}
+
+function pad(n) {
+  return String(n).padStart(2, "0");
+}
+
+// local time beside UTC: the pilot's clock and the log's
 function timeText(t) {
-  if (t === null || t === undefined) return "?";
+  if (!known(t)) return "?";
   const d = new Date(t * 1000);
-  return d.toISOString().substring(11, 19) + " UTC";
+  return pad(d.getHours()) + ":" + pad(d.getMinutes()) + ":" + pad(d.getSeconds()) + " local ("
+    + d.toISOString().substring(11, 19) + " UTC)";
+}
+
+function shortTime(t) {
+  const d = new Date(t * 1000);
+  return pad(d.getHours()) + ":" + pad(d.getMinutes()) + ":" + pad(d.getSeconds());
+}
+
+function positionText(frame) {
+  if (!known(frame.lat) || !known(frame.lon)) return null;
+  const ns = frame.lat >= 0 ? "N" : "S", ew = frame.lon >= 0 ? "E" : "W";
+  return Math.abs(frame.lat).toFixed(5) + "\u00b0" + ns + " " + Math.abs(frame.lon).toFixed(5) + "\u00b0" + ew;
+}
+
+function valueText(name, value) {
+  const label = VALUE_LABELS[name];
+  if (!label) return [name, known(value) ? Number(value).toFixed(2) : "?"];
+  return [label[0], known(value) ? Number(value).toFixed(label[1]) + (label[2] ? " " + label[2] : "") : "?"];
 }
 
 function setLight(id, state, text) {
@@ -18,80 +58,182 @@ function setLight(id, state, text) {
 }
 
 function ageState(age, staleAfter) {
-  if (age === null || age === undefined) return "down";
+  if (!known(age)) return "down";
   return age <= staleAfter ? "ok" : age <= 3 * staleAfter ? "stale" : "down";
 }
 
+function el(tag, className, text) {
+  const node = document.createElement(tag);
+  if (className) node.className = className;
+  if (text !== undefined) node.textContent = text;
+  return node;
+}
+
+// --- the full frame, fetched from the vehicle over MAVLink FTP when asked for --------------------------------
+
+function openViewer(frame) {
+  const viewer = document.getElementById("viewer");
+  const img = viewer.querySelector("img");
+  const note = viewer.querySelector(".note");
+  viewer.hidden = false;
+  img.removeAttribute("src");
+  if (!LIVE) {  // no vehicle to ask from a file on disk: the thumbnail, as large as it goes
+    img.src = FILES + frame.thumbnail;
+    note.textContent = "#" + frame.image_index + " thumbnail (the full frame is on the vehicle)";
+    return;
+  }
+  note.textContent = "#" + frame.image_index + ": fetching the full frame from the vehicle (MAVLink FTP)\u2026";
+  img.onload = () => { note.textContent = "#" + frame.image_index + " full frame, " + img.naturalWidth + "\u00d7"
+    + img.naturalHeight + ", depth " + fmt(frame.depth_m, 1, " m") + ", " + timeText(frame.time_utc); };
+  img.onerror = () => { note.textContent = "#" + frame.image_index + ": the vehicle did not send the full frame"
+    + " (trimmed meanwhile, or the link is too slow)"; };
+  img.src = "full/" + frame.image_index + ".jpg?dive=" + encodeURIComponent(frame.dive || "");
+}
+
+function closeViewer() {
+  document.getElementById("viewer").hidden = true;
+}
+
+// --- cards ---------------------------------------------------------------------------------------------------
+
 function card(frame) {
-  const fig = document.createElement("figure");
-  fig.className = "frame";
+  const fig = el("figure", "frame");
   fig.dataset.index = frame.image_index;
   if (frame.thumbnail) {
-    const img = document.createElement("img");
-    img.src = "files/" + frame.thumbnail + "?b=" + (frame.bytes || 0);
+    const img = el("img");
+    img.src = FILES + frame.thumbnail + "?b=" + (frame.bytes || 0);
     img.alt = "summary frame " + frame.image_index;
+    img.title = "click for the full frame";
+    img.addEventListener("click", () => openViewer(frame));
     fig.appendChild(img);
   } else {
-    const wait = document.createElement("div");
-    wait.className = "wait";
-    wait.textContent = "thumbnail on its way";
-    fig.appendChild(wait);
+    fig.appendChild(el("div", "wait", "thumbnail on its way"));
   }
-  const cap = document.createElement("figcaption");
+  const cap = el("figcaption");
   const rows = [
     ["idx", "#" + frame.image_index + (frame.via ? " (" + frame.via + ")" : "")],
+    ["dive", "dive " + (frame.dive || "?")],
     ["depth", "depth " + fmt(frame.depth_m, 1, " m")],
-    ["heading", "heading " + (frame.heading_deg === null || frame.heading_deg === undefined
-      ? "?" : (Math.round(frame.heading_deg) % 360) + "\u00b0")],
+    ["heading", "heading " + (known(frame.heading_deg) ? (Math.round(frame.heading_deg) % 360) + "\u00b0" : "?")],
     ["time", timeText(frame.time_utc)],
     ["score", "score " + fmt(frame.score, 2, "")],
   ];
+  const where = positionText(frame);
+  if (where) rows.splice(4, 0, ["position", where]);
   for (const [cls, text] of rows) {
-    const span = document.createElement("span");
-    span.className = cls;
-    span.textContent = text;
-    cap.appendChild(span);
-    cap.appendChild(document.createElement("br"));
+    cap.appendChild(el("span", cls, text));
+    cap.appendChild(el("br"));
   }
   fig.appendChild(cap);
   return fig;
+}
+
+// --- depth over time, the summary frames marked on it -------------------------------------------------------
+
+const SVG = "http://www.w3.org/2000/svg";
+
+function svg(tag, attrs) {
+  const node = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
+  return node;
+}
+
+function drawDepth(track, frames) {
+  const plot = document.getElementById("depth-plot");
+  const marks = frames.filter((f) => known(f.time_utc) && known(f.depth_m));
+  const points = track.filter((p) => known(p[1]));
+  plot.replaceChildren();
+  const W = 800, H = 160, L = 46, R = 10, T = 10, B = 24;
+  plot.setAttribute("viewBox", "0 0 " + W + " " + H);
+  if (points.length + marks.length === 0) {
+    plot.appendChild(Object.assign(svg("text", { x: L, y: H / 2, class: "axis" }), { textContent: "no depth yet" }));
+    return;
+  }
+  const times = points.map((p) => p[0]).concat(marks.map((f) => f.time_utc));
+  const depths = points.map((p) => p[1]).concat(marks.map((f) => f.depth_m));
+  let t0 = Math.min(...times), t1 = Math.max(...times);
+  if (t1 - t0 < 10) t1 = t0 + 10;
+  const d0 = Math.min(0, ...depths), d1 = Math.max(1, ...depths) * 1.05;
+  const x = (t) => L + (W - L - R) * (t - t0) / (t1 - t0);
+  const y = (d) => T + (H - T - B) * (d - d0) / (d1 - d0);  // deeper is lower, as a pilot pictures it
+  for (const frac of [0, 0.5, 1]) {
+    const d = d0 + (d1 - d0) * frac;
+    plot.appendChild(svg("line", { x1: L, x2: W - R, y1: y(d), y2: y(d), class: "grid" }));
+    plot.appendChild(Object.assign(svg("text", { x: L - 4, y: y(d) + 4, class: "axis", "text-anchor": "end" }),
+      { textContent: d.toFixed(0) + " m" }));
+  }
+  for (const t of [t0, (t0 + t1) / 2, t1]) {
+    plot.appendChild(Object.assign(svg("text", { x: x(t), y: H - 6, class: "axis", "text-anchor": "middle" }),
+      { textContent: shortTime(t) }));
+  }
+  const line = points.length ? points : marks.slice().sort((a, b) => a.time_utc - b.time_utc)
+    .map((f) => [f.time_utc, f.depth_m]);
+  plot.appendChild(svg("polyline", {
+    class: "track", points: line.map((p) => x(p[0]).toFixed(1) + "," + y(p[1]).toFixed(1)).join(" "),
+  }));
+  for (const f of marks) {
+    const dot = svg("circle", { cx: x(f.time_utc), cy: y(f.depth_m), r: 5, class: "mark" });
+    dot.dataset.index = f.image_index;
+    const title = svg("title", {});
+    title.textContent = "#" + f.image_index + " at " + f.depth_m.toFixed(1) + " m, " + timeText(f.time_utc)
+      + ", score " + fmt(f.score, 2, "");
+    dot.appendChild(title);
+    if (f.thumbnail) dot.addEventListener("click", () => openViewer(f));
+    plot.appendChild(dot);
+  }
+}
+
+// --- status lines: warnings apart from the summary's own news -----------------------------------------------
+
+const SUMMARY_LINE = /^Summary [+-]#\d+/;
+
+function lines(id, items, limit) {
+  const list = document.querySelector("#" + id + " ul");
+  list.replaceChildren(...items.slice(0, limit).map((line) => {
+    const li = el("li", line.severity <= 3 ? "sev-err" : line.severity <= 5 ? "sev-warn" : "");
+    li.appendChild(el("span", "when", shortTime(line.time)));
+    li.appendChild(document.createTextNode(" " + line.text));
+    return li;
+  }));
+  document.getElementById(id).classList.toggle("empty", items.length === 0);
 }
 
 let lastGallery = "";
 
 function render(state) {
   const link = state.link, comp = state.companion;
+  document.getElementById("dive").textContent = "dive " + (state.dive || "?");
+  document.getElementById("clock").textContent = timeText(state.time) + (LIVE ? "" : " \u2014 saved page");
   setLight("link", ageState(link.last_message_age_s, 2),
-    "link: " + (link.last_message_age_s === null ? "no data" : link.messages + " msgs, last " + link.last_message_age_s + " s ago")
-    + (link.lost_packets ? ", " + link.lost_packets + " lost" : ""));
+    "link: " + (!known(link.last_message_age_s) ? "no data" : link.messages + " msgs, last "
+      + link.last_message_age_s + " s ago") + (link.lost_packets ? ", " + link.lost_packets + " lost" : ""));
   setLight("companion", ageState(comp.heartbeat_age_s, 3),
     "companion: " + (comp.id ? comp.id.join("/") + ", heartbeat " + comp.heartbeat_age_s + " s ago" : "not seen"));
   document.getElementById("counts").textContent =
-    "push " + link.pushed_ok + " ok (" + link.verified + " CRC-checked) / " + link.pushed_lost + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";
+    "thumbnails: push " + link.pushed_ok + " ok (" + link.verified + " CRC-checked) / " + link.pushed_lost
+    + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";
   const values = document.getElementById("values");
   values.replaceChildren(...Object.keys(comp.values).sort().map((name) => {
-    const span = document.createElement("span");
-    const b = document.createElement("b");
-    b.textContent = name;
-    span.appendChild(b);
-    span.appendChild(document.createTextNode(Number(comp.values[name]).toFixed(2)));
+    const [label, text] = valueText(name, comp.values[name]);
+    const span = el("span");
+    span.appendChild(el("b", "", label));
+    span.appendChild(document.createTextNode(" " + text));
     span.dataset.name = name;
+    span.title = name;
     return span;
   }));
-  const list = document.querySelector("#log ul");
-  list.replaceChildren(...comp.statustext.slice(0, 15).map((line) => {
-    const li = document.createElement("li");
-    li.className = line.severity <= 3 ? "sev-err" : line.severity <= 5 ? "sev-warn" : "";
-    li.textContent = timeText(line.time).substring(0, 8) + " " + line.text;
-    return li;
-  }));
+  const all = comp.statustext || [];
+  lines("warnings", comp.warnings || all.filter((l) => l.severity <= 4), 10);
+  lines("events", all.filter((l) => SUMMARY_LINE.test(l.text)), 12);
+  lines("status", all.filter((l) => !SUMMARY_LINE.test(l.text) && l.severity > 4), 8);
+  const frames = state.summary.slice().sort((a, b) => b.image_index - a.image_index);
+  drawDepth(comp.depth_track || [], frames);
   const key = JSON.stringify(state.summary);
   if (key !== lastGallery) {
     lastGallery = key;
     const gallery = document.getElementById("gallery");
-    const frames = state.summary.slice().sort((a, b) => b.image_index - a.image_index);
     if (frames.length === 0) {
-      gallery.innerHTML = '<p class="muted" id="empty">No summary frames yet.</p>';
+      gallery.replaceChildren(el("p", "muted", "No summary frames yet."));
     } else {
       gallery.replaceChildren(...frames.map(card));
     }
@@ -108,4 +250,8 @@ async function poll() {
   setTimeout(poll, 1000);
 }
 
-poll();
+document.getElementById("viewer").addEventListener("click", closeViewer);
+document.addEventListener("keydown", (e) => { if (e.key === "Escape") closeViewer(); });
+if (!LIVE) document.querySelectorAll("a[data-file]").forEach((a) => { a.href = a.dataset.file; });
+if (window.MERLION_STATE) render(window.MERLION_STATE);
+if (LIVE) poll();

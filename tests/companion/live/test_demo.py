@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
+
+import cv2
 
 from tests.conftest import run_merlion
 
@@ -36,6 +39,17 @@ def test_short_demo_leaves_gallery_store_and_report(tmp_path: Path) -> None:
         assert (out / "surface" / cap["thumbnail"]).stat().st_size > 0
     assert any(c["depth_m"] is not None for c in gallery["captures"])
     assert f"thumbnails         {report['thumbnails_delivered']} delivered" in done.stdout
+    # the demo shows itself: the live page's URL first, a page that opens from disk, a contact sheet last
+    first = done.stdout.splitlines()[0]
+    assert re.fullmatch(r"merlion demo: surface page at http://127\.0\.0\.1:\d+/\S* \(live while the demo runs\)",
+                        first), first
+    assert report["web_url"] in first
+    assert (out / "surface" / "index.html").is_file() and (out / "surface" / "state.js").is_file()
+    assert '<script src="app.js">' in (out / "surface" / "index.html").read_text()
+    sheet = out / "contact_sheet.jpg"
+    assert done.stdout.strip().splitlines()[-1] == f"  contact sheet      {sheet}"
+    image = cv2.imread(str(sheet))
+    assert image is not None and image.shape[1] >= 320
 
 
 def test_demo_refuses_a_missing_source(tmp_path: Path) -> None:
@@ -69,3 +83,10 @@ def test_ctrl_c_ends_the_demo_early_with_its_report(tmp_path: Path) -> None:
     assert "merlion demo: done" in rest
     report = json.loads((out / "report.json").read_text())
     assert report["duration_s"] < 600 and report["frames_seen"] > 0
+
+
+def test_demo_refuses_a_web_port_out_of_range(tmp_path: Path) -> None:
+    done = run_merlion("demo", "--web", "70000", "--out", str(tmp_path / "d"), timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines()[-1] == "merlion: error: --web 70000: not a port (0-65535; 0 picks a free one)"
+    assert not (tmp_path / "d").exists()

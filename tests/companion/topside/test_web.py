@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -19,26 +19,13 @@ import pytest
 from companion.config import MavlinkConfig, SurfaceConfig
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
+from tests.companion.topside.browser import Page, chromium_or_skip
 from tests.conftest import REPO, free_udp_port, run_merlion
+from vehicle.camera import status as st
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
 
-CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
-
-
-def _chromium() -> str:
-    for name in CHROMIUM_NAMES:
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.skip("no Chromium binary found (apt-get install chromium) - the live page test needs a real browser")
-
-
-def _headless(browser: str, url: str, *extra: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    """Chromium with its JavaScript given time to poll the state and draw, then the DOM (or a screenshot)."""
-    args = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-            "--no-first-run", "--virtual-time-budget=5000", "--window-size=1280,800", *extra, url]
-    return subprocess.run(args, capture_output=True, text=True, timeout=timeout)
+DIVE = "5e1f0c2a"
 
 
 def _state(port: int) -> dict:
@@ -56,7 +43,7 @@ def _wait(predicate, timeout: float) -> bool:
 
 
 def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
-    browser = _chromium()
+    chromium_or_skip()
     port = free_udp_port()
     out = tmp_path / "gallery"
     proc = subprocess.Popen(
@@ -70,20 +57,24 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         match = re.search(r"live page at http://127\.0\.0\.1:(\d+)/", line)
         assert match, line + proc.stderr.read() if proc.poll() is not None else line
         web = int(match.group(1))
-        # the real companion side: its MAVLink link and Downlink, at the default 2,000 B/s budget
+        # the real companion side: its MAVLink link and Downlink
         link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
         link.start()
-        surface = Downlink(link, SurfaceConfig())
+        surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=6000), dive=DIVE)  # 3x the default: a quicker full frame
         surface.start()
         frames = {5: summary_frame(5, depth=21.4, yaw_deg=135, score=0.88),
                   6: summary_frame(6, depth=22.6, yaw_deg=270, score=0.77),
-                  7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66)}
+                  7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66),
+                  8: summary_frame(8, depth=24.2, yaw_deg=45, score=0.71)}
+        frames[8] = dataclasses.replace(frames[8], pose=dataclasses.replace(frames[8].pose, lat=1.26440,
+                                                                             lon=103.82220))
         assert _wait(lambda: _state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
         surface.publish(SummaryEvent("added", frames[5], summary=[5]))
         surface.publish(SummaryEvent("added", frames[6], summary=[5, 6]))
         surface.publish(SummaryEvent("added", frames[7], summary=[5, 6, 7]))
         surface.update_status(fps=4.8, score=0.66, summary=2, depth_m=23.0)
         surface.publish(SummaryEvent("removed", frames[7], summary=[5, 6]))
+        surface.event("Camera lost, retrying", st.WARNING)
 
         def ready() -> bool:
             s = _state(web)
@@ -94,20 +85,58 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
         assert _wait(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
         assert _state(web)["link"]["mismatched"] == 0
-        dom = _headless(browser, f"http://127.0.0.1:{web}/", "--dump-dom").stdout
-        figures = re.findall(r'<figure class="frame" data-index="(\d+)"', dom)
-        assert figures == ["6", "5"]  # newest first, the trimmed #7 gone
-        assert "depth 22.6 m" in dom and "heading 270°" in dom and "score 0.77" in dom
-        assert "depth 21.4 m" in dom and "heading 135°" in dom and "score 0.88" in dom
-        assert re.search(r'<img src="files/summary/6\.jpg\?b=\d+"', dom)
-        assert "MRL_FPS" in dom and "companion: 1/100" in dom and "Summary -#7" in dom
-        if os.environ.get("MERLION_SURFACE_SCREENSHOT"):
-            _headless(browser, f"http://127.0.0.1:{web}/", f"--screenshot={os.environ['MERLION_SURFACE_SCREENSHOT']}")
+        with Page(f"http://127.0.0.1:{web}/") as page:
+            # thumbnails really decode in the browser, newest first, each with its depth tag and dive
+            loaded = ("[...document.querySelectorAll('#gallery figure.frame img')]"
+                      ".every(i => i.complete && i.naturalWidth > 0)")
+            assert page.wait_for(f"document.querySelectorAll('#gallery figure.frame img').length == 2 && {loaded}")
+            cards = page.evaluate("[...document.querySelectorAll('#gallery figure.frame')]"
+                                  ".map(f => [f.dataset.index, f.innerText])")
+            assert [i for i, _ in cards] == ["6", "5"], cards  # newest first, the trimmed #7 gone
+            text = dict(cards)
+            assert "depth 22.6 m" in text["6"] and "heading 270°" in text["6"] and "score 0.77" in text["6"]
+            assert "depth 21.4 m" in text["5"] and "heading 135°" in text["5"] and "score 0.88" in text["5"]
+            assert all(f"dive {DIVE}" in t for t in text.values()), text
+            assert page.evaluate("document.querySelector('#gallery img').getAttribute('src')").startswith(
+                "files/summary/6.jpg")
+            # for a pilot: labels with units, warnings apart from summary news, local time beside UTC
+            values = page.wait_for("document.getElementById('values').innerText.includes('B/s')"
+                                   " && document.getElementById('values').innerText")
+            assert re.search(r"Frames\s+4\.8 fps", values) and re.search(r"Depth\s+23\.0 m", values), values
+            assert re.search(r"Link\s+\d+ B/s", values) and "MRL_" not in values, values
+            assert page.wait_for("document.getElementById('warnings').innerText.includes('Camera lost')")
+            assert "Summary" not in page.evaluate("document.getElementById('warnings').innerText")
+            events = page.evaluate("document.getElementById('events').innerText")
+            assert "Summary -#7" in events and "Camera lost" not in events
+            assert re.search(r"\d\d:\d\d:\d\d local \(\d\d:\d\d:\d\d UTC\)", text["6"]), text["6"]
+            assert "companion: 1/100" in page.evaluate("document.body.innerText")
+            # the depth plot marks each summary frame
+            assert page.wait_for("document.querySelectorAll('#depth-plot circle.mark').length == 2")
+            # click-through: the full frame comes from the vehicle over MAVLink FTP, at its own size
+            page.evaluate("document.querySelector('#gallery figure.frame[data-index=\"6\"] img').click()")
+            size = page.wait_for("!document.getElementById('viewer').hidden"
+                                 " && document.querySelector('#viewer img').naturalWidth > 0"
+                                 " && [document.querySelector('#viewer img').naturalWidth,"
+                                 " document.querySelector('#viewer img').naturalHeight]", 60)
+            assert size == [480, 270], size
+            assert (out / "full" / DIVE / "6.jpg").read_bytes() == surface.tree.read("/summary/full/6.jpg")
+            page.evaluate("document.getElementById('viewer').click()")
+            # a new capture appears on the same page, with no reload (a reload would clear this mark)
+            page.evaluate("window.notReloaded = true")
+            surface.publish(SummaryEvent("added", frames[8], summary=[5, 6, 8]))
+            assert page.wait_for("document.querySelector('#gallery figure.frame[data-index=\"8\"] img') !== null"
+                                 " && document.querySelector('#gallery figure.frame img').naturalWidth > 0", 30)
+            assert page.evaluate("window.notReloaded === true")
+            newest = page.evaluate("document.querySelector('#gallery figure.frame').innerText")
+            assert "depth 24.2 m" in newest and "1.26440°N 103.82220°E" in newest, newest
+            if os.environ.get("MERLION_SURFACE_SCREENSHOT"):
+                page.screenshot(os.environ["MERLION_SURFACE_SCREENSHOT"])
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/summary/6.jpg", timeout=5) as r:
             assert r.headers["Content-Type"] == "image/jpeg" and r.read() == surface.tree.read("/summary/6.jpg")
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/log.csv", timeout=5) as r:
-            assert r.read().startswith(b"event,wall_time,image_index")
-        for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp"):
+            assert r.read().startswith(b"event,wall_time,dive,image_index")
+        for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp",
+                    "full/7.jpg"):  # a full frame of a frame no longer in the summary: not fetched
             with pytest.raises(urllib.error.HTTPError):
                 urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
         proc.send_signal(signal.SIGTERM)
@@ -121,8 +150,13 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, stderr
-    assert "2 frames in the summary, 2 with thumbnails" in stdout
-    assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6]
+    assert "3 frames in the summary, 3 with thumbnails" in stdout
+    assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6, 8]
+    # the same page, saved in the gallery folder, opens from disk with no server
+    with Page((out / "index.html").as_uri()) as page:
+        assert page.wait_for("document.querySelectorAll('#gallery figure.frame img').length == 3 && [...document"
+                             ".querySelectorAll('#gallery figure.frame img')].every(i => i.naturalWidth > 0)")
+        assert f"dive {DIVE}" in page.evaluate("document.getElementById('dive').innerText")
 
 
 def test_bad_arguments_are_one_line_errors_before_anything_is_created(tmp_path):
