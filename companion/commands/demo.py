@@ -19,6 +19,8 @@ def register(add_command) -> None:
                    "dive, the config's 0.5 on real video)")
     p.add_argument("--encoder", default="auto", choices=["auto", "clip", "imagenet", "visual"],
                    help="encoder (default auto: CLIP when its weights are here, else the packaged one)")
+    p.add_argument("--signing-key", metavar="FILE", help="sign every link of the demo with this key (32 raw bytes or "
+                   "a passphrase; docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -30,4 +32,4 @@ def run(args: argparse.Namespace) -> int:
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,
-                            encoder=args.encoder))
+                            encoder=args.encoder, signing_key=args.signing_key))

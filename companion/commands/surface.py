@@ -44,6 +44,8 @@ def register(add_command) -> None:
     p.add_argument("--push-timeout", type=float, default=30.0, metavar="S",
                    help="fetch a capture's thumbnail by FTP when no push brought it within S seconds")
     p.add_argument("--no-ftp", action="store_true", help="never pull by MAVLink FTP (push only)")
+    p.add_argument("--signing-key", metavar="FILE", help="MAVLink 2 signing key (32 raw bytes or a passphrase, as "
+                   "MAVProxy's signing setup): sign what the tool sends (docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -58,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--push-timeout {args.push_timeout}: must be positive")
     check_port_free(args.connect)
     options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
-                             companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp)
+                             companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp,
+                             signing_key_file=args.signing_key)
     return serve(options, args.out, web_port=args.web, web_host=args.web_host, duration=args.duration)
 
 

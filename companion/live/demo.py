@@ -53,6 +53,8 @@ class DemoOptions:
     fps: float = 5.0
     realtime: bool = True
     quiet: bool = False
+    signing_key: str | None = None
+    """MAVLink 2 signing key file shared by the simulator, the companion and the surface tool."""
 
 
 def check_source(opts: DemoOptions) -> None:
@@ -68,7 +70,7 @@ def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
     data: dict[str, Any] = {
         "source": {"uri": source, "fps": opts.fps, "realtime": opts.realtime, "loop": bool(opts.source)},
         "encoder": {"name": opts.encoder},
-        "mavlink": {"connection": hub_url, "component_id": 100},
+        "mavlink": {"connection": hub_url, "component_id": 100, "signing_key_file": opts.signing_key},
         "surface": {"budget_bytes_per_s": opts.budget_bytes_per_s},
         "store": {"dir": str(opts.out / "store")},
         "health": {"stall_after_s": 60.0},
@@ -158,9 +160,10 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
     companion: LiveCompanion | None = None
     started = time.monotonic()
     try:
-        sim = _spawn(_merlion("sim-vehicle", "--connect", hub.url), logs / "sim-vehicle.log")
+        signing = ["--signing-key", opts.signing_key] if opts.signing_key else []
+        sim = _spawn(_merlion("sim-vehicle", "--connect", hub.url, *signing), logs / "sim-vehicle.log")
         surface = _spawn(_merlion("surface", "--connect", f"udpin:127.0.0.1:{surface_port}", "--out",
-                                  str(out / "surface"), "--companion", "1:100"), logs / "surface.log")
+                                  str(out / "surface"), "--companion", "1:100", *signing), logs / "surface.log")
         companion = LiveCompanion(cfg, LiveOptions())
         companion.start()
         _say(opts, f"merlion demo: companion running on {cfg.source.uri} with {companion.encoder.name}; "
