@@ -395,7 +395,7 @@ class MavLink:
             self.rx_unknown += 1
             return
         self.rx_messages += 1
-        if not self.signing.admit(msg, self.send):
+        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id)):
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self._autopilot_heartbeat(msg)

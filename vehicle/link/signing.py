@@ -51,7 +51,9 @@ STATE_CHANGING_TYPES = frozenset({
 })
 """Messages that ask the receiver to change something (plus every ``SET_*`` message and FTP writes)."""
 FTP_WRITE_OPCODES = frozenset({Op.CREATE_FILE, Op.WRITE_FILE, Op.REMOVE_FILE, Op.CREATE_DIRECTORY,
-                               Op.REMOVE_DIRECTORY, Op.OPEN_FILE_WO, Op.TRUNCATE_FILE, Op.RENAME})
+                               Op.REMOVE_DIRECTORY, Op.OPEN_FILE_WO, Op.TRUNCATE_FILE, Op.RENAME,
+                               Op.TERMINATE_SESSION, Op.RESET_SESSIONS})
+"""FTP opcodes that change files or sessions: ending a session commits an upload (or cuts someone else's short)."""
 
 
 def now_timestamp(wall_clock: Callable[[], float] = time.time) -> int:
@@ -102,6 +104,13 @@ def is_state_changing(msg: mavlink2.MAVLink_message) -> bool:
         payload = bytes(msg.payload)
         return len(payload) > 3 and payload[3] in FTP_WRITE_OPCODES
     return mtype in STATE_CHANGING_TYPES or mtype.startswith("SET_")
+
+
+def _addressed_to(msg: mavlink2.MAVLink_message, me: tuple[int, int]) -> bool:
+    """Whether ``msg`` targets ``me`` (a broadcast or a message without target fields does)."""
+    system = getattr(msg, "target_system", 0)
+    component = getattr(msg, "target_component", 0)
+    return system in (0, me[0]) and component in (0, me[1])
 
 
 class TimestampFile:
@@ -165,6 +174,7 @@ class LinkSigning:
         self._streams: dict[tuple[int, int, int], int] = {}
         self.accepted_signed = 0
         self.accepted_unsigned_reads = 0
+        self.dropped_for_others = 0
         self.rejected: dict[tuple[int, int], int] = {}
         """Refused state-changing messages by source (system, component)."""
         self.reasons: dict[tuple[int, int], str] = {}
@@ -231,8 +241,10 @@ class LinkSigning:
         self._reserved = value
 
     # ------------------------------------------------------------------------------------------------ receive
-    def admit(self, msg: mavlink2.MAVLink_message, send: Callable[[mavlink2.MAVLink_message], int]) -> bool:
-        """True when ``msg`` may be acted on; a refused one is counted and, once per source, reported."""
+    def admit(self, msg: mavlink2.MAVLink_message, send: Callable[[mavlink2.MAVLink_message], int],
+              me: tuple[int, int] | None = None) -> bool:
+        """True when ``msg`` may be acted on; a refused one addressed to ``me`` (system, component) is counted
+        and, once per source, reported (one meant for another component on a shared link is just dropped)."""
         if self._key is None:
             return True
         reason = self._verify(msg)
@@ -242,6 +254,9 @@ class LinkSigning:
         if self.accept_unsigned_reads and not is_state_changing(msg):
             self.accepted_unsigned_reads += 1
             return True
+        if me is not None and not _addressed_to(msg, me):
+            self.dropped_for_others += 1
+            return False
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         count = self.rejected.get(source, 0) + 1
         self.rejected[source] = count
@@ -280,7 +295,7 @@ class LinkSigning:
         """Counters for status reports, ``merlion doctor`` and logs."""
         return {
             "enabled": self.enabled, "accepted_signed": self.accepted_signed,
-            "accepted_unsigned_reads": self.accepted_unsigned_reads,
+            "accepted_unsigned_reads": self.accepted_unsigned_reads, "dropped_for_others": self.dropped_for_others,
             "rejected": sum(self.rejected.values()),
             "rejected_by_source": {f"{s}/{c}": n for (s, c), n in sorted(self.rejected.items())},
         }
