@@ -34,7 +34,8 @@ def register(add_command) -> None:
                         "second routed port such as udpin:0.0.0.0:14560, see docs/surface-tool.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="gallery folder (created; reopened if it exists)")
     p.add_argument("--web", type=int, metavar="PORT", help="serve the live page on this port (0: any free port)")
-    p.add_argument("--web-host", default="0.0.0.0", help="address the page listens on (default all)")
+    p.add_argument("--web-host", default="127.0.0.1", help="address the page listens on (default 127.0.0.1, this "
+                   "machine only; 0.0.0.0 for every interface: changes still need the printed URL's token)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests, demos)")
     p.add_argument("--companion", type=_ids, metavar="SYS:COMP",
                    help="the companion's ids (default: the camera component that sends captures)")
@@ -83,7 +84,7 @@ def check_port_free(connect: str) -> None:
         probe.close()
 
 
-def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "0.0.0.0",
+def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "127.0.0.1",
           duration: float | None = None, stop: threading.Event | None = None) -> int:
     """Run the surface tool until SIGINT/SIGTERM, ``stop``, or ``duration``; what tests and the demo call."""
     stop = stop or threading.Event()
@@ -95,7 +96,7 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
         web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host)
         web.start()
         # the line the demo and tests wait for (the port matters when 0 was asked)
-        print(f"merlion surface: live page at http://127.0.0.1:{web.port}/", flush=True)
+        print(f"merlion surface: live page at {web.url}", flush=True)
     print(f"merlion surface: listening on {options.connect}, gallery in {gallery.root}", flush=True)
     previous = {}
     if threading.current_thread() is threading.main_thread():
