@@ -38,6 +38,10 @@ def run(args: argparse.Namespace) -> int:
     if not cfg.mavlink.connection:
         raise UsageError("mavlink.connection is null: give --connect")
     parse_connection(cfg.mavlink.connection)
+    if cfg.mavlink.signing_key_file:
+        from vehicle.link.signing import load_key
+
+        load_key(cfg.mavlink.signing_key_file)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.config import MavlinkConfig
 from companion.errors import UsageError
-from tests.conftest import free_udp_port
+from tests.conftest import free_udp_port, run_merlion
 from tests.waiting import wait_until
 from vehicle.link.connection import MavLink
 from vehicle.link.signing import (
@@ -227,3 +227,15 @@ def test_the_receive_check_survives_a_parser_reset_and_concurrent_use(signed_lin
         assert [m.get_type() for m in seen].count("PARAM_SET") == 1
     finally:
         station.close()
+
+
+@pytest.mark.parametrize("command", [["run", "--mavlink", "udpin:127.0.0.1:9", "--duration", "1"],
+                                     ["telemetry", "--connect", "udpin:127.0.0.1:9", "--duration", "1"],
+                                     ["sim-vehicle", "--connect", "udpout:127.0.0.1:9", "--duration", "1"]])
+def test_a_bad_key_file_on_the_command_line_is_one_line_and_exit_2(tmp_path, command):
+    (tmp_path / "empty.key").write_text("\n")
+    done = run_merlion(*command, "--signing-key", str(tmp_path / "empty.key"), timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0] == f"merlion: error: mavlink.signing_key_file {tmp_path / 'empty.key'}: expected 32 raw bytes " \
+                       "or a passphrase"
