@@ -38,6 +38,10 @@ def run(args: argparse.Namespace) -> int:
     report = run_companion(cfg, environ=os.environ, duration=args.duration)
     store = report["store"]
     mode = f"memory-only ({store.get('reason')})" if store.get("memory_only") else "on disk"
+    signing = report.get("signing", {})
+    if signing.get("enabled"):
+        print(f"merlion run: signing on; refused {signing['rejected']} unsigned or badly signed writes "
+              f"{signing['rejected_by_source']}", flush=True)
     print(f"merlion run: seen {report['frames_seen']}, passed {report['frames_passed']}, "
           f"dropped {report['frames_dropped']}, summary {report['summary']}, sent {report['bytes_sent']} bytes, "
           f"bad MAVLink {report['rx_bad']}, store {store.get('dir')} {mode}", flush=True)

@@ -141,6 +141,7 @@ def test_only_the_signed_station_changes_the_companion(setup) -> None:
     wait_until(lambda: any(json.loads(p.read_text())["pose"]["depth_m"] is not None
                            for p in (store / "frames").glob("*.json")), 60, "a frame tagged with depth")
     assert companion.terminate() == 0, companion.output
+    assert "signing on; refused" in companion.output and "'255/191': " in companion.output  # the counts show
 
     # every message the companion sent is signed with the key, with timestamps that only go up
     sent = good.from_companion()
