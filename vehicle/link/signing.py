@@ -170,6 +170,7 @@ class LinkSigning:
         self._key: bytes | None = None
         self._floor = 0
         self._reserved = 0
+        self._time_floor = 0
         self._lock = threading.Lock()
         self._streams: dict[tuple[int, int, int], int] = {}
         self.accepted_signed = 0
@@ -208,8 +209,12 @@ class LinkSigning:
             if len(key) != KEY_BYTES:
                 raise ValueError(f"signing key must be {KEY_BYTES} bytes, got {len(key)}")
             self._key = bytes(key)
-            self._floor = max(self._floor, initial_timestamp, self._store.load() if self._store else 0)
+            stored = self._store.load() if self._store else 0
+            self._floor = max(self._floor, initial_timestamp, stored)
             self._reserved = self._floor
+            # what we know of the time without a clock (no RTC at boot): the last reservation was made at most
+            # RESERVE_AHEAD before it, and a ground station's SETUP_SIGNING carries its own time
+            self._time_floor = max(self._time_floor, initial_timestamp, stored - RESERVE_AHEAD)
             self._streams.clear()
 
     # ------------------------------------------------------------------------------------------------ send
@@ -283,7 +288,7 @@ class LinkSigning:
             last = self._streams.get(stream)
             if last is not None and stamp <= last:
                 return "replayed"
-            if last is None and stamp + NEW_STREAM_WINDOW < max(self._floor, now_timestamp(self.wall_clock)):
+            if last is None and stamp + NEW_STREAM_WINDOW < max(self._time_floor, now_timestamp(self.wall_clock)):
                 return "stale signed"
             self._streams[stream] = stamp
         self.last_signed_from[source] = stamp

@@ -239,3 +239,24 @@ def test_a_bad_key_file_on_the_command_line_is_one_line_and_exit_2(tmp_path, com
     assert done.returncode == 2 and len(lines) == 1, done.stderr
     assert lines[0] == f"merlion: error: mavlink.signing_key_file {tmp_path / 'empty.key'}: expected 32 raw bytes " \
                        "or a passphrase"
+
+
+def test_after_a_restart_old_recordings_are_stale_and_fresh_streams_welcome_even_without_a_clock(tmp_path):
+    stamp_file = tmp_path / "ts"
+    now = 1_800_000_000.0
+    first = LinkSigning(KEY, timestamp_file=stamp_file, wall_clock=lambda: now)
+    first.prepare(mav2.MAVLink(None, 1, 100))  # reserves a minute ahead
+    gcs = mav2.MAVLink(None, 255, 190)
+    gcs.signing.secret_key, gcs.signing.sign_outgoing = KEY, True
+    parser = mav2.MAVLink(None)
+
+    def recorded(at: float):
+        gcs.signing.timestamp = now_timestamp(lambda: at)
+        return parser.parse_buffer(_param_set(1).pack(gcs))[0]
+
+    old, fresh = recorded(now - 600), recorded(now - 5)
+    # restarted at boot with no RTC (the clock reads 1970): the reservation still says roughly when it is
+    restarted = LinkSigning(KEY, timestamp_file=stamp_file, wall_clock=lambda: 0.0)
+    assert not restarted.admit(old, lambda m: 0) and restarted.reasons[(255, 190)] == "stale signed"
+    # with the clock right, a ground station a few seconds behind is a new stream, not stale
+    assert LinkSigning(KEY, timestamp_file=stamp_file, wall_clock=lambda: now).admit(fresh, lambda m: 0)
