@@ -13,6 +13,7 @@ from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
 from companion.topside.web import WebServer
 from vehicle.link.connection import parse_connection
+from vehicle.link.signing import load_key
 
 log = logging.getLogger("merlion.surface")
 
@@ -60,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     if args.push_timeout <= 0:
         raise UsageError(f"--push-timeout {args.push_timeout}: must be positive")
     check_port_free(args.connect)
+    if args.signing_key:  # before the gallery folder is made
+        load_key(args.signing_key)
     options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
                              companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp,
                              signing_key_file=args.signing_key)

@@ -231,14 +231,17 @@ def test_the_receive_check_survives_a_parser_reset_and_concurrent_use(signed_lin
 
 @pytest.mark.parametrize("command", [["run", "--mavlink", "udpin:127.0.0.1:9", "--duration", "1"],
                                      ["telemetry", "--connect", "udpin:127.0.0.1:9", "--duration", "1"],
-                                     ["sim-vehicle", "--connect", "udpout:127.0.0.1:9", "--duration", "1"]])
+                                     ["sim-vehicle", "--connect", "udpout:127.0.0.1:9", "--duration", "1"],
+                                     ["surface", "--connect", "udpin:127.0.0.1:9", "--out", "GALLERY"]])
 def test_a_bad_key_file_on_the_command_line_is_one_line_and_exit_2(tmp_path, command):
     (tmp_path / "empty.key").write_text("\n")
+    command = [str(tmp_path / "gallery") if arg == "GALLERY" else arg for arg in command]
     done = run_merlion(*command, "--signing-key", str(tmp_path / "empty.key"), timeout=60)
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr
     assert lines[0] == f"merlion: error: mavlink.signing_key_file {tmp_path / 'empty.key'}: expected 32 raw bytes " \
                        "or a passphrase"
+    assert not (tmp_path / "gallery").exists()  # nothing was made before the key was checked
 
 
 def test_after_a_restart_old_recordings_are_stale_and_fresh_streams_welcome_even_without_a_clock(tmp_path):
