@@ -267,7 +267,8 @@ class LinkSigning:
         self.rejected[source] = count
         if count == 1:
             self.reasons[source] = reason
-            text = f"MERL: {reason} {msg.get_type()} from {source[0]}/{source[1]} ignored"
+            name = "FTP write" if msg.get_type() == "FILE_TRANSFER_PROTOCOL" else msg.get_type()
+            text = f"{reason} {name} from {source[0]}/{source[1]} ignored"  # fits STATUSTEXT's 50 characters
             log.warning("%s: %s (further ones from it are only counted)", self.name, text)
             send(mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text[:50].encode()))
         return False

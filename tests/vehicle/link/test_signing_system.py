@@ -135,7 +135,7 @@ def test_only_the_signed_station_changes_the_companion(setup) -> None:
     warnings = good.warnings()
     assert sorted(w.split(" from ")[1] for w in warnings) == ["255/190 ignored", "255/191 ignored",
                                                               "255/192 ignored"], warnings
-    assert any(w.startswith("MERL: replayed") for w in warnings)
+    assert any(w.startswith("replayed PARAM_SET") for w in warnings)
 
     # telemetry and tagging work as without signing
     wait_until(lambda: any(json.loads(p.read_text())["pose"]["depth_m"] is not None
