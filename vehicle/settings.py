@@ -30,7 +30,8 @@ class MavlinkConfig(_Section):
     With a key everything sent is signed and unsigned parameter writes, commands and FTP writes are ignored;
     null: no signing (docs/security.md)."""
     signing_timestamp_file: str | None = None
-    """Where the last signing timestamp is kept so a restart never reuses one; null: beside the key file."""
+    """Where the last signing timestamp is kept so a restart never reuses one; null: beside the key file, one per
+    component id (KEY.comp100.timestamp)."""
     accept_unsigned_reads: bool = True
     """With a key, still accept unsigned reads (heartbeats, telemetry, parameter and FTP reads), as ArduPilot does."""
 

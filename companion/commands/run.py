@@ -33,8 +33,7 @@ def run(args: argparse.Namespace) -> int:
     if cfg.mavlink.signing_key_file:  # a bad key is a one-line error before the camera or the encoder start
         from vehicle.link.signing import LinkSigning
 
-        LinkSigning.from_config(cfg.mavlink.signing_key_file, name="companion",
-                                timestamp_file=cfg.mavlink.signing_timestamp_file)
+        LinkSigning.from_settings(cfg.mavlink, name="companion")
     report = run_companion(cfg, environ=os.environ, duration=args.duration)
     store = report["store"]
     mode = f"memory-only ({store.get('reason')})" if store.get("memory_only") else "on disk"

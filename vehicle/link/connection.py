@@ -127,8 +127,7 @@ class MavLink:
         self._last_autopilot_seen: float | None = None
         self._conn: mavutil.mavfile | None = None
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
-        self.signing = LinkSigning.from_config(cfg.signing_key_file, name=name, timestamp_file=cfg.signing_timestamp_file,
-                                               accept_unsigned_reads=cfg.accept_unsigned_reads)
+        self.signing = LinkSigning.from_settings(cfg, name=name)
         self._rx = self._new_parser()
         self._send_lock = threading.Lock()
         self._subs_lock = threading.Lock()

@@ -29,6 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from vehicle.errors import UsageError
 from vehicle.protocol.ftp import Op
+from vehicle.settings import MavlinkConfig
 
 log = logging.getLogger(__name__)
 
@@ -91,10 +92,12 @@ def load_key(path: str | Path) -> bytes:
         raise UsageError(f"mavlink.signing_key_file {path}: expected 32 raw bytes or a passphrase") from None
 
 
-def default_timestamp_file(key_file: str | Path, name: str) -> Path:
-    """One timestamp file per link name beside the key, so processes sharing a key never share a counter."""
+def default_timestamp_file(key_file: str | Path, component_id: int) -> Path:
+    """One timestamp file per component id beside the key: timestamps must rise per (system, component) stream,
+    so the companion, ``merlion telemetry`` and ``merlion doctor`` (all component 100, one after the other)
+    share a counter, while the simulator (1) and the surface tool (190) keep their own."""
     key_path = Path(key_file)
-    return key_path.with_name(f"{key_path.name}.{name}.timestamp")
+    return key_path.with_name(f"{key_path.name}.comp{component_id}.timestamp")
 
 
 def is_state_changing(msg: mavlink2.MAVLink_message) -> bool:
@@ -185,15 +188,16 @@ class LinkSigning:
             self.set_key(key)
 
     @classmethod
-    def from_config(cls, key_file: str | Path | None, *, name: str, timestamp_file: str | Path | None = None,
-                    accept_unsigned_reads: bool = True) -> LinkSigning:
+    def from_settings(cls, cfg: MavlinkConfig, *, name: str) -> LinkSigning:
         """From the ``mavlink`` settings; no key file: signing off, everything accepted as before."""
-        if not key_file:
-            return cls(None, name=name, accept_unsigned_reads=accept_unsigned_reads)
-        stamp = Path(timestamp_file) if timestamp_file else default_timestamp_file(key_file, name)
+        if not cfg.signing_key_file:
+            return cls(None, name=name, accept_unsigned_reads=cfg.accept_unsigned_reads)
+        stamp = (Path(cfg.signing_timestamp_file) if cfg.signing_timestamp_file
+                 else default_timestamp_file(cfg.signing_key_file, cfg.component_id))
         if not stamp.parent.is_dir() or not os.access(stamp.parent, os.W_OK):
             raise UsageError(f"mavlink.signing_timestamp_file {stamp}: folder missing or not writable")
-        return cls(load_key(key_file), name=name, timestamp_file=stamp, accept_unsigned_reads=accept_unsigned_reads)
+        return cls(load_key(cfg.signing_key_file), name=name, timestamp_file=stamp,
+                   accept_unsigned_reads=cfg.accept_unsigned_reads)
 
     # ------------------------------------------------------------------------------------------------ key
     @property

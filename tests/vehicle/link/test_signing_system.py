@@ -164,7 +164,7 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     time.sleep(0.3)  # let the last datagrams in flight arrive before counting
     before = max(_stamp(m) for m in listener.from_companion())
     count = len(listener.from_companion())
-    reserved = int((key_file.parent / "signing.key.companion.timestamp").read_text())
+    reserved = int((key_file.parent / "signing.key.comp100.timestamp").read_text())
     assert reserved >= before  # on disk before any of them went out
     second = Companion("--config", str(cfg), "--signing-key", str(key_file))
     wait_until(lambda: len(listener.from_companion()) > count, 60, "a message from the restarted companion")
