@@ -40,6 +40,11 @@ UNITS_PER_S = 100_000
 NEW_STREAM_WINDOW = 60 * UNITS_PER_S
 """A stream never seen before is accepted only if its timestamp is at most a minute behind ours (the spec's rule)."""
 RESERVE_AHEAD = 60 * UNITS_PER_S
+MAX_SOURCES = 256
+OTHER_SOURCES = (0, 0)
+"""Refusals from sources beyond the first ``MAX_SOURCES`` are counted together under this key."""
+WARN_BURST = 5
+WARN_REFILL_S = 10.0
 _SIGNED_FLAG = mavlink2.MAVLINK_IFLAG_SIGNED
 _SIGNATURE_LEN = mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN
 
@@ -179,6 +184,9 @@ class LinkSigning:
         self.accepted_signed = 0
         self.accepted_unsigned_reads = 0
         self.dropped_for_others = 0
+        self.warnings_withheld = 0
+        self._warn_tokens = float(WARN_BURST)
+        self._warn_at = time.monotonic()
         self.rejected: dict[tuple[int, int], int] = {}
         """Refused state-changing messages by source (system, component)."""
         self.reasons: dict[tuple[int, int], str] = {}
@@ -267,6 +275,8 @@ class LinkSigning:
             self.dropped_for_others += 1
             return False
         source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if source not in self.rejected and len(self.rejected) >= MAX_SOURCES:
+            source = OTHER_SOURCES  # spoofed ids by the thousand must not grow the table (or the warnings)
         count = self.rejected.get(source, 0) + 1
         self.rejected[source] = count
         if count == 1:
@@ -274,8 +284,22 @@ class LinkSigning:
             name = "FTP write" if msg.get_type() == "FILE_TRANSFER_PROTOCOL" else msg.get_type()
             text = f"{reason} {name} from {source[0]}/{source[1]} ignored"  # fits STATUSTEXT's 50 characters
             log.warning("%s: %s (further ones from it are only counted)", self.name, text)
-            send(mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text[:50].encode()))
+            if self._may_warn():
+                send(mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text[:50].encode()))
+            else:
+                self.warnings_withheld += 1
         return False
+
+    def _may_warn(self) -> bool:
+        """A small bucket of STATUSTEXT warnings (a burst of 5, then one per 10 s), so that many spoofed sources
+        cannot turn the warnings into a flood on a slow downlink."""
+        now = time.monotonic()
+        self._warn_tokens = min(WARN_BURST, self._warn_tokens + (now - self._warn_at) / WARN_REFILL_S)
+        self._warn_at = now
+        if self._warn_tokens < 1:
+            return False
+        self._warn_tokens -= 1
+        return True
 
     def _verify(self, msg: mavlink2.MAVLink_message) -> str | None:
         """None when ``msg`` carries a valid signature with a fresh timestamp; else why not."""
@@ -306,6 +330,7 @@ class LinkSigning:
         return {
             "enabled": self.enabled, "accepted_signed": self.accepted_signed,
             "accepted_unsigned_reads": self.accepted_unsigned_reads, "dropped_for_others": self.dropped_for_others,
+            "warnings_withheld": self.warnings_withheld,
             "rejected": sum(self.rejected.values()),
             "rejected_by_source": {f"{s}/{c}": n for (s, c), n in sorted(self.rejected.items())},
         }

@@ -263,3 +263,14 @@ def test_after_a_restart_old_recordings_are_stale_and_fresh_streams_welcome_even
     assert not restarted.admit(old, lambda m: 0) and restarted.reasons[(255, 190)] == "stale signed"
     # with the clock right, a ground station a few seconds behind is a new stream, not stale
     assert LinkSigning(KEY, timestamp_file=stamp_file, wall_clock=lambda: now).admit(fresh, lambda m: 0)
+
+
+def test_many_spoofed_sources_neither_flood_the_downlink_nor_grow_the_table():
+    signing = LinkSigning(KEY, name="flood")
+    parser = mav2.MAVLink(None)
+    sent: list = []
+    for i in range(2000):
+        spoof = mav2.MAVLink(None, 1 + i % 250, 1 + i // 250)
+        assert not signing.admit(parser.parse_buffer(_param_set(1).pack(spoof))[0], sent.append)
+    assert len(sent) == 5 and signing.warnings_withheld > 0  # a burst of warnings, then counts only
+    assert len(signing.rejected) <= 257 and sum(signing.rejected.values()) == 2000
