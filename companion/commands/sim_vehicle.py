@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGUSR1, lambda *_: sim.silence(args.silence_for))
     signal.signal(signal.SIGUSR2, lambda *_: sim.reboot())
-    print(f"sim-vehicle: ArduSub system {args.system_id} on {connection} "
+    print(f"sim-vehicle: ArduSub system {args.system_id} on {connection}{' (signed)' if args.signing_key else ''} "
           f"(dive {sim.profile.duration:.0f} s; SIGUSR1: silent {args.silence_for:g} s, SIGUSR2: reboot)", flush=True)
     result = run_sim_vehicle(sim, duration=args.duration, silence_at=args.silence_at, silence_for=args.silence_for,
                              reboot_at=args.reboot_at, stop=stop, report=lambda line: print(line, flush=True))
