@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 from pathlib import Path
 
 import pytest
@@ -161,12 +160,16 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     first.wait_for("autopilot heartbeat back")
     wait_until(lambda: len(listener.from_companion()) >= 10, 30, "ten messages from the companion")
     first.kill()  # no clean shutdown: the timestamps were reserved on disk before they were used
-    time.sleep(0.3)  # let the last datagrams in flight arrive before counting
-    before = max(_stamp(m) for m in listener.from_companion())
-    count = len(listener.from_companion())
     reserved = int((key_file.parent / "signing.key.comp100.timestamp").read_text())
-    assert reserved >= before  # on disk before any of them went out
+    assert max(_stamp(m) for m in listener.from_companion()) < reserved  # on disk before any of them went out
+    # a station that joins the hub now hears nothing of the first process: the hub forwards in arrival order,
+    # and all the first process sent was queued before this heartbeat
+    newcomer = Station(hub, 193, None)
+    stations.append(newcomer)
+    newcomer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    newcomer.wait_for(lambda m: m.get_type() == "HEARTBEAT", 10, "the hub forwarding to the newcomer")
+    assert newcomer.from_companion() == []
     second = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    wait_until(lambda: len(listener.from_companion()) > count, 60, "a message from the restarted companion")
-    assert _stamp(listener.from_companion()[count]) > before
+    wait_until(lambda: newcomer.from_companion(), 60, "a message from the restarted companion")
+    assert _stamp(newcomer.from_companion()[0]) >= reserved  # above every timestamp the first process used
     assert second.terminate() == 0, second.output
