@@ -25,6 +25,15 @@ class MavlinkConfig(_Section):
     heartbeat_timeout_s: float = Field(3.0, gt=0)
     reconnect_initial_s: float = Field(0.5, gt=0)
     reconnect_max_s: float = Field(10.0, gt=0)
+    signing_key_file: str | None = None
+    """MAVLink 2 signing key: a file with 32 raw bytes or a passphrase (SHA-256, as MAVProxy's `signing setup`).
+    With a key everything sent is signed and unsigned parameter writes, commands and FTP writes are ignored;
+    null: no signing (docs/security.md)."""
+    signing_timestamp_file: str | None = None
+    """Where the last signing timestamp is kept so a restart never reuses one; null: beside the key file, one per
+    component id (KEY.comp100.timestamp)."""
+    accept_unsigned_reads: bool = True
+    """With a key, still accept unsigned reads (heartbeats, telemetry, parameter and FTP reads), as ArduPilot does."""
 
 
 class TelemetryConfig(_Section):

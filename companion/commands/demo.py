@@ -22,6 +22,8 @@ def register(add_command) -> None:
     p.add_argument("--web", type=int, default=0, metavar="PORT",
                    help="serve the surface page on this port of 127.0.0.1 (default 0: a free port; the URL is "
                         "printed at the start)")
+    p.add_argument("--signing-key", metavar="FILE", help="sign every link of the demo with this key (32 raw bytes or "
+                   "a passphrase; docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -33,4 +35,4 @@ def run(args: argparse.Namespace) -> int:
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,
-                            encoder=args.encoder, web_port=args.web))
+                            encoder=args.encoder, web_port=args.web, signing_key=args.signing_key))

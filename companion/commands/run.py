@@ -16,6 +16,8 @@ def register(add_command) -> None:
     p.add_argument("--store", metavar="DIR", help="override store.dir")
     p.add_argument("--loop", action="store_true", help="start a file or folder source again when it ends")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests, trials)")
+    p.add_argument("--signing-key", metavar="FILE", help="override mavlink.signing_key_file: MAVLink 2 signing key "
+                   "(32 raw bytes or a passphrase, as MAVProxy's signing setup; docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -25,10 +27,20 @@ def run(args: argparse.Namespace) -> int:
 
     require_positive("--duration", args.duration)
     overrides = cli_overrides(source=args.source, mavlink=args.mavlink, store=args.store, loop=args.loop)
+    if args.signing_key:
+        overrides.setdefault("mavlink", {})["signing_key_file"] = args.signing_key
     cfg = build(args.config, overrides, os.environ)
+    if cfg.mavlink.signing_key_file:  # a bad key is a one-line error before the camera or the encoder start
+        from vehicle.link.signing import LinkSigning
+
+        LinkSigning.from_settings(cfg.mavlink, name="companion")
     report = run_companion(cfg, environ=os.environ, duration=args.duration)
     store = report["store"]
     mode = f"memory-only ({store.get('reason')})" if store.get("memory_only") else "on disk"
+    signing = report.get("signing", {})
+    if signing.get("enabled"):
+        print(f"merlion run: signing on; refused {signing['rejected']} unsigned or badly signed writes "
+              f"{signing['rejected_by_source']}", flush=True)
     print(f"merlion run: seen {report['frames_seen']}, passed {report['frames_passed']}, "
           f"dropped {report['frames_dropped']}, summary {report['summary']}, sent {report['bytes_sent']} bytes, "
           f"bad MAVLink {report['rx_bad']}, store {store.get('dir')} {mode}", flush=True)

@@ -30,6 +30,8 @@ def register(add_command) -> None:
                    help="behave like old firmware: answer SET_MESSAGE_INTERVAL with UNSUPPORTED")
     p.add_argument("--fluid-density", type=float, default=1025.0, help="kg/m^3 for SCALED_PRESSURE2 (default 1025)")
     p.add_argument("--json", action="store_true", help="print the final counters as JSON")
+    p.add_argument("--signing-key", metavar="FILE", help="sign like ArduSub with this key (32 raw bytes or a "
+                   "passphrase): unsigned parameter writes and commands are then ignored (docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -69,13 +71,13 @@ def run(args: argparse.Namespace) -> int:
         require_non_negative(f"--{name.replace('_', '-')}", getattr(args, name))
     sim = SimVehicle(connection, load_profile(args.profile), system_id=args.system_id, rates=_rates(args.rate),
                      message_interval=not args.no_message_interval, fluid_density=args.fluid_density,
-                     reboot_s=args.reboot_s)
+                     reboot_s=args.reboot_s, signing_key_file=args.signing_key)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGUSR1, lambda *_: sim.silence(args.silence_for))
     signal.signal(signal.SIGUSR2, lambda *_: sim.reboot())
-    print(f"sim-vehicle: ArduSub system {args.system_id} on {connection} "
+    print(f"sim-vehicle: ArduSub system {args.system_id} on {connection}{' (signed)' if args.signing_key else ''} "
           f"(dive {sim.profile.duration:.0f} s; SIGUSR1: silent {args.silence_for:g} s, SIGUSR2: reboot)", flush=True)
     result = run_sim_vehicle(sim, duration=args.duration, silence_at=args.silence_at, silence_for=args.silence_for,
                              reboot_at=args.reboot_at, stop=stop, report=lambda line: print(line, flush=True))

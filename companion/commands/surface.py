@@ -13,6 +13,7 @@ from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
 from companion.topside.web import WebServer
 from vehicle.link.connection import parse_connection
+from vehicle.link.signing import load_key
 
 log = logging.getLogger("merlion.surface")
 
@@ -34,7 +35,8 @@ def register(add_command) -> None:
                         "second routed port such as udpin:0.0.0.0:14560, see docs/surface-tool.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="gallery folder (created; reopened if it exists)")
     p.add_argument("--web", type=int, metavar="PORT", help="serve the live page on this port (0: any free port)")
-    p.add_argument("--web-host", default="0.0.0.0", help="address the page listens on (default all)")
+    p.add_argument("--web-host", default="127.0.0.1", help="address the page listens on (default 127.0.0.1, this "
+                   "machine only; 0.0.0.0 for every interface: changes still need the printed URL's token)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests, demos)")
     p.add_argument("--companion", type=_ids, metavar="SYS:COMP",
                    help="the companion's ids (default: the camera component that sends captures)")
@@ -44,6 +46,8 @@ def register(add_command) -> None:
     p.add_argument("--push-timeout", type=float, default=30.0, metavar="S",
                    help="fetch a capture's thumbnail by FTP when no push brought it within S seconds")
     p.add_argument("--no-ftp", action="store_true", help="never pull by MAVLink FTP (push only)")
+    p.add_argument("--signing-key", metavar="FILE", help="MAVLink 2 signing key (32 raw bytes or a passphrase, as "
+                   "MAVProxy's signing setup): sign what the tool sends (docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -57,8 +61,11 @@ def run(args: argparse.Namespace) -> int:
     if args.push_timeout <= 0:
         raise UsageError(f"--push-timeout {args.push_timeout}: must be positive")
     check_port_free(args.connect)
+    if args.signing_key:  # before the gallery folder is made
+        load_key(args.signing_key)
     options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
-                             companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp)
+                             companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp,
+                             signing_key_file=args.signing_key)
     return serve(options, args.out, web_port=args.web, web_host=args.web_host, duration=args.duration)
 
 
@@ -80,7 +87,7 @@ def check_port_free(connect: str) -> None:
         probe.close()
 
 
-def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "0.0.0.0",
+def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "127.0.0.1",
           duration: float | None = None, stop: threading.Event | None = None) -> int:
     """Run the surface tool until SIGINT/SIGTERM, ``stop``, or ``duration``; what tests and the demo call."""
     stop = stop or threading.Event()
@@ -92,7 +99,7 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
         web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame)
         web.start()
         # the line the demo and tests wait for (the port matters when 0 was asked)
-        print(f"merlion surface: live page at http://127.0.0.1:{web.port}/", flush=True)
+        print(f"merlion surface: live page at {web.url}", flush=True)
     print(f"merlion surface: listening on {options.connect}, gallery in {gallery.root}", flush=True)
     previous = {}
     if threading.current_thread() is threading.main_thread():

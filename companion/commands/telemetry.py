@@ -18,6 +18,8 @@ def register(add_command) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--no-rates", action="store_true", help="do not ask the autopilot for message rates (listen only)")
     p.add_argument("--json", action="store_true", help="print the final state and counters as JSON")
+    p.add_argument("--signing-key", metavar="FILE", help="override mavlink.signing_key_file: MAVLink 2 signing key "
+                   "(32 raw bytes or a passphrase, as MAVProxy's signing setup; docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -29,11 +31,17 @@ def run(args: argparse.Namespace) -> int:
     from vehicle.link.connection import parse_connection
 
     require_positive("--duration", args.duration)
-    overrides = {"mavlink": {"connection": args.connect}} if args.connect else None
+    overrides = {"mavlink": {"connection": args.connect}} if args.connect else {}
+    if args.signing_key:
+        overrides.setdefault("mavlink", {})["signing_key_file"] = args.signing_key
     cfg = load_config(args.config, overrides=overrides, environ=dict(os.environ))
     if not cfg.mavlink.connection:
         raise UsageError("mavlink.connection is null: give --connect")
     parse_connection(cfg.mavlink.connection)
+    if cfg.mavlink.signing_key_file:
+        from vehicle.link.signing import load_key
+
+        load_key(cfg.mavlink.signing_key_file)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

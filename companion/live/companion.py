@@ -319,6 +319,7 @@ class LiveCompanion:
             "bytes_sent": link.tx_bytes if link is not None else 0,
             "bytes_received": link.rx_bytes if link is not None else 0,
             "rx_bad": link.rx_bad if link is not None else 0,
+            "signing": link.signing.stats() if link is not None else {"enabled": False},
             "source_state": self.source.state if self.source is not None else "",
             "source_failures": self.source.failures if self.source is not None else 0,
             "store": self.store.describe() if self.store is not None else {},

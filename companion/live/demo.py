@@ -62,6 +62,8 @@ class DemoOptions:
     quiet: bool = False
     web_port: int = 0
     """The surface tool's live page (0: a free port); its URL is printed at the start."""
+    signing_key: str | None = None
+    """MAVLink 2 signing key file shared by the simulator, the companion and the surface tool."""
 
 
 def check_source(opts: DemoOptions) -> None:
@@ -77,7 +79,7 @@ def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
     data: dict[str, Any] = {
         "source": {"uri": source, "fps": opts.fps, "realtime": opts.realtime, "loop": bool(opts.source)},
         "encoder": {"name": opts.encoder},
-        "mavlink": {"connection": hub_url, "component_id": 100},
+        "mavlink": {"connection": hub_url, "component_id": 100, "signing_key_file": opts.signing_key},
         "surface": {"budget_bytes_per_s": opts.budget_bytes_per_s},
         "store": {"dir": str(opts.out / "store")},
         "health": {"stall_after_s": 60.0},
@@ -205,10 +207,11 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
     companion: LiveCompanion | None = None
     started = time.monotonic()
     try:
-        sim = _spawn(_merlion("sim-vehicle", "--connect", hub.url), logs / "sim-vehicle.log")
+        signing = ["--signing-key", opts.signing_key] if opts.signing_key else []
+        sim = _spawn(_merlion("sim-vehicle", "--connect", hub.url, *signing), logs / "sim-vehicle.log")
         surface = _spawn(_merlion("surface", "--connect", f"udpin:127.0.0.1:{surface_port}", "--out",
                                   str(out / "surface"), "--companion", "1:100", "--web", str(opts.web_port),
-                                  "--web-host", "127.0.0.1"), logs / "surface.log")
+                                  "--web-host", "127.0.0.1", *signing), logs / "surface.log")
         page = _page_url(surface, logs / "surface.log")
         if page:
             _say(opts, f"merlion demo: surface page at {page} (live while the demo runs)")

@@ -138,6 +138,49 @@ def check_autopilot(cfg: Config, wait_s: float) -> Check:
         link.stop()
 
 
+def check_signing(cfg: Config, wait_s: float) -> Check:
+    """Is MAVLink 2 signing on, and does the autopilot act on our signed commands (and sign with our key)?
+
+    The probe is MAV_CMD_GET_MESSAGE_INTERVAL, a read that still needs a signature on a signed autopilot: an
+    autopilot with our key answers it, one with another key ignores it, and one with no key answers anyone."""
+    key_file = cfg.mavlink.signing_key_file
+    if not key_file:
+        return Check("signing", WARN, "off: anyone who can reach the link can change parameters and queries",
+                     "put one passphrase on the autopilot, the companion and the surface tool (docs/security.md)")
+    if not cfg.mavlink.connection:
+        return Check("signing", WARN, f"key {key_file}, but no vehicle link to check it on")
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    from vehicle.link.connection import MavLink
+
+    try:
+        link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="doctor")
+    except Exception as err:  # noqa: BLE001 - an unreadable key is a finding
+        return Check("signing", FAIL, str(err), "check mavlink.signing_key_file (docs/security.md)")
+    acks = threading.Event()
+    link.subscribe(lambda m: acks.set() if m.command == mav2.MAV_CMD_GET_MESSAGE_INTERVAL else None, ["COMMAND_ACK"])
+    link.start()
+    try:
+        if not link.wait_autopilot(wait_s):
+            return Check("signing", WARN, f"on (key {key_file}); no autopilot heartbeat to check it against")
+        autopilot = link.autopilot
+        for _ in range(3):  # a lost datagram is not a verdict
+            link.send(mav2.MAVLink_command_long_message(*autopilot, mav2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
+                                                        mav2.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0))
+            if acks.wait(min(1.0, wait_s)):
+                break
+        autopilot_signs = autopilot in link.signing.last_signed_from
+    finally:
+        link.stop()
+    if acks.is_set() and autopilot_signs:
+        return Check("signing", OK, f"on (key {key_file}); the autopilot signs with it and answers signed commands")
+    if acks.is_set():
+        return Check("signing", WARN, f"on (key {key_file}); the autopilot answers but does not sign: it has no key "
+                     "and obeys anyone", "put the same passphrase on the autopilot (MAVProxy: signing setup)")
+    return Check("signing", FAIL, f"on (key {key_file}); the autopilot ignores our signed commands (another key?)",
+                 "set the same passphrase on the autopilot and the companion (docs/security.md)")
+
+
 def check_encoder(cfg: Config) -> Check:
     enc = cfg.encoder
     if enc.name in ("clip", "auto"):
@@ -213,6 +256,7 @@ def run_checks(path: str | None, environ: dict[str, str], *, heartbeat_wait_s: f
     add(mav)
     if mav.status != FAIL:
         add(check_autopilot(cfg, heartbeat_wait_s))
+        add(check_signing(cfg, heartbeat_wait_s))
     add(check_encoder(cfg))
     add(check_cuda(cfg))
     add(check_disk(cfg))

@@ -70,6 +70,7 @@ class SurfaceOptions:
     """Pull index.json at most this often, and only after the summary changed."""
     ftp: bool = True
     statustext_keep: int = 20
+    signing_key_file: str | None = None
 
 
 @dataclass
@@ -117,7 +118,7 @@ class SurfaceTool:
         self._link = MavLink(
             options.connect,
             MavlinkConfig(connection=options.connect, system_id=options.system_id,
-                          component_id=options.component_id),
+                          component_id=options.component_id, signing_key_file=options.signing_key_file),
             name="surface", mav_type=MAV_TYPE_GCS,
         )
         self._opened = False

@@ -22,6 +22,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from vehicle.errors import UsageError
+from vehicle.link.signing import LinkSigning
 from vehicle.settings import MavlinkConfig
 
 log = logging.getLogger(__name__)
@@ -126,6 +127,7 @@ class MavLink:
         self._last_autopilot_seen: float | None = None
         self._conn: mavutil.mavfile | None = None
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
+        self.signing = LinkSigning.from_settings(cfg, name=name)
         self._rx = self._new_parser()
         self._send_lock = threading.Lock()
         self._subs_lock = threading.Lock()
@@ -198,6 +200,7 @@ class MavLink:
             if conn is None or not self._has_peer(conn):
                 return 0
             try:
+                self.signing.prepare(self._tx)
                 buf = msg.pack(self._tx)
                 self._tx.seq = (self._tx.seq + 1) % 256
                 self._tx.total_packets_sent += 1
@@ -237,6 +240,7 @@ class MavLink:
             "autopilot": self.autopilot, "autopilot_alive": self.autopilot_alive, "tx_bytes": self.tx_bytes,
             "tx_messages": self.tx_messages, "rx_bytes": self.rx_bytes, "rx_messages": self.rx_messages,
             "rx_bad": self.rx_bad, "rx_unknown": self.rx_unknown, "reconnects": self.reconnects,
+            "signing": self.signing.stats(),
         }
 
     # ----------------------------------------------------------------------------------------------- internals
@@ -390,6 +394,8 @@ class MavLink:
             self.rx_unknown += 1
             return
         self.rx_messages += 1
+        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id)):
+            return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self._autopilot_heartbeat(msg)
         for callback, types in self._subs:

@@ -71,6 +71,7 @@ class SimVehicle:
         reboot_s: float = 2.0,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
+        signing_key_file: str | None = None,
     ) -> None:
         unknown = set(rates or {}) - set(DEFAULT_RATES)
         if unknown:
@@ -83,8 +84,10 @@ class SimVehicle:
         self.reboot_s = reboot_s
         self.clock = clock
         self.wall_clock = wall_clock
-        self.link = MavLink(connection, MavlinkConfig(system_id=system_id, component_id=1), clock=clock,
-                            name="sim-ardusub", heartbeat=False)
+        self.link = MavLink(connection, MavlinkConfig(system_id=system_id, component_id=1,
+                                                      signing_key_file=signing_key_file),
+                            clock=clock, name="sim-ardusub", heartbeat=False)
+        self.link.subscribe(self._on_setup_signing, ["SETUP_SIGNING"])
         self.link.subscribe(self._on_command, ["COMMAND_LONG", "REQUEST_DATA_STREAM"])
         self.sent: dict[str, int] = dict.fromkeys(DEFAULT_RATES, 0)
         self.reboots = 0
@@ -100,6 +103,16 @@ class SimVehicle:
         self._reset_rates()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------------------------------ signing
+    def _on_setup_signing(self, msg: mav2.MAVLink_message) -> None:
+        """SETUP_SIGNING as ArduSub takes it: a new key (all zeros: signing off). The link only lets it through
+        unsigned while no key is set; once one is, it must come signed with that key, like any write."""
+        if msg.target_system not in (0, self.link.system_id):
+            return
+        self.link.signing.set_key(bytes(msg.secret_key), msg.initial_timestamp)
+        log.info("sim-ardusub: signing %s by %d/%d", "on" if self.link.signing.enabled else "off",
+                 msg.get_srcSystem(), msg.get_srcComponent())
 
     # ------------------------------------------------------------------------------------------ control
     def start(self) -> None:

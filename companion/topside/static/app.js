@@ -4,6 +4,8 @@
 
 const LIVE = location.protocol !== "file:";
 const FILES = LIVE ? "files/" : "";
+// the per-run token from the URL the tool printed: a full-frame fetch spends link bandwidth, so it must carry it
+const TOKEN = new URLSearchParams(location.search).get("token") || "";
 
 // the companion's NAMED_VALUE_FLOAT names, as a pilot reads them: label, decimals, unit
 const VALUE_LABELS = {
@@ -87,7 +89,8 @@ function openViewer(frame) {
     + img.naturalHeight + ", depth " + fmt(frame.depth_m, 1, " m") + ", " + timeText(frame.time_utc); };
   img.onerror = () => { note.textContent = "#" + frame.image_index + ": the vehicle did not send the full frame"
     + " (trimmed meanwhile, or the link is too slow)"; };
-  img.src = "full/" + frame.image_index + ".jpg?dive=" + encodeURIComponent(frame.dive || "");
+  img.src = "full/" + frame.image_index + ".jpg?dive=" + encodeURIComponent(frame.dive || "")
+    + "&token=" + encodeURIComponent(TOKEN);
 }
 
 function closeViewer() {

@@ -54,9 +54,9 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
     link = surface = None
     try:
         line = proc.stdout.readline()
-        match = re.search(r"live page at http://127\.0\.0\.1:(\d+)/", line)
+        match = re.search(r"live page at (http://127\.0\.0\.1:(\d+)/\?token=\S+)", line)
         assert match, line + proc.stderr.read() if proc.poll() is not None else line
-        web = int(match.group(1))
+        page_url, web = match.group(1), int(match.group(2))
         # the real companion side: its MAVLink link and Downlink
         link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
         link.start()
@@ -85,7 +85,7 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
         assert _wait(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
         assert _state(web)["link"]["mismatched"] == 0
-        with Page(f"http://127.0.0.1:{web}/") as page:
+        with Page(page_url) as page:
             # thumbnails really decode in the browser, newest first, each with its depth tag and dive
             loaded = ("[...document.querySelectorAll('#gallery figure.frame img')]"
                       ".every(i => i.complete && i.naturalWidth > 0)")
@@ -135,8 +135,10 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             assert r.headers["Content-Type"] == "image/jpeg" and r.read() == surface.tree.read("/summary/6.jpg")
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/files/log.csv", timeout=5) as r:
             assert r.read().startswith(b"event,wall_time,dive,image_index")
+        token = page_url.split("token=", 1)[1]
         for bad in ("files/../../etc/passwd", "files/summary/nope.jpg", "files/gallery.json.tmp",
-                    "full/7.jpg"):  # a full frame of a frame no longer in the summary: not fetched
+                    "full/6.jpg",  # a full-frame fetch spends link bandwidth: refused without the page's token
+                    f"full/7.jpg?token={token}"):  # a frame no longer in the summary: not fetched
             with pytest.raises(urllib.error.HTTPError):
                 urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
         proc.send_signal(signal.SIGTERM)

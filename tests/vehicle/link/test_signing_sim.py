@@ -1,0 +1,93 @@
+"""The simulated ArduSub with a key: the companion's rate requests are obeyed only because it signs them."""
+
+from __future__ import annotations
+
+import hashlib
+import socket
+
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+from companion.config import MavlinkConfig, TelemetryConfig
+from tests.conftest import free_udp_port
+from tests.vehicle.sim_env import FAST_LINK, quick_dive
+from tests.waiting import wait_until
+from vehicle.autopilot.telemetry import VehicleTelemetry
+from vehicle.link.connection import MavLink
+from vehicle.link.signing import now_timestamp
+from vehicle.sim.vehicle import SimVehicle
+
+SET_MESSAGE_INTERVAL = mav2.MAV_CMD_SET_MESSAGE_INTERVAL
+
+
+def _run(tmp_path, *, companion_signs: bool):
+    key_file = tmp_path / "key"
+    key_file.write_text("reef survey\n")
+    port = free_udp_port()
+    cfg = MavlinkConfig(**FAST_LINK, signing_key_file=str(key_file) if companion_signs else None)
+    link = MavLink(f"udpin:127.0.0.1:{port}", cfg)
+    tel = VehicleTelemetry(link, TelemetryConfig(attitude_hz=25.0, stale_after_s=0.4))
+    sim = SimVehicle(f"udpout:127.0.0.1:{port}", quick_dive(), rates={"HEARTBEAT": 5.0},
+                     signing_key_file=str(key_file))
+    tel.start()
+    link.start()
+    sim.start()
+    return link, tel, sim
+
+
+def test_a_signed_sim_obeys_the_companion_because_it_signs(tmp_path):
+    link, tel, sim = _run(tmp_path, companion_signs=True)
+    try:
+        assert wait_until(lambda: any(c[0] == SET_MESSAGE_INTERVAL for c in sim.commands), 10)
+        assert wait_until(lambda: tel.latest.depth_m is not None, 10)
+        assert sim.interval("ATTITUDE") == 1 / 25.0 or abs(sim.interval("ATTITUDE") - 0.04) < 1e-6
+        assert link.signing.accepted_signed > 0  # what the sim sends is signed with the key
+        assert sim.link.stats()["signing"]["rejected"] == 0
+    finally:
+        sim.stop()
+        tel.stop()
+        link.stop()
+
+
+def test_a_signed_sim_ignores_an_unsigned_companion_but_telemetry_still_flows(tmp_path):
+    link, tel, sim = _run(tmp_path, companion_signs=False)
+    try:
+        assert wait_until(lambda: sim.link.signing.rejected.get((1, 100), 0) >= 1, 10)
+        assert wait_until(lambda: tel.latest.depth_m is not None, 10)
+        assert sim.commands == []
+        assert sim.interval("ATTITUDE") != 1 / 25.0
+    finally:
+        sim.stop()
+        tel.stop()
+        link.stop()
+
+
+def test_setup_signing_from_a_ground_station_turns_signing_on(tmp_path):
+    key = hashlib.sha256(b"set by the gcs").digest()
+    port = free_udp_port()
+    sim = SimVehicle(f"udpin:127.0.0.1:{port}", quick_dive(), rates={"HEARTBEAT": 5.0})
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(0.05)
+    plain = mav2.MAVLink(None, 255, 190)
+    signed = mav2.MAVLink(None, 255, 190)
+    signed.signing.secret_key, signed.signing.sign_outgoing = key, True
+    signed.signing.timestamp = now_timestamp()
+    arm = mav2.MAVLink_command_long_message(1, 1, SET_MESSAGE_INTERVAL, 0, 30, 50_000, 0, 0, 0, 0, 0)
+    sim.start()
+    try:
+        assert sim.link.wait_open(5)
+        gcs.sendto(mav2.MAVLink_setup_signing_message(1, 1, list(key), now_timestamp()).pack(plain),
+                   ("127.0.0.1", port))
+        assert wait_until(lambda: sim.link.signing.enabled, 5)
+        gcs.sendto(arm.pack(plain), ("127.0.0.1", port))  # unsigned: ignored now
+        gcs.sendto(arm.pack(signed), ("127.0.0.1", port))
+        assert wait_until(lambda: len(sim.commands) == 1, 5)
+        assert sim.link.signing.rejected == {(255, 190): 1}
+        parser = mav2.MAVLink(None)
+        data, _ = gcs.recvfrom(4096)
+        while not parser.parse_buffer(data):
+            data, _ = gcs.recvfrom(4096)
+        assert data[2] & mav2.MAVLINK_IFLAG_SIGNED  # and what the sim sends is signed
+    finally:
+        gcs.close()
+        sim.stop()
