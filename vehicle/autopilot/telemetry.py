@@ -185,7 +185,7 @@ class VehicleTelemetry:
             roll, pitch, yaw = quaternion_to_euler(q)
             update.update(roll=roll, pitch=pitch, yaw=yaw, heading_deg=math.degrees(yaw) % 360.0)
         elif mtype == "GLOBAL_POSITION_INT":
-            self._depth(update, t, arrival, "global_position_int", -msg.relative_alt / 1000.0)
+            self._depth(update, t, arrival, "global_position_int", -msg.relative_alt / 1000.0, msg.vz / 100.0)
             if msg.hdg != 65535 and h is not None:
                 h.add_heading(t, msg.hdg / 100.0)
             if msg.lat != 0 or msg.lon != 0:  # 0/0 means the EKF has no origin
@@ -221,7 +221,8 @@ class VehicleTelemetry:
                 self._latest = replace(self._latest, time=arrival, **update)
             self._changed.notify_all()
 
-    def _depth(self, update: dict, t: float | None, arrival: float, source: str, depth: float) -> None:
+    def _depth(self, update: dict, t: float | None, arrival: float, source: str, depth: float,
+               rate_mps: float | None = None) -> None:
         """Record depth from ``source`` unless a better source has spoken within the stale limit."""
         self._depth_seen[source] = arrival
         rank = DEPTH_SOURCES.index(source)
@@ -232,6 +233,6 @@ class VehicleTelemetry:
         if source == "vfr_hud" and depth == 0.0 and self._latest.lat is None:
             return  # VFR_HUD.alt is 0 without an EKF origin: no information
         if t is not None:
-            self.history.add_depth(t, depth, source)
+            self.history.add_depth(t, depth, source, rate_mps)
         update.update(depth_m=depth, depth_source=source)
 
