@@ -150,6 +150,8 @@ class LiveCompanion:
             queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
         )
         self.surface.on_param_changed(self._on_param)
+        if self.telemetry is not None and hasattr(self.telemetry, "on_notice"):
+            self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
         self.surface.on_queries_changed(self._on_queries)
         self.link.on_autopilot(self._on_autopilot)
         self.link.start()
