@@ -524,4 +524,7 @@ def run_sim_vehicle(
     finally:
         sim.stop()
     return {"sent": dict(sim.sent), "reboots": sim.reboots, "commands": len(sim.commands),
-            "data_stream_requests": len(sim.data_stream_requests), "rx_bad": sim.link.rx_bad}
+            "data_stream_requests": len(sim.data_stream_requests), "rx_bad": sim.link.rx_bad,
+            "failsafes": [kind for _t, kind in sim.failsafes],
+            "peers": sorted(f"{system}/{component}" for system, component, _type in sim.heartbeat_senders),
+            "manual_control_from": sorted(f"{system}/{component}" for system, component in sim.manual_control_senders)}
