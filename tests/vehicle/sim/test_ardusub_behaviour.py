@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from tests.conftest import free_udp_port
 from tests.waiting import wait_until
+from vehicle.errors import UserError as MerlionError
 from vehicle.sim.dive_profile import compile_profile
 from vehicle.sim.vehicle import FS_GCS_TIMEOUT_S, FS_PILOT_TIMEOUT_S, SimVehicle
 
@@ -182,3 +183,13 @@ def test_depth_hold_in_alt_hold_and_manual_control_z_below_500_descends():
         assert sim.state().depth == pytest.approx(held, abs=1e-3) and sim.state().mode == "ALT_HOLD"
         rel = peer.of_type("GLOBAL_POSITION_INT", since=time.monotonic() - 0.4)
         assert rel and rel[-1].relative_alt == pytest.approx(-held * 1000, abs=5)
+
+
+def test_origin_delay_is_read_from_the_profile_and_checked():
+    legs = [{"hold": {"s": 1}}]
+    assert compile_profile({"origin": {"lat": 1, "lon": 2}, "legs": legs}).origin.after_s == 16.0  # as in SITL
+    assert compile_profile({"origin": {"lat": 1, "lon": 2, "after_s": 0}, "legs": legs}).origin.after_s == 0.0
+    with pytest.raises(MerlionError, match="origin.after_s must be >= 0"):
+        compile_profile({"origin": {"lat": 1, "lon": 2, "after_s": -1}, "legs": legs})
+    with pytest.raises(MerlionError, match="origin needs numeric lat and lon"):
+        compile_profile({"origin": {"lat": 1, "lon": 2, "after_s": "soon"}, "legs": legs})
