@@ -410,6 +410,8 @@ class SimVehicle:
 
     # ------------------------------------------------------------------------------------------ pilot, failsafes
     def _set_armed(self, armed: bool) -> None:
+        if not armed:
+            self._hold_depth(self.clock())  # thrusters off: the script no longer flies it (buoyancy not modelled)
         with self._lock:
             self._armed = armed
             self._pilot_seen = None  # the pilot-input timer starts with the first MANUAL_CONTROL after arming
@@ -447,8 +449,7 @@ class SimVehicle:
         if pilot_lost:
             self.failsafes.append((now - self._start, "pilot_input"))
             self.statustext(mav2.MAV_SEVERITY_CRITICAL, "Lost manual control")
-            self._hold_depth(now)  # set_neutral_controls()
-            self._set_armed(False)
+            self._set_armed(False)  # after set_neutral_controls()
         if gcs_lost:
             self.failsafes.append((now - self._start, "gcs"))
             self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")

@@ -145,6 +145,9 @@ def test_pilot_input_failsafe_disarms_when_manual_control_stops_and_reports_it()
         assert wait_until(lambda: peer.of_type("HEARTBEAT", since), 3)
         assert not peer.of_type("HEARTBEAT", since)[-1].base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
         assert sim.manual_control_senders == {(255, 190)}
+        held = sim.state().depth  # disarmed: the scripted descent no longer moves it
+        time.sleep(0.3)
+        assert sim.state().depth == held and sim.state().vd == 0.0
 
 
 def test_gcs_failsafe_after_system_255_heartbeats_stop():
