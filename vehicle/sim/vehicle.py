@@ -137,7 +137,8 @@ class SimVehicle:
         self._armed: bool | None = None  # None: as the dive profile says
         self._mode: str | None = None
         self._gcs_origin: Origin | None = None
-        self._pilot: tuple[float, float, float] | None = None  # (depth at t0, t0 in profile time, rate down m/s)
+        self._pilot: tuple[float, float, float, float, float] | None = None
+        """Flown, not scripted, since t0: (depth at t0, t0 in profile time, rate down m/s, north, east)."""
         self._pilot_seen: float | None = None  # clock of the last MANUAL_CONTROL while armed
         self._gcs_seen: float | None = None  # clock of the last heartbeat from GCS_SYSID
         self._in_failsafe: set[str] = set()
@@ -218,10 +219,10 @@ class SimVehicle:
         with self._lock:
             pilot, mode, armed = self._pilot, self._mode, self._armed
         if pilot is not None:
-            d0, t0, rate = pilot
+            d0, t0, rate, north, east = pilot
             depth = max(0.0, d0 + rate * (t - t0))
-            s = replace(s, depth=depth, vd=rate if depth > 0 or rate > 0 else 0.0, vn=0.0, ve=0.0,
-                        alt_m=None if s.alt_m is None else s.alt_m + s.depth - depth)
+            s = replace(s, depth=depth, vd=rate if depth > 0 or rate > 0 else 0.0, vn=0.0, ve=0.0, north=north,
+                        east=east, lat=None, lon=None, alt_m=None)  # the geodetic fields come from origin()
         if mode is not None:
             s = replace(s, mode=mode)
         if armed is not None:
@@ -411,7 +412,7 @@ class SimVehicle:
     # ------------------------------------------------------------------------------------------ pilot, failsafes
     def _set_armed(self, armed: bool) -> None:
         if not armed:
-            self._hold_depth(self.clock())  # thrusters off: the script no longer flies it (buoyancy not modelled)
+            self._fly(self.clock(), 0.0)  # thrusters off: the script no longer flies it (buoyancy not modelled)
         with self._lock:
             self._armed = armed
             self._pilot_seen = None  # the pilot-input timer starts with the first MANUAL_CONTROL after arming
@@ -426,10 +427,9 @@ class SimVehicle:
         now = self.clock()
         t = now - self._start
         armed = self.state_at(t).armed
-        depth = self.state_at(t).depth
         rate = 0.0 if not armed else max(-1.0, min(1.0, (500 - msg.z) / 500.0)) * PILOT_SPEED_MPS
+        self._fly(now, rate)
         with self._lock:
-            self._pilot = (depth, t, rate)
             if armed:
                 self._pilot_seen = now
                 self._in_failsafe.discard("pilot_input")
@@ -455,14 +455,19 @@ class SimVehicle:
             self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")
             if armed and self.gcs_failsafe == "disarm":
                 self._set_armed(False)
-            elif armed and self.gcs_failsafe in ("depth_hold", "surface"):
-                self._set_mode(_MODE_NUMBERS["ALT_HOLD" if self.gcs_failsafe == "depth_hold" else "SURFACE"])
+            elif armed and self.gcs_failsafe == "depth_hold":
+                self._set_mode(_MODE_NUMBERS["ALT_HOLD"])
+                self._fly(now, 0.0)
+            elif armed and self.gcs_failsafe == "surface":
+                self._set_mode(_MODE_NUMBERS["SURFACE"])
+                self._fly(now, -PILOT_SPEED_MPS)
 
-    def _hold_depth(self, now: float) -> None:
+    def _fly(self, now: float, rate_mps: float) -> None:
+        """From now on the vehicle stays where it is and moves vertically at ``rate_mps`` (down positive)."""
         t = now - self._start
-        depth = self.state_at(t).depth
+        s = self.state_at(t)
         with self._lock:
-            self._pilot = (depth, t, 0.0)
+            self._pilot = (s.depth, t, rate_mps, s.north, s.east)
 
     def _data_stream(self, msg: mav2.MAVLink_message) -> None:
         self.data_stream_requests.append((msg.req_stream_id, msg.req_message_rate, msg.start_stop))

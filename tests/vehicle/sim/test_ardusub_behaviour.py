@@ -161,7 +161,10 @@ def test_gcs_failsafe_after_system_255_heartbeats_stop():
         assert (255, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders and sim.failsafes == []
         assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
         assert wait_until(lambda: any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT")), 2)
-        assert sim.state().mode == "ALT_HOLD"  # FS_GCS_ENABLE = depth hold
+        assert sim.state().mode == "ALT_HOLD"  # FS_GCS_ENABLE = depth hold: it stops descending
+        held = sim.state().depth
+        time.sleep(0.3)
+        assert sim.state().depth == held > 0 and sim.state().armed
         # heartbeats from another system (a companion computer) never arm it
     with sim_and_peer(system=1, profile=_profile(None), gcs_timeout_s=0.5) as (sim, peer):
         peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_INVALID,
