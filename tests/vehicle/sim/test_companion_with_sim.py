@@ -1,7 +1,8 @@
 """The live companion (`merlion run`, a real process) beside the simulated ArduSub and a ground station on one
 UDP hub, as on a BlueOS vehicle, at the real firmware's stream rates: it never looks like a ground station (no
 system id 255, no MANUAL_CONTROL), never triggers a failsafe, and tags frames with depth within 5 cm of the
-simulator's true depth at their capture time during a 0.5 m/s descent."""
+simulator's true depth at their capture time during a 0.5 m/s descent. The simulated vehicle has no position
+source: the companion says so once."""
 
 from __future__ import annotations
 
@@ -69,7 +70,12 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
         wait_until(lambda: (GCS_SYSID, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders, 10, "the GCS heartbeat")
         wait_until(lambda: sum(f["capture_time"] - sim._start > 3.0 for f in _tagged_frames(store)) >= 5, 90,
                    "five frames tagged during the descent")
+        # the simulated vehicle has no position source: said once, in the log and as one STATUSTEXT (~9 s in)
+        listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and m.text.startswith("No position source"), 30,
+                          "the no-position-source STATUSTEXT")
+        companion.wait_for("no position source")
         assert companion.terminate() == 0, companion.output
+        assert sum(t.startswith("No position source") for t in listener.texts()) == 1
         frames = [f for f in _tagged_frames(store) if f["capture_time"] - sim._start > 3.0]
         errors = [abs(f["pose"]["depth_m"] - sim.state_at(f["capture_time"] - sim._start).depth) for f in frames]
         assert max(errors) <= 0.05, sorted(errors)
