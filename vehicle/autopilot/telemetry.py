@@ -161,6 +161,8 @@ class VehicleTelemetry:
     def _on_missing(self, name: str) -> None:
         """RateKeeper gave up expecting ``name`` (on its thread, once per declaration)."""
         if name != "LOCAL_POSITION_NED":
+            log.warning("the autopilot never sends %s, asked for %d times", name, self.rates.requests[name]
+                        if self.rates is not None else 0)
             return
         with self._lock:
             if self._latest.position_source is False:

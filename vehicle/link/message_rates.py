@@ -189,8 +189,9 @@ class RateKeeper:
         if name in self._arrived or name in self.missing or self.requests[name] < self.missing_after:
             return
         self.missing.add(name)
-        log.warning("rates: %s never arrived after %d requests; asking again less and less often (up to every "
-                    "%.0f s)", name, self.requests[name], self.backoff_max_s)
+        log.log(logging.INFO if self.on_missing is not None else logging.WARNING,  # the owner says what it means
+                "rates: %s never arrived after %d requests; asking again less and less often (up to every %.0f s)",
+                name, self.requests[name], self.backoff_max_s)
         if self.on_missing is not None:
             self.on_missing(name)
 
