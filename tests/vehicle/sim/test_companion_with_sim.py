@@ -1,7 +1,7 @@
 """The live companion (`merlion run`, a real process) beside the simulated ArduSub and a ground station on one
 UDP hub, as on a BlueOS vehicle, at the real firmware's stream rates: it never looks like a ground station (no
 system id 255, no MANUAL_CONTROL), never triggers a failsafe, and tags frames with depth within 5 cm of the
-simulator's true depth at their capture time during a 0.5 m/s descent. The simulated vehicle has no position
+simulator's true depth at their capture time while the pilot dives the vehicle at 0.5 m/s. The simulated vehicle has no position
 source: the companion says so once."""
 
 from __future__ import annotations
@@ -21,21 +21,29 @@ from vehicle.sim.vehicle import GCS_SYSID, SimVehicle
 
 
 class GroundStation:
-    """QGroundControl's part that matters here: a 1 Hz heartbeat as system 255 (it arms the GCS failsafe)."""
+    """QGroundControl with a joystick, the parts that matter here: a 1 Hz heartbeat as system 255 (it arms the GCS
+    failsafe) and MANUAL_CONTROL at 10 Hz with the stick full down (it arms the pilot-input failsafe and dives the
+    vehicle at 0.5 m/s)."""
 
     def __init__(self, hub: UdpHub) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.mav = mav2.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=190)
         self.hub = (hub.host, hub.port)
+        self.piloting_since = time.time()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
+        tick = 0
         while not self._stop.is_set():
-            hb = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
-            self.sock.sendto(hb.pack(self.mav), self.hub)
-            self._stop.wait(1.0)
+            if tick % 10 == 0:
+                hb = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+                self.sock.sendto(hb.pack(self.mav), self.hub)
+            stick = mav2.MAVLink_manual_control_message(1, 0, 0, 0, 0, 0)  # z 0: full down
+            self.sock.sendto(stick.pack(self.mav), self.hub)
+            tick += 1
+            self._stop.wait(0.1)
 
     def stop(self) -> None:
         self._stop.set()
@@ -56,7 +64,7 @@ def _tagged_frames(store: Path) -> list[dict]:
 def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_path: Path) -> None:
     listener = Listener()
     hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
-    dive = compile_profile({"legs": [{"hold": {"s": 2.0}}, {"descend": {"to_m": 40.0, "rate_mps": 0.5}}]})
+    dive = compile_profile({"legs": [{"hold": {"s": 600.0, "mode": "ALT_HOLD"}}]})  # the pilot flies it
     sim = SimVehicle(hub.url, dive, clock=time.time)  # wall clock: the frames' capture times index its truth
     sim.start()
     gcs = GroundStation(hub)
@@ -68,7 +76,8 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
     try:
         companion.wait_for("autopilot heartbeat back")
         wait_until(lambda: (GCS_SYSID, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders, 10, "the GCS heartbeat")
-        wait_until(lambda: sum(f["capture_time"] - sim._start > 3.0 for f in _tagged_frames(store)) >= 5, 90,
+        descending = gcs.piloting_since + 1.0
+        wait_until(lambda: sum(f["capture_time"] > descending for f in _tagged_frames(store)) >= 5, 90,
                    "five frames tagged during the descent")
         # the simulated vehicle has no position source: said once, in the log and as one STATUSTEXT (~9 s in)
         listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and m.text.startswith("No position source"), 30,
@@ -76,7 +85,8 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
         companion.wait_for("no position source")
         assert companion.terminate() == 0, companion.output
         assert sum(t.startswith("No position source") for t in listener.texts()) == 1
-        frames = [f for f in _tagged_frames(store) if f["capture_time"] - sim._start > 3.0]
+        frames = [f for f in _tagged_frames(store) if f["capture_time"] > descending]
+        assert sim.state().vd == 0.5 and sim.state().depth > 2.0 and sim.state().armed
         errors = [abs(f["pose"]["depth_m"] - sim.state_at(f["capture_time"] - sim._start).depth) for f in frames]
         assert max(errors) <= 0.05, sorted(errors)
         assert {f["pose"]["depth_source"] for f in frames} == {"global_position_int"}
@@ -89,7 +99,7 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
     ours = {s for s in sim.heartbeat_senders if s[2] != mav2.MAV_TYPE_GCS}
     assert ours and all(system == sim.link.system_id for system, _c, _t in ours), sim.heartbeat_senders
     assert {s[:2] for s in sim.heartbeat_senders if s[0] == GCS_SYSID} == {(GCS_SYSID, 190)}
-    assert sim.manual_control_senders == set()
+    assert sim.manual_control_senders == {(GCS_SYSID, 190)}  # the pilot's, and nobody else's
     assert sim.failsafes == [] and not [t for _s, t in sim.statustexts if "failsafe" in t.lower()]
     camera = [m for m in listener.of_type("HEARTBEAT") if m.type == mav2.MAV_TYPE_CAMERA]
     assert camera and {(m.get_srcSystem(), m.get_srcComponent()) for m in camera} == {(1, 100)}
