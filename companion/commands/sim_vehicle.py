@@ -29,6 +29,12 @@ def register(add_command) -> None:
     p.add_argument("--no-message-interval", action="store_true",
                    help="behave like old firmware: answer SET_MESSAGE_INTERVAL with UNSUPPORTED")
     p.add_argument("--fluid-density", type=float, default=1025.0, help="kg/m^3 for SCALED_PRESSURE2 (default 1025)")
+    p.add_argument("--pilot-timeout", type=float, default=3.0, metavar="S",
+                   help="FS_PILOT_TIMEOUT: disarm when MANUAL_CONTROL stops this long while armed (default 3)")
+    p.add_argument("--gcs-timeout", type=float, default=5.0, metavar="S",
+                   help="FS_GCS_TIMEOUT: GCS failsafe when system 255's heartbeats stop this long (default 5)")
+    p.add_argument("--gcs-failsafe", choices=["warn", "disarm", "depth_hold", "surface"], default="depth_hold",
+                   help="FS_GCS_ENABLE action (default depth_hold)")
     p.add_argument("--json", action="store_true", help="print the final counters as JSON")
     p.add_argument("--signing-key", metavar="FILE", help="sign like ArduSub with this key (32 raw bytes or a "
                    "passphrase): unsigned parameter writes and commands are then ignored (docs/security.md)")
@@ -65,13 +71,14 @@ def run(args: argparse.Namespace) -> int:
     parse_connection(connection)
     if not 1 <= args.system_id <= 254:
         raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the ground station's)")
-    for name in ("duration", "silence_for", "reboot_s", "fluid_density"):
+    for name in ("duration", "silence_for", "reboot_s", "fluid_density", "pilot_timeout", "gcs_timeout"):
         require_positive(f"--{name.replace('_', '-')}", getattr(args, name))
     for name in ("silence_at", "reboot_at"):
         require_non_negative(f"--{name.replace('_', '-')}", getattr(args, name))
     sim = SimVehicle(connection, load_profile(args.profile), system_id=args.system_id, rates=_rates(args.rate),
                      message_interval=not args.no_message_interval, fluid_density=args.fluid_density,
-                     reboot_s=args.reboot_s, signing_key_file=args.signing_key)
+                     reboot_s=args.reboot_s, pilot_timeout_s=args.pilot_timeout, gcs_timeout_s=args.gcs_timeout,
+                     gcs_failsafe=args.gcs_failsafe, signing_key_file=args.signing_key)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -85,5 +92,5 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result), flush=True)
     else:
         print(f"sim-vehicle: sent {sum(result['sent'].values())} messages, {result['commands']} commands answered, "
-              f"{result['reboots']} reboots", flush=True)
+              f"{result['reboots']} reboots, failsafes: {', '.join(result['failsafes']) or 'none'}", flush=True)
     return 0

@@ -151,6 +151,8 @@ class LiveCompanion:
             dive=self.store.dive,
         )
         self.surface.on_param_changed(self._on_param)
+        if self.telemetry is not None and hasattr(self.telemetry, "on_notice"):
+            self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
         self.surface.on_queries_changed(self._on_queries)
         self.link.on_autopilot(self._on_autopilot)
         self.link.start()

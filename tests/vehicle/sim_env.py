@@ -18,7 +18,7 @@ FAST_LINK = {"heartbeat_timeout_s": 0.6, "reconnect_initial_s": 0.05, "reconnect
 
 def quick_dive() -> DiveProfile:
     """A dive that changes fast enough to check in a few seconds: 2 m/s down to 6 m, then a short survey."""
-    return compile_profile({"origin": {"lat": 1.25, "lon": 103.8}, "legs": [
+    return compile_profile({"origin": {"lat": 1.25, "lon": 103.8, "after_s": 0}, "legs": [
         {"hold": {"s": 0.5}},
         {"descend": {"to_m": 6.0, "rate_mps": 2.0}},
         {"lawnmower": {"lanes": 2, "length_m": 4.0, "spacing_m": 2.0, "speed_mps": 1.0}},

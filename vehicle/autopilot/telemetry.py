@@ -4,7 +4,9 @@
 ``time_boot_ms`` to the companion's wall clock (``BootClock``), records depth, attitude, heading and position in a
 ``PoseHistory`` and asks for the rates it needs (``RateKeeper``). Depth comes from GLOBAL_POSITION_INT.relative_alt
 when the autopilot sends it, else from SCALED_PRESSURE2 (with the configured fluid density and surface pressure),
-else from VFR_HUD.alt; the source of every sample is recorded.
+else from VFR_HUD.alt; the source of every sample is recorded. When LOCAL_POSITION_NED never comes (an ArduSub
+without a position source: no DVL, no USBL) it is asked for less and less often, and the companion says so once:
+a log line and a notice (``on_notice``) the live app turns into one STATUSTEXT.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from typing import Any
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
@@ -59,6 +62,8 @@ class TelemetrySnapshot:
     """The autopilot's own UTC (SYSTEM_TIME), when it has one."""
     clock_offset_s: float | None = None
     autopilot_reboots: int = 0
+    position_source: bool | None = None
+    """False once LOCAL_POSITION_NED was asked for and never came (no DVL/USBL), True once it came."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -73,13 +78,17 @@ class VehicleTelemetry:
     """Attach to a link with ``start()``; read ``latest`` and ``pose_at(t)`` from any thread."""
 
     def __init__(self, link: MavLink, cfg: TelemetryConfig, *, clock: Callable[[], float] = time.time,
-                 request_rates: bool = True, rate_clock: Callable[[], float] = time.monotonic) -> None:
+                 request_rates: bool = True, rate_clock: Callable[[], float] = time.monotonic,
+                 rate_options: dict[str, Any] | None = None) -> None:
+        """``rate_options``: RateKeeper settings (grace_s, backoff_max_s, missing_after, ...) for tools and tests."""
         self.link = link
         self.cfg = cfg
         self.clock = clock
         self.boot_clock = BootClock()
         self.history = PoseHistory(cfg.stale_after_s, cfg.history_s)
-        self.rates = RateKeeper(link, self.wanted_rates(cfg), clock=rate_clock) if request_rates else None
+        self.rates = RateKeeper(link, self.wanted_rates(cfg), clock=rate_clock, on_missing=self._on_missing,
+                                **(rate_options or {})) if request_rates else None
+        self._notices: list[Callable[[str, int], None]] = []
         self.messages = 0
         self._lock = threading.Lock()
         self._latest = TelemetrySnapshot()
@@ -111,6 +120,10 @@ class VehicleTelemetry:
             self._unsubscribe = None
         if self.rates is not None:
             self.rates.stop()
+
+    def on_notice(self, callback: Callable[[str, int], None]) -> None:
+        """``callback(text, severity)`` for news worth one STATUSTEXT (text <= 50 characters, MAV_SEVERITY_*)."""
+        self._notices.append(callback)
 
     @property
     def latest(self) -> TelemetrySnapshot:
@@ -144,6 +157,21 @@ class VehicleTelemetry:
     def _on_autopilot(self, alive: bool) -> None:
         with self._changed:
             self._changed.notify_all()
+
+    def _on_missing(self, name: str) -> None:
+        """RateKeeper gave up expecting ``name`` (on its thread, once per declaration)."""
+        if name != "LOCAL_POSITION_NED":
+            log.warning("the autopilot never sends %s, asked for %d times", name, self.rates.requests[name]
+                        if self.rates is not None else 0)
+            return
+        with self._lock:
+            if self._latest.position_source is False:
+                return  # said once already
+            self._latest = replace(self._latest, position_source=False)
+        log.warning("no position source: the autopilot never sends LOCAL_POSITION_NED (no DVL or USBL); frames "
+                    "carry depth and attitude only")
+        for notify in self._notices:
+            notify("No position source (no DVL/USBL): depth only", mav2.MAV_SEVERITY_INFO)
 
     def _sample_time(self, msg: mav2.MAVLink_message, arrival: float) -> float | None:
         """When the autopilot measured ``msg``, in its seconds since boot (None: not placeable yet)."""
@@ -185,7 +213,7 @@ class VehicleTelemetry:
             roll, pitch, yaw = quaternion_to_euler(q)
             update.update(roll=roll, pitch=pitch, yaw=yaw, heading_deg=math.degrees(yaw) % 360.0)
         elif mtype == "GLOBAL_POSITION_INT":
-            self._depth(update, t, arrival, "global_position_int", -msg.relative_alt / 1000.0)
+            self._depth(update, t, arrival, "global_position_int", -msg.relative_alt / 1000.0, msg.vz / 100.0)
             if msg.hdg != 65535 and h is not None:
                 h.add_heading(t, msg.hdg / 100.0)
             if msg.lat != 0 or msg.lon != 0:  # 0/0 means the EKF has no origin
@@ -203,7 +231,7 @@ class VehicleTelemetry:
         elif mtype == "LOCAL_POSITION_NED":
             if h is not None:
                 h.add_local_position(t, msg.x, msg.y, msg.z)
-            update.update(north_m=msg.x, east_m=msg.y, down_m=msg.z)
+            update.update(north_m=msg.x, east_m=msg.y, down_m=msg.z, position_source=True)
         elif mtype == "SYS_STATUS":
             if msg.voltage_battery != 65535:
                 update["battery_v"] = msg.voltage_battery / 1000.0
@@ -221,7 +249,8 @@ class VehicleTelemetry:
                 self._latest = replace(self._latest, time=arrival, **update)
             self._changed.notify_all()
 
-    def _depth(self, update: dict, t: float | None, arrival: float, source: str, depth: float) -> None:
+    def _depth(self, update: dict, t: float | None, arrival: float, source: str, depth: float,
+               rate_mps: float | None = None) -> None:
         """Record depth from ``source`` unless a better source has spoken within the stale limit."""
         self._depth_seen[source] = arrival
         rank = DEPTH_SOURCES.index(source)
@@ -232,6 +261,6 @@ class VehicleTelemetry:
         if source == "vfr_hud" and depth == 0.0 and self._latest.lat is None:
             return  # VFR_HUD.alt is 0 without an EKF origin: no information
         if t is not None:
-            self.history.add_depth(t, depth, source)
+            self.history.add_depth(t, depth, source, rate_mps)
         update.update(depth_m=depth, depth_source=source)
 

@@ -28,6 +28,8 @@ def describe(s: TelemetrySnapshot) -> str:
                      f"heading {round(s.heading_deg) % 360} deg")
     if s.north_m is not None:
         parts.append(f"NED {s.north_m:.1f}/{s.east_m:.1f}/{s.down_m:.1f} m")
+    elif s.position_source is False:
+        parts.append("no position source")
     if s.mode is not None:
         parts.append(f"{'armed' if s.armed else 'disarmed'} {s.mode}")
     if s.battery_v is not None:
@@ -70,6 +72,8 @@ def watch_telemetry(
                                  "link": link.stats(), "messages": telemetry.messages}
     if telemetry.rates is not None:
         result["rates"] = {name: {"asked_hz": hz, "observed_hz": round(telemetry.rates.observed_hz(name), 2),
-                                  "method": telemetry.rates.method.get(name)}
+                                  "method": telemetry.rates.method.get(name),
+                                  "requests": telemetry.rates.requests[name],
+                                  "missing": name in telemetry.rates.missing}
                            for name, hz in telemetry.rates.wanted.items()}
     return result

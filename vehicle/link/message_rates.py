@@ -3,9 +3,13 @@
 MAV_CMD_SET_MESSAGE_INTERVAL (ArduPilot 4.0+) is sent per message and its COMMAND_ACK checked; an autopilot that
 answers UNSUPPORTED (or never answers) gets the legacy REQUEST_DATA_STREAM for the stream holding that message.
 The ground station may change the same rates later, so the rates that actually arrive are watched, and a message
-arriving at less than half the asked rate is asked for again (with back-off, so a message the vehicle cannot
-produce, such as LOCAL_POSITION_NED without a DVL, costs a few bytes a minute, not a flood). After an autopilot
-reboot (heartbeat lost, then found) everything is asked for again.
+arriving at less than half the asked rate is asked for again, with exponential back-off (grace_s, then 2, 4, 8, ...
+times it, capped at backoff_max_s), so a message the vehicle cannot produce costs a few bytes a minute, not a
+flood. A message that has not arrived once after ``missing_after`` requests is declared missing, once: logged and
+passed to ``on_missing`` (an ArduSub without a position source, a DVL or USBL, accepts the request for
+LOCAL_POSITION_NED and never sends it). It is asked for on the same back-off after that; when it arrives the
+declaration is lifted. After an autopilot reboot (heartbeat lost, then found)
+everything is asked for again.
 """
 
 from __future__ import annotations
@@ -49,6 +53,8 @@ class RateKeeper:
         window_s: float = 5.0,
         grace_s: float = 3.0,
         backoff_max_s: float = 60.0,
+        missing_after: int = 3,
+        on_missing: Callable[[str], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.link = link
@@ -61,7 +67,12 @@ class RateKeeper:
         self.window_s = window_s
         self.grace_s = grace_s
         self.backoff_max_s = backoff_max_s
+        self.missing_after = missing_after
+        self.on_missing = on_missing
         self.clock = clock
+        self.missing: set[str] = set()
+        """Messages asked for ``missing_after`` times that never arrived."""
+        self._arrived: set[str] = set()
         self.method: dict[str, str] = {}
         """How each message was last asked for: interval | data_stream."""
         self.requests: dict[str, int] = dict.fromkeys(self.wanted, 0)
@@ -70,6 +81,7 @@ class RateKeeper:
         self._arrivals: dict[str, deque[float]] = {name: deque() for name in self.wanted}
         self._asked_at: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
+        self._check_at: dict[str, float] = {}  # when each asked-for message is next looked at
         self._ack_cv = threading.Condition()
         self._last_ack: tuple[int, int] | None = None
         self._ack_serial = 0
@@ -122,6 +134,11 @@ class RateKeeper:
             return
         q = self._arrivals[mtype]
         q.append(self.clock())
+        if mtype not in self._arrived:
+            self._arrived.add(mtype)
+            if mtype in self.missing:
+                self.missing.discard(mtype)
+                log.info("rates: %s arrives now", mtype)
         if len(q) > 4 * self.wanted[mtype] * self.window_s + 16:
             q.popleft()
 
@@ -129,12 +146,13 @@ class RateKeeper:
         if alive:  # found, or back after a loss (maybe a reboot that reset every rate): ask for everything
             self._asked_at.clear()
             self._backoff.clear()
+            self._check_at.clear()
             self._interval_supported = True
             self._wake.set()
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            self._wake.wait(1.0)
+            self._wake.wait(self._until_next_check())
             self._wake.clear()
             if self._stop.is_set():
                 break
@@ -146,9 +164,10 @@ class RateKeeper:
                     break
                 asked = self._asked_at.get(name)
                 if asked is not None:
-                    if now - asked < max(self.grace_s, self._backoff.get(name, 0.0)):
+                    if now < self._check_at.get(name, 0.0):
                         continue
                     if self.observed_hz(name) >= 0.5 * hz:
+                        self._check_at[name] = now + self.grace_s
                         continue
                     self._backoff[name] = min(2 * max(self._backoff.get(name, self.grace_s), self.grace_s),
                                               self.backoff_max_s)
@@ -156,6 +175,25 @@ class RateKeeper:
                              self.observed_hz(name), hz)
                 self._request(name, hz)
                 self._asked_at[name] = self.clock()
+                self._check_at[name] = self._asked_at[name] + max(self.grace_s, self._backoff.get(name, 0.0))
+                self._check_missing(name)
+
+    def _until_next_check(self) -> float:
+        """Seconds until the next message is due to be checked (at most 1 s, so a short back-off is kept)."""
+        if not self.link.autopilot_alive:
+            return 1.0  # nothing to ask a lost autopilot; finding it again sets _wake
+        now = self.clock()
+        return max(0.01, min([1.0, *(t - now for t in list(self._check_at.values()))]))
+
+    def _check_missing(self, name: str) -> None:
+        if name in self._arrived or name in self.missing or self.requests[name] < self.missing_after:
+            return
+        self.missing.add(name)
+        log.log(logging.INFO if self.on_missing is not None else logging.WARNING,  # the owner says what it means
+                "rates: %s never arrived after %d requests; asking again less and less often (up to every %.0f s)",
+                name, self.requests[name], self.backoff_max_s)
+        if self.on_missing is not None:
+            self.on_missing(name)
 
     def _request(self, name: str, hz: float) -> None:
         self.requests[name] += 1

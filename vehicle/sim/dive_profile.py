@@ -3,7 +3,8 @@
 The legs compile into a piecewise-linear track of keyframes, so the vehicle state at any time is exact and cheap
 to compute, and tests can predict what the simulator will report. Example profile::
 
-    origin: {lat: 1.2644, lon: 103.8222, alt_m: 0.0}   # EKF origin; leave out to simulate "no origin"
+    origin: {lat: 1.2644, lon: 103.8222, alt_m: 0.0, after_s: 16}   # EKF origin (set 16 s after boot, as in
+                                                                     # ArduSub SITL); leave out: no position source
     loop: true                                           # start over at the end
     legs:
       - descend: {to_m: 8, rate_mps: 0.5}
@@ -23,6 +24,8 @@ import yaml
 from vehicle.errors import UserError as MerlionError
 
 _EARTH_RADIUS_M = 6378137.0
+ORIGIN_AFTER_S = 16.0
+"""ArduSub SITL's EKF sets its origin about this long after boot (with a position source)."""
 _LEG_KEYS = {
     "descend": {"to_m", "rate_mps", "mode"},
     "ascend": {"to_m", "rate_mps", "mode"},
@@ -65,9 +68,19 @@ class VehicleState:
 
 @dataclass(frozen=True)
 class Origin:
+    """Where the EKF puts north/east 0; ``after_s``: seconds after boot until it has it (ArduSub SITL: ~16 s)."""
+
     lat: float
     lon: float
     alt_m: float = 0.0
+    after_s: float = ORIGIN_AFTER_S
+
+
+def geodetic(origin: Origin, north: float, east: float, depth: float) -> tuple[float, float, float]:
+    """(lat, lon, alt_m) of a point ``north``/``east``/``depth`` metres from ``origin`` (flat earth, fine for a dive)."""
+    lat = origin.lat + math.degrees(north / _EARTH_RADIUS_M)
+    lon = origin.lon + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(origin.lat))))
+    return lat, lon, origin.alt_m - depth
 
 
 class DiveProfile:
@@ -113,9 +126,7 @@ class DiveProfile:
         pitch = 0.5 * self.sway * math.sin(2 * math.pi * t / 11.0)
         lat = lon = alt = None
         if self.origin is not None:
-            lat = self.origin.lat + math.degrees(north / _EARTH_RADIUS_M)
-            lon = self.origin.lon + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(self.origin.lat))))
-            alt = self.origin.alt_m - depth
+            lat, lon, alt = geodetic(self.origin, north, east, depth)
         return VehicleState(t, north, east, depth, vn, ve, vd, roll, pitch, yaw, b.mode, self.armed, lat, lon, alt)
 
 
@@ -148,9 +159,12 @@ def compile_profile(data: dict[str, Any], *, origin_name: str = "dive profile") 
     if data.get("origin") is not None:
         o = data["origin"]
         try:
-            origin = Origin(float(o["lat"]), float(o["lon"]), float(o.get("alt_m", 0.0)))
-        except (TypeError, KeyError, ValueError):
-            raise MerlionError(f"{origin_name}: origin needs numeric lat and lon") from None
+            origin = Origin(float(o["lat"]), float(o["lon"]), float(o.get("alt_m", 0.0)),
+                            float(o.get("after_s", ORIGIN_AFTER_S)))
+        except (TypeError, KeyError, ValueError, AttributeError):
+            raise MerlionError(f"{origin_name}: origin needs numeric lat and lon (and alt_m, after_s)") from None
+        if origin.after_s < 0:
+            raise MerlionError(f"{origin_name}: origin.after_s must be >= 0, got {origin.after_s}")
     frames = [Keyframe(0.0, 0.0, 0.0, 0.0, 0.0, "MANUAL")]
 
     def add(dt: float, north: float, east: float, depth: float, mode: str) -> None:

@@ -4,7 +4,9 @@ A tlog (QGroundControl, MAVProxy) is a sequence of records: an 8-byte big-endian
 the epoch, then one MAVLink packet (v1 or v2). Each packet is checked (CRC, known message) and sent unchanged, so
 the receiver sees the recorded system/component ids and sequence numbers, at the recorded pace divided by
 ``speed``. Corrupt records are skipped and counted; after one the reader scans forward to the next record that
-looks right (a plausible timestamp followed by a packet whose CRC checks out).
+looks right (a plausible timestamp followed by a packet whose CRC checks out). The log is read in chunks as it
+is replayed (a record never spans more than ~300 bytes, so a window of one chunk is enough): a 2 GB log replays
+in the memory of one chunk.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
@@ -26,6 +29,8 @@ log = logging.getLogger(__name__)
 
 _MAX_STEP_US = 24 * 3600 * 1_000_000  # a next record more than a day away is not a timestamp
 _MAX_BACK_US = 3600 * 1_000_000
+_CHUNK = 256 << 10
+_LOOKAHEAD = 1024  # > 8-byte timestamp + the longest signed MAVLink 2 packet (280) + the next record's header
 
 
 @dataclass(frozen=True)
@@ -64,23 +69,41 @@ def read_tlog(path: str | Path, stats: TlogStats | None = None) -> Iterator[Tlog
     """The good records of a tlog in file order; bad ones are counted in ``stats``."""
     p = Path(path)
     try:
-        data = p.read_bytes()
+        f = p.open("rb")
     except FileNotFoundError:
         raise MerlionError(f"{p}: no such telemetry log") from None
     except OSError as err:
         raise MerlionError(f"{p}: cannot read ({err.strerror})") from None
-    stats = stats if stats is not None else TlogStats()
+    with f:
+        yield from _records(p, f, stats if stats is not None else TlogStats())
+
+
+def _records(p: Path, f: BinaryIO, stats: TlogStats) -> Iterator[TlogRecord]:
+    """The record scanner over a sliding window ``data`` of the file; ``base`` is the file offset of data[0]."""
     parser = mav2.MAVLink(None)
+    data, base, eof = bytearray(), 0, False
     pos, last_t, found_any = 0, None, False
     in_resync = False
-    while pos + 8 < len(data):
+    while True:
+        if not eof and len(data) - pos < _LOOKAHEAD:
+            try:
+                chunk = f.read(_CHUNK)
+            except OSError as err:
+                raise MerlionError(f"{p}: cannot read ({err.strerror})") from None
+            eof = not chunk
+            base += pos
+            del data[:pos]
+            data += chunk
+            pos = 0
+        if pos + 8 >= len(data):
+            break
         t_us = struct.unpack_from(">Q", data, pos)[0]
         length = _packet_length(data, pos + 8)
         plausible = length is not None and pos + 8 + length <= len(data) and (
             last_t is None or -_MAX_BACK_US < t_us - last_t < _MAX_STEP_US)
         record = None
         if plausible:
-            packet = data[pos + 8: pos + 8 + length]
+            packet = bytes(data[pos + 8: pos + 8 + length])
             try:
                 msg = parser.decode(bytearray(packet))
                 record = TlogRecord(t_us, packet, (msg.get_srcSystem(), msg.get_srcComponent()), msg.get_type())
@@ -91,13 +114,13 @@ def read_tlog(path: str | Path, stats: TlogStats | None = None) -> Iterator[Tlog
                     record = TlogRecord(t_us, packet, (packet[head], packet[head + 1]), "UNKNOWN")
                 elif not in_resync:
                     stats.bad_crc += 1
-                    log.debug("%s: bad record at byte %d: %s", p, pos, err)
+                    log.debug("%s: bad record at byte %d: %s", p, base + pos, err)
             except Exception as err:  # a struct error on a mangled payload is a bad record, not a crash
                 if not in_resync:
                     stats.bad_crc += 1
-                    log.debug("%s: bad record at byte %d: %s", p, pos, err)
+                    log.debug("%s: bad record at byte %d: %s", p, base + pos, err)
         if record is None:
-            if not found_any and pos > 64 * 1024:
+            if not found_any and base + pos > 64 * 1024:
                 break
             if not in_resync and plausible:
                 # the length byte may be fine and only the payload damaged: try the next record first

@@ -1,11 +1,26 @@
-"""A simulated ArduSub autopilot on the wire: the telemetry, rates and commands the companion relies on.
+"""A simulated ArduSub autopilot on the wire: the telemetry, rates, commands and failsafes the companion meets.
 
 It speaks through the same ``MavLink`` as the companion (system 1, component 1), follows a scripted dive
-(``vehicle.sim.dive_profile``), streams ArduSub's usual messages at ArduSub-like default rates, honours
-MAV_CMD_SET_MESSAGE_INTERVAL / MAV_CMD_GET_MESSAGE_INTERVAL / MAV_CMD_REQUEST_MESSAGE with a COMMAND_ACK and
-the legacy REQUEST_DATA_STREAM (no ACK, as on ArduPilot), and can go silent or reboot (its boot time restarts)
-so that loss handling can be exercised. ``SimVehicle`` runs in-thread for tests; ``merlion sim-vehicle`` runs
-it as a separate process.
+(``vehicle.sim.dive_profile``) and behaves as ArduPilot's ArduSub firmware was measured to (``REFERENCE.md``,
+"What the real ArduSub firmware does"):
+
+- default streams with no request: ATTITUDE and VFR_HUD 10 Hz, GLOBAL_POSITION_INT 3.2 Hz, SYS_STATUS,
+  SCALED_PRESSURE, SCALED_PRESSURE2 and HEARTBEAT 1 Hz; MAV_CMD_SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL /
+  REQUEST_MESSAGE answered with a COMMAND_ACK, the legacy REQUEST_DATA_STREAM without one; the simulator has one
+  link, so the last request from any peer wins for every listener, as on a router in front of one serial port;
+- ``relative_alt`` valid from boot; VFR_HUD.alt, GLOBAL_POSITION_INT lat/lon/alt and LOCAL_POSITION_NED only
+  once the EKF has an origin (``origin.after_s`` after boot, never without a position source unless a ground
+  station sends SET_GPS_GLOBAL_ORIGIN);
+- pilot-input failsafe: armed and MANUAL_CONTROL stopping for ``FS_PILOT_TIMEOUT`` (3 s) -> "Lost manual control",
+  neutral controls, disarm; GCS failsafe: once a heartbeat from system 255 was seen, those stopping for
+  ``FS_GCS_TIMEOUT`` (5 s) -> "MYGCS: 255, heartbeat lost" and the ``FS_GCS_ENABLE`` action. Each failsafe is
+  reported by STATUSTEXT and recorded in ``failsafes``, and every peer's heartbeat ids and MANUAL_CONTROL senders
+  are recorded, so that tests can prove the companion never takes part in either;
+- MANUAL_CONTROL flies the vehicle (the pilot takes over from the script): ``z`` below 500 descends, above
+  ascends (up to ``PILOT_SPEED`` 0.5 m/s), 500 holds depth (ALT_HOLD). Arm/disarm and mode changes by command.
+
+It can also go silent or reboot (its boot time restarts) so that loss handling can be exercised. ``SimVehicle``
+runs in-thread for tests; ``merlion sim-vehicle`` runs it as a separate process.
 """
 
 from __future__ import annotations
@@ -15,6 +30,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
@@ -22,29 +38,39 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from vehicle.autopilot.pose_history import euler_to_quaternion
 from vehicle.link.connection import MavLink
 from vehicle.settings import MavlinkConfig
-from vehicle.sim.dive_profile import DiveProfile, VehicleState, load_profile
+from vehicle.sim.dive_profile import DiveProfile, Origin, VehicleState, geodetic, load_profile
 
 log = logging.getLogger(__name__)
 
 GRAVITY = 9.80665
 _MODE_NUMBERS = {name: number for number, name in mavutil.mode_mapping_sub.items()}
 
-# Messages the simulator can produce, and ArduSub-like default rates in Hz (0: only when asked for).
+GCS_SYSID = 255
+"""MAV_GCS_SYSID: the ground station whose heartbeats arm the GCS failsafe."""
+FS_PILOT_TIMEOUT_S = 3.0
+FS_GCS_TIMEOUT_S = 5.0
+PILOT_SPEED_MPS = 0.5
+"""PILOT_SPEED_UP / PILOT_SPEED_DN (50 cm/s): the climb or descent rate at full MANUAL_CONTROL z."""
+GCS_FAILSAFE_ACTIONS = ("warn", "disarm", "depth_hold", "surface")
+"""FS_GCS_ENABLE 1-4."""
+
+# Messages the simulator can produce, and the real ArduSub's default rates in Hz (0: only when asked for).
 DEFAULT_RATES: dict[str, float] = {
     "HEARTBEAT": 1.0,
     "SYS_STATUS": 1.0,
-    "SYSTEM_TIME": 1.0,
+    "SYSTEM_TIME": 0.0,
     "ATTITUDE": 10.0,
     "ATTITUDE_QUATERNION": 0.0,
-    "GLOBAL_POSITION_INT": 3.0,
-    "LOCAL_POSITION_NED": 3.0,
-    "VFR_HUD": 4.0,
-    "SCALED_PRESSURE2": 2.0,
-    "BATTERY_STATUS": 1.0,
+    "GLOBAL_POSITION_INT": 3.2,
+    "LOCAL_POSITION_NED": 3.2,  # same stream as GLOBAL_POSITION_INT, but only sent with an EKF origin
+    "VFR_HUD": 10.0,
+    "SCALED_PRESSURE": 1.0,
+    "SCALED_PRESSURE2": 1.0,
+    "BATTERY_STATUS": 0.0,
 }
 # REQUEST_DATA_STREAM groups, as ArduSub assigns these messages to them.
 DATA_STREAMS: dict[int, tuple[str, ...]] = {
-    mav2.MAV_DATA_STREAM_RAW_SENSORS: ("SCALED_PRESSURE2",),
+    mav2.MAV_DATA_STREAM_RAW_SENSORS: ("SCALED_PRESSURE", "SCALED_PRESSURE2"),
     mav2.MAV_DATA_STREAM_EXTENDED_STATUS: ("SYS_STATUS",),
     mav2.MAV_DATA_STREAM_POSITION: ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"),
     mav2.MAV_DATA_STREAM_EXTRA1: ("ATTITUDE",),
@@ -69,6 +95,9 @@ class SimVehicle:
         fluid_density: float = 1025.0,
         surface_pressure_hpa: float = 1013.25,
         reboot_s: float = 2.0,
+        pilot_timeout_s: float = FS_PILOT_TIMEOUT_S,
+        gcs_timeout_s: float = FS_GCS_TIMEOUT_S,
+        gcs_failsafe: str = "depth_hold",
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
         signing_key_file: str | None = None,
@@ -76,25 +105,46 @@ class SimVehicle:
         unknown = set(rates or {}) - set(DEFAULT_RATES)
         if unknown:
             raise ValueError(f"sim vehicle cannot send {sorted(unknown)[0]}")
+        if gcs_failsafe not in GCS_FAILSAFE_ACTIONS:
+            raise ValueError(f"GCS failsafe action must be one of {GCS_FAILSAFE_ACTIONS}, got {gcs_failsafe!r}")
         self.profile = profile or load_profile(None)
         self.defaults = {**DEFAULT_RATES, **(rates or {})}
         self.message_interval = message_interval
         self.fluid_density = fluid_density
         self.surface_pressure_hpa = surface_pressure_hpa
         self.reboot_s = reboot_s
+        self.pilot_timeout_s = pilot_timeout_s
+        self.gcs_timeout_s = gcs_timeout_s
+        self.gcs_failsafe = gcs_failsafe
         self.clock = clock
         self.wall_clock = wall_clock
         self.link = MavLink(connection, MavlinkConfig(system_id=system_id, component_id=1,
                                                       signing_key_file=signing_key_file),
                             clock=clock, name="sim-ardusub", heartbeat=False)
         self.link.subscribe(self._on_setup_signing, ["SETUP_SIGNING"])
-        self.link.subscribe(self._on_command, ["COMMAND_LONG", "REQUEST_DATA_STREAM"])
+        self.link.subscribe(self._on_message, ["COMMAND_LONG", "REQUEST_DATA_STREAM", "HEARTBEAT", "MANUAL_CONTROL",
+                                               "SET_MODE", "SET_GPS_GLOBAL_ORIGIN"])
         self.sent: dict[str, int] = dict.fromkeys(DEFAULT_RATES, 0)
         self.reboots = 0
         self.commands: list[tuple[int, float, float, int]] = []
         """(command, param1, param2, result) of every COMMAND_LONG handled, for tests and logs."""
         self.data_stream_requests: list[tuple[int, int, int]] = []
+        self.failsafes: list[tuple[float, str]] = []
+        """(seconds since start, "pilot_input" | "gcs") of every failsafe the vehicle went into."""
+        self.statustexts: list[tuple[int, str]] = []
+        """(severity, text) of every STATUSTEXT sent."""
+        self.heartbeat_senders: set[tuple[int, int, int]] = set()
+        """(system, component, MAV_TYPE) of every peer heartbeat seen."""
+        self.manual_control_senders: set[tuple[int, int]] = set()
         self._lock = threading.Lock()
+        self._armed: bool | None = None  # None: as the dive profile says
+        self._mode: str | None = None
+        self._gcs_origin: Origin | None = None
+        self._pilot: tuple[float, float, float, float, float] | None = None
+        """Flown, not scripted, since t0: (depth at t0, t0 in profile time, rate down m/s, north, east)."""
+        self._pilot_seen: float | None = None  # clock of the last MANUAL_CONTROL while armed
+        self._gcs_seen: float | None = None  # clock of the last heartbeat from GCS_SYSID
+        self._in_failsafe: set[str] = set()
         self._start = clock()
         self._boot = self._start
         self._silent_until = 0.0
@@ -149,6 +199,9 @@ class SimVehicle:
             self._boot = now + self.reboot_s
             self.reboots += 1
             self._reset_rates(start=now + self.reboot_s)
+            self._armed = self._mode = self._gcs_origin = self._pilot = None
+            self._pilot_seen = self._gcs_seen = None
+            self._in_failsafe.clear()
         log.info("sim-ardusub: rebooting (back in %.1f s)", self.reboot_s)
 
     @property
@@ -170,7 +223,38 @@ class SimVehicle:
             return self._intervals.get(name)
 
     def state(self) -> VehicleState:
-        return self.profile.state(self.clock() - self._start)
+        """The vehicle now: the scripted dive, with depth flown by the pilot once MANUAL_CONTROL took over."""
+        return self.state_at(self.clock() - self._start)
+
+    def state_at(self, t: float) -> VehicleState:
+        """The vehicle ``t`` seconds after start (the pilot's depth is exact only for times since their last input)."""
+        s = self.profile.state(t)
+        with self._lock:
+            pilot, mode, armed = self._pilot, self._mode, self._armed
+        if pilot is not None:
+            d0, t0, rate, north, east = pilot
+            depth = max(0.0, d0 + rate * (t - t0))
+            s = replace(s, depth=depth, vd=rate if depth > 0 or rate > 0 else 0.0, vn=0.0, ve=0.0, north=north,
+                        east=east, lat=None, lon=None, alt_m=None)  # the geodetic fields come from origin()
+        if mode is not None:
+            s = replace(s, mode=mode)
+        if armed is not None:
+            s = replace(s, armed=armed)
+        return s
+
+    def origin(self) -> Origin | None:
+        """The EKF origin if the vehicle has one yet (``after_s`` after boot), or the one a ground station set."""
+        with self._lock:
+            if self._gcs_origin is not None:
+                return self._gcs_origin
+        o = self.profile.origin
+        return o if o is not None and self.clock() - self._boot >= o.after_s else None
+
+    def statustext(self, severity: int, text: str) -> None:
+        """Say something to every ground station, as the firmware's ``gcs().send_text`` does."""
+        self.statustexts.append((severity, text))
+        log.info("sim-ardusub: %s", text)
+        self.link.send(mav2.MAVLink_statustext_message(severity, text.encode()[:50]))
 
     # ------------------------------------------------------------------------------------------ streaming
     def _reset_rates(self, start: float | None = None) -> None:
@@ -188,6 +272,7 @@ class SimVehicle:
             now = self.clock()
             if self.silent:
                 continue
+            self._check_failsafes(now)
             with self._lock:
                 due = [n for n, iv in self._intervals.items() if iv is not None and now >= self._due[n]]
                 for n in due:
@@ -198,6 +283,8 @@ class SimVehicle:
                 self._emit(name)
 
     def _emit(self, name: str) -> None:
+        if name == "LOCAL_POSITION_NED" and self.origin() is None:
+            return  # the EKF has no position estimate without an origin: ArduSub sends nothing
         msg = self.build(name)
         if self.link.send(msg):
             self.sent[name] += 1
@@ -220,18 +307,22 @@ class SimVehicle:
         if name == "ATTITUDE_QUATERNION":
             w, x, y, z = euler_to_quaternion(s.roll, s.pitch, s.yaw)
             return mav2.MAVLink_attitude_quaternion_message(boot_ms, w, x, y, z, 0.0, 0.0, 0.0, [0.0] * 4)
+        origin = self.origin()
         if name == "GLOBAL_POSITION_INT":
-            lat = int(round(s.lat * 1e7)) if s.lat is not None else 0
-            lon = int(round(s.lon * 1e7)) if s.lon is not None else 0
-            alt = int(round(s.alt_m * 1000)) if s.alt_m is not None else 0
+            lat = lon = alt = 0  # 0 until the EKF has an origin; relative_alt (from the depth sensor) always valid
+            if origin is not None:
+                glat, glon, galt = geodetic(origin, s.north, s.east, s.depth)
+                lat, lon, alt = int(round(glat * 1e7)), int(round(glon * 1e7)), int(round(galt * 1000))
             return mav2.MAVLink_global_position_int_message(
                 boot_ms, lat, lon, alt, int(round(-s.depth * 1000)), _cms(s.vn), _cms(s.ve), _cms(s.vd),
                 int(round(heading * 100)) % 36000)
         if name == "LOCAL_POSITION_NED":
             return mav2.MAVLink_local_position_ned_message(boot_ms, s.north, s.east, s.depth, s.vn, s.ve, s.vd)
         if name == "VFR_HUD":
-            alt = -s.depth if self.profile.origin is not None else 0.0  # 0 without an EKF origin, as on ArduSub
+            alt = origin.alt_m - s.depth if origin is not None else 0.0  # 0 without an EKF origin, as on ArduSub
             return mav2.MAVLink_vfr_hud_message(0.0, math.hypot(s.vn, s.ve), int(heading), 0, alt, -s.vd)
+        if name == "SCALED_PRESSURE":  # the flight controller's own barometer, inside the dry hull
+            return mav2.MAVLink_scaled_pressure_message(boot_ms, self.surface_pressure_hpa, 0.0, 2500, 0)
         if name == "SCALED_PRESSURE2":
             press = self.surface_pressure_hpa + self.fluid_density * GRAVITY * s.depth / 100.0
             return mav2.MAVLink_scaled_pressure2_message(boot_ms, press, 0.0, 1500, 0)
@@ -248,10 +339,37 @@ class SimVehicle:
     def _for_us(self, target_system: int, target_component: int) -> bool:
         return target_system in (0, self.link.system_id) and target_component in (0, self.link.component_id)
 
-    def _on_command(self, msg: mav2.MAVLink_message) -> None:
-        if self.silent or not self._for_us(msg.target_system, msg.target_component):
+    def _on_message(self, msg: mav2.MAVLink_message) -> None:
+        """The one dispatch of everything the vehicle hears (runs on the link's receive thread: no waiting)."""
+        if self.silent:
             return
-        if msg.get_type() == "REQUEST_DATA_STREAM":
+        mtype = msg.get_type()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if mtype == "HEARTBEAT":
+            if src != (self.link.system_id, self.link.component_id):
+                self.heartbeat_senders.add((*src, msg.type))
+                if src[0] == GCS_SYSID:
+                    with self._lock:
+                        self._gcs_seen = self.clock()
+                        self._in_failsafe.discard("gcs")
+            return
+        if mtype == "MANUAL_CONTROL":
+            if msg.target in (0, self.link.system_id):
+                self.manual_control_senders.add(src)
+                self._manual_control(msg)
+            return
+        if mtype == "SET_MODE":
+            if msg.target_system in (0, self.link.system_id):
+                self._set_mode(msg.custom_mode)
+            return
+        if mtype == "SET_GPS_GLOBAL_ORIGIN":
+            if msg.target_system in (0, self.link.system_id):
+                with self._lock:
+                    self._gcs_origin = Origin(msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0, 0.0)
+            return
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        if mtype == "REQUEST_DATA_STREAM":
             self._data_stream(msg)
             return
         result = self._command(msg)
@@ -292,7 +410,77 @@ class SimVehicle:
             return mav2.MAV_RESULT_ACCEPTED
         if cmd == mav2.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
             return mav2.MAV_RESULT_ACCEPTED if p1 == 1 else mav2.MAV_RESULT_UNSUPPORTED
+        if cmd == mav2.MAV_CMD_COMPONENT_ARM_DISARM:
+            if not math.isfinite(p1):
+                return mav2.MAV_RESULT_DENIED
+            self._set_armed(p1 == 1)
+            return mav2.MAV_RESULT_ACCEPTED
+        if cmd == mav2.MAV_CMD_DO_SET_MODE:
+            if not math.isfinite(p2) or int(p2) not in mavutil.mode_mapping_sub:
+                return mav2.MAV_RESULT_DENIED
+            self._set_mode(int(p2))
+            return mav2.MAV_RESULT_ACCEPTED
         return mav2.MAV_RESULT_UNSUPPORTED
+
+    # ------------------------------------------------------------------------------------------ pilot, failsafes
+    def _set_armed(self, armed: bool) -> None:
+        if not armed:
+            self._fly(self.clock(), 0.0)  # thrusters off: the script no longer flies it (buoyancy not modelled)
+        with self._lock:
+            self._armed = armed
+            self._pilot_seen = None  # the pilot-input timer starts with the first MANUAL_CONTROL after arming
+        log.info("sim-ardusub: %s", "armed" if armed else "disarmed")
+
+    def _set_mode(self, custom_mode: int) -> None:
+        with self._lock:
+            self._mode = mavutil.mode_mapping_sub.get(custom_mode, self._mode)
+
+    def _manual_control(self, msg: mav2.MAVLink_message) -> None:
+        """The pilot flies: z 0..1000, 500 neutral (holds depth in ALT_HOLD), below 500 descends."""
+        now = self.clock()
+        t = now - self._start
+        armed = self.state_at(t).armed
+        rate = 0.0 if not armed else max(-1.0, min(1.0, (500 - msg.z) / 500.0)) * PILOT_SPEED_MPS
+        self._fly(now, rate)
+        with self._lock:
+            if armed:
+                self._pilot_seen = now
+                self._in_failsafe.discard("pilot_input")
+
+    def _check_failsafes(self, now: float) -> None:
+        """ArduSub's failsafe checks (its scheduler runs them at 1-10 Hz; this tick is finer, which is harmless)."""
+        armed = self.state_at(now - self._start).armed
+        with self._lock:
+            pilot_lost = (armed and self._pilot_seen is not None and now - self._pilot_seen > self.pilot_timeout_s
+                          and "pilot_input" not in self._in_failsafe)
+            gcs_lost = (self._gcs_seen is not None and now - self._gcs_seen > self.gcs_timeout_s
+                        and "gcs" not in self._in_failsafe)
+            if pilot_lost:
+                self._in_failsafe.add("pilot_input")
+            if gcs_lost:
+                self._in_failsafe.add("gcs")
+        if pilot_lost:
+            self.failsafes.append((now - self._start, "pilot_input"))
+            self.statustext(mav2.MAV_SEVERITY_CRITICAL, "Lost manual control")
+            self._set_armed(False)  # after set_neutral_controls()
+        if gcs_lost:
+            self.failsafes.append((now - self._start, "gcs"))
+            self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")
+            if armed and self.gcs_failsafe == "disarm":
+                self._set_armed(False)
+            elif armed and self.gcs_failsafe == "depth_hold":
+                self._set_mode(_MODE_NUMBERS["ALT_HOLD"])
+                self._fly(now, 0.0)
+            elif armed and self.gcs_failsafe == "surface":
+                self._set_mode(_MODE_NUMBERS["SURFACE"])
+                self._fly(now, -PILOT_SPEED_MPS)
+
+    def _fly(self, now: float, rate_mps: float) -> None:
+        """From now on the vehicle stays where it is and moves vertically at ``rate_mps`` (down positive)."""
+        t = now - self._start
+        s = self.state_at(t)
+        with self._lock:
+            self._pilot = (s.depth, t, rate_mps, s.north, s.east)
 
     def _data_stream(self, msg: mav2.MAVLink_message) -> None:
         self.data_stream_requests.append((msg.req_stream_id, msg.req_message_rate, msg.start_stop))
@@ -355,4 +543,7 @@ def run_sim_vehicle(
     finally:
         sim.stop()
     return {"sent": dict(sim.sent), "reboots": sim.reboots, "commands": len(sim.commands),
-            "data_stream_requests": len(sim.data_stream_requests), "rx_bad": sim.link.rx_bad}
+            "data_stream_requests": len(sim.data_stream_requests), "rx_bad": sim.link.rx_bad,
+            "failsafes": [kind for _t, kind in sim.failsafes],
+            "peers": sorted(f"{system}/{component}" for system, component, _type in sim.heartbeat_senders),
+            "manual_control_from": sorted(f"{system}/{component}" for system, component in sim.manual_control_senders)}

@@ -115,3 +115,20 @@ def test_history_keeps_pruning_after_a_reboot_clears_it():
     kept = len(h._depth.times)  # the only window onto memory use
     assert kept <= 2 * 2.0 / 0.1 + 2, f"{kept} samples kept for a 2 s history"
     assert h.pose_at(49.9).depth_m == pytest.approx(6.0)
+
+
+def test_depth_with_vertical_speed_moves_on_past_the_newest_sample_and_curves_between_samples():
+    h = PoseHistory(stale_after_s=0.5)
+    h.add_depth(10.0, 2.0, "global_position_int", 0.5)
+    h.add_depth(10.3, 2.15, "global_position_int", 0.5)
+    assert h.pose_at(10.5).depth_m == pytest.approx(2.25)  # 0.2 s after the newest at 0.5 m/s down
+    assert h.pose_at(10.1).depth_m == pytest.approx(2.05)  # constant speed: the curve is the straight line
+    assert h.pose_at(11.0).stale  # never further than the stale limit
+    # from holding (0 m/s) to descending: the Hermite curve follows the speeds, not the chord
+    h.add_depth(20.0, 3.0, "global_position_int", 0.0)
+    h.add_depth(21.0, 3.25, "global_position_int", 0.5)
+    assert h.pose_at(20.5).depth_m == pytest.approx(3.0625)  # chord would say 3.125
+    # a source without speed (pressure) is held, not extrapolated
+    p = PoseHistory(stale_after_s=0.5)
+    p.add_depth(1.0, 4.0, "scaled_pressure2")
+    assert p.pose_at(1.3).depth_m == 4.0

@@ -10,6 +10,7 @@ import struct
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
@@ -163,3 +164,50 @@ def test_bench_link_reports_receive_share_and_pose_cost():
     (one,) = report["replay"]
     assert one["speed"] == 4.0 and one["sent"] > 500 and 0 < one["received"] <= one["sent"]
     assert report["pose_at_us"] > 0
+
+
+_RSS_PROBE = """
+import sys
+from companion.config import MavlinkConfig
+from vehicle.link.connection import MavLink
+from vehicle.sim.replay import TlogReplay
+
+def status(key):
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) * 1024
+
+link = MavLink(sys.argv[2], MavlinkConfig(system_id=1, component_id=1), heartbeat=False)
+link.start()
+assert link.wait_open(5)
+with open("/proc/self/clear_refs", "w") as f:
+    f.write("5")  # reset the peak (VmHWM) to the current RSS: imports' transient peaks must not hide growth
+before = status("VmRSS")
+replay = TlogReplay(sys.argv[1], link, speed=1e9)
+stats = replay.run()
+after = status("VmHWM")
+link.stop()
+print(before, after, stats.sent + stats.unsent, replay.log_stats.records)
+"""
+
+
+def test_a_large_log_replays_in_constant_memory(tmp_path):
+    """A 32 MB log (in a child process, so that nothing else moves its peak RSS) replays with its peak memory
+    growing by a small fraction of the file: the log is streamed, not read whole."""
+    if not Path("/proc/self/clear_refs").exists():
+        pytest.skip("needs Linux's /proc/self/clear_refs to measure peak memory")
+    path = tmp_path / "large.tlog"
+    packet = _packet(mav2.MAVLink_encapsulated_data_message(7, bytes(range(253))))
+    records = 0
+    with path.open("wb") as f:
+        t0 = 1_700_000_000_000_000
+        while f.tell() < 32 << 20:
+            f.write(b"".join(_record(t0 + (records + i) * 1000, packet) for i in range(4096)))
+            records += 4096
+    size = path.stat().st_size
+    proc = subprocess.run([sys.executable, "-c", _RSS_PROBE, str(path), f"udpout:127.0.0.1:{free_udp_port()}"],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    before, after, handled, read = (int(x) for x in proc.stdout.split())
+    assert read == handled == records
+    assert after - before < size / 8, f"peak RSS grew {(after - before) / 2**20:.1f} MB for a {size / 2**20:.0f} MB log"

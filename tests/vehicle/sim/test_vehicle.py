@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import signal
 import subprocess
@@ -154,6 +155,9 @@ def test_sim_vehicle_command_runs_as_a_process_and_reboots_on_sigusr2():
         link.stop()
     assert proc.returncode == 0, err
     assert '"reboots": 1' in out
+    counters = json.loads(out.strip().splitlines()[-1])
+    # our link (a camera component of system 1) was seen, as nothing else: no GCS, no MANUAL_CONTROL, no failsafe
+    assert counters["peers"] == ["1/100"] and counters["manual_control_from"] == [] and counters["failsafes"] == []
 
 
 def test_sim_vehicle_refuses_bad_arguments_in_one_line(tmp_path):
@@ -162,6 +166,7 @@ def test_sim_vehicle_refuses_bad_arguments_in_one_line(tmp_path):
     for args, needle in [
         (["--connect", "udp:nowhere"], "mavlink connection 'udp:nowhere'"),
         (["--connect", "udpout:127.0.0.1:9", "--profile", str(bad)], "to_m must be >= 0"),
+        (["--connect", "udpout:127.0.0.1:9", "--pilot-timeout", "0"], "--pilot-timeout"),
     ]:
         result = run_merlion("sim-vehicle", *args, timeout=30)
         assert result.returncode == 2 or result.returncode == 1, result.stderr

@@ -1,0 +1,30 @@
+"""`merlion telemetry` (a real process) against the simulated ArduSub without a position source: it sees depth
+from GLOBAL_POSITION_INT at the rate it asked for, and reports LOCAL_POSITION_NED as missing, asked for only a
+few times (0, 3 and 9 s) in 10 s."""
+
+from __future__ import annotations
+
+import json
+
+from tests.conftest import free_udp_port, run_merlion
+from vehicle.sim.dive_profile import compile_profile
+from vehicle.sim.vehicle import SimVehicle
+
+
+def test_telemetry_command_reports_depth_rates_and_no_position_source():
+    port = free_udp_port()
+    dive = compile_profile({"legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20.0, "rate_mps": 0.5}}]})
+    with SimVehicle(f"udpin:127.0.0.1:{port}", dive) as sim:
+        done = run_merlion("telemetry", "--connect", f"udpout:127.0.0.1:{port}", "--duration", "10.5", "--json",
+                           timeout=60)
+        commands = list(sim.commands)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    latest, rates = result["latest"], result["rates"]
+    assert latest["depth_source"] == "global_position_int" and latest["depth_m"] > 2.0
+    assert latest["position_source"] is False and latest["north_m"] is None
+    assert rates["LOCAL_POSITION_NED"]["missing"] and rates["LOCAL_POSITION_NED"]["requests"] == 3
+    assert rates["GLOBAL_POSITION_INT"]["observed_hz"] >= 4.0 and not rates["GLOBAL_POSITION_INT"]["missing"]
+    assert rates["GLOBAL_POSITION_INT"]["requests"] == 1  # asked once, kept
+    assert len([c for c in commands if c[1] == 32.0]) == 3  # the simulator saw the same three requests
+    assert "no position source" in done.stderr + done.stdout

@@ -1,0 +1,201 @@
+"""The simulator does what the real ArduSub firmware does (REFERENCE.md): default streams, rate requests, when the
+EKF fields become valid, the pilot-input and GCS failsafes, and depth holding under MANUAL_CONTROL. Peers are
+plain pymavlink connections on loopback UDP, as a ground station or a joystick bridge would be."""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+from tests.conftest import free_udp_port
+from tests.waiting import wait_until
+from vehicle.errors import UserError as MerlionError
+from vehicle.sim.dive_profile import compile_profile
+from vehicle.sim.vehicle import FS_GCS_TIMEOUT_S, FS_PILOT_TIMEOUT_S, SimVehicle
+
+
+class Peer:
+    """A pymavlink peer of the simulator (ground station, joystick bridge) that records all it hears."""
+
+    def __init__(self, port: int, system: int, component: int = 190) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=system,
+                                               source_component=component, dialect="ardupilotmega")
+        self.messages: list[tuple[float, mav2.MAVLink_message]] = []
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            msg = self.conn.recv_match(blocking=True, timeout=0.1)
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                with self._lock:
+                    self.messages.append((time.monotonic(), msg))
+
+    def of_type(self, kind: str, since: float = 0.0) -> list[mav2.MAVLink_message]:
+        with self._lock:
+            return [m for t, m in self.messages if t >= since and m.get_type() == kind]
+
+    def send(self, msg: mav2.MAVLink_message) -> None:
+        with self._lock:  # pymavlink's writer is not thread-safe; only this test thread sends
+            self.conn.mav.send(msg)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.conn.close()
+
+
+@contextmanager
+def sim_and_peer(system: int = 255, **sim_kwargs) -> Iterator[tuple[SimVehicle, Peer]]:
+    port = free_udp_port()
+    peer = Peer(port, system)
+    sim = SimVehicle(f"udpout:127.0.0.1:{port}", **sim_kwargs)
+    sim.start()
+    try:
+        assert wait_until(lambda: peer.of_type("HEARTBEAT"), 5)
+        yield sim, peer
+    finally:
+        sim.stop()
+        peer.close()
+
+
+def _profile(origin: dict | None = None, armed: bool = True):
+    return compile_profile({"origin": origin, "armed": armed, "legs": [{"hold": {"s": 2.0, "mode": "ALT_HOLD"}},
+                                                                        {"descend": {"to_m": 20, "rate_mps": 0.5}}]})
+
+
+def test_default_streams_without_any_request_and_no_position_before_the_ekf_origin():
+    origin = {"lat": 1.25, "lon": 103.8, "after_s": 2.0}
+    with sim_and_peer(profile=_profile(origin)) as (sim, peer):
+        start = time.monotonic()
+        time.sleep(1.9)
+        window = time.monotonic() - start
+        counts = collections.Counter(m.get_type() for t, m in peer.messages if t >= start)
+        # the measured ArduSub defaults: 10 Hz, 10 Hz, 3.2 Hz, 1 Hz (counts over ~1.9 s, loose for a busy machine)
+        assert 10 * window * 0.7 <= counts["ATTITUDE"] <= 10 * window + 2
+        assert 10 * window * 0.7 <= counts["VFR_HUD"] <= 10 * window + 2
+        assert 4 <= counts["GLOBAL_POSITION_INT"] <= 8
+        for name in ("SYS_STATUS", "SCALED_PRESSURE", "SCALED_PRESSURE2"):
+            assert 1 <= counts[name] <= 3, name
+        assert counts["LOCAL_POSITION_NED"] == 0 and counts["ATTITUDE_QUATERNION"] == 0
+        # before the EKF origin: relative_alt valid, position and MSL altitudes 0, no LOCAL_POSITION_NED
+        early = peer.of_type("GLOBAL_POSITION_INT")
+        assert all((m.lat, m.lon, m.alt) == (0, 0, 0) for m in early)
+        assert all(m.alt == 0 for m in peer.of_type("VFR_HUD"))
+        assert wait_until(lambda: sim.time_boot_ms() > 2600, 3)
+        later = peer.of_type("GLOBAL_POSITION_INT", since=time.monotonic() - 0.4)
+        assert later and later[-1].lat == pytest.approx(1.25e7, abs=100)
+        assert wait_until(lambda: peer.of_type("LOCAL_POSITION_NED"), 2)
+        hb = peer.of_type("HEARTBEAT")[0]
+        assert (hb.get_srcSystem(), hb.get_srcComponent(), hb.type) == (1, 1, mav2.MAV_TYPE_SUBMARINE)
+
+
+def test_without_a_position_source_no_position_until_a_ground_station_sets_an_origin():
+    with sim_and_peer(profile=_profile(None)) as (sim, peer):
+        time.sleep(0.8)
+        assert not peer.of_type("LOCAL_POSITION_NED")
+        assert all((m.lat, m.alt) == (0, 0) and m.relative_alt <= 0 for m in peer.of_type("GLOBAL_POSITION_INT"))
+        peer.send(mav2.MAVLink_set_gps_global_origin_message(1, 12500000, 1038000000, 5000, 0))
+        assert wait_until(lambda: peer.of_type("LOCAL_POSITION_NED"), 2)
+        assert wait_until(lambda: any(m.lat == 12500000 for m in peer.of_type("GLOBAL_POSITION_INT")), 2)
+
+
+def test_set_message_interval_is_acked_and_the_last_request_from_any_peer_wins():
+    with sim_and_peer(profile=_profile(None)) as (sim, peer):
+        def interval(us: float, system: int) -> None:
+            msg = mav2.MAVLink_command_long_message(1, 1, mav2.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                                    mav2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, us, 0, 0, 0, 0, 0)
+            peer.conn.mav.srcSystem = system  # a second ground station on the same router
+            peer.send(msg)
+
+        interval(100_000, 255)
+        assert wait_until(lambda: sim.interval("GLOBAL_POSITION_INT") == pytest.approx(0.1), 2)
+        interval(1_000_000, 254)
+        assert wait_until(lambda: sim.interval("GLOBAL_POSITION_INT") == pytest.approx(1.0), 2)
+        acks = [a for a in peer.of_type("COMMAND_ACK") if a.command == mav2.MAV_CMD_SET_MESSAGE_INTERVAL]
+        assert wait_until(lambda: len([a for a in peer.of_type("COMMAND_ACK")
+                                       if a.command == mav2.MAV_CMD_SET_MESSAGE_INTERVAL]) == 2, 2), acks
+        assert {a.result for a in peer.of_type("COMMAND_ACK")} == {mav2.MAV_RESULT_ACCEPTED}
+        interval(0, 254)  # 0: back to the default
+        assert wait_until(lambda: sim.interval("GLOBAL_POSITION_INT") == pytest.approx(1 / 3.2), 2)
+
+
+def test_pilot_input_failsafe_disarms_when_manual_control_stops_and_reports_it():
+    assert FS_PILOT_TIMEOUT_S == 3.0  # the firmware default; the test uses a shorter one to stay quick
+    with sim_and_peer(profile=_profile(None), pilot_timeout_s=0.8) as (sim, peer):
+        time.sleep(1.0)
+        assert sim.failsafes == [], "armed without a joystick ever connected: no pilot-input failsafe"
+        for _ in range(5):
+            peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
+            time.sleep(0.1)
+        assert sim.state().armed
+        assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["pilot_input"], 3)
+        assert wait_until(lambda: any(m.text == "Lost manual control" and m.severity == mav2.MAV_SEVERITY_CRITICAL
+                                      for m in peer.of_type("STATUSTEXT")), 2)
+        since = time.monotonic()
+        assert wait_until(lambda: peer.of_type("HEARTBEAT", since), 3)
+        assert not peer.of_type("HEARTBEAT", since)[-1].base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
+        assert sim.manual_control_senders == {(255, 190)}
+        held = sim.state().depth  # disarmed: the scripted descent no longer moves it
+        time.sleep(0.3)
+        assert sim.state().depth == held and sim.state().vd == 0.0
+
+
+def test_gcs_failsafe_after_system_255_heartbeats_stop():
+    assert FS_GCS_TIMEOUT_S == 5.0
+    with sim_and_peer(profile=_profile(None), gcs_timeout_s=0.8) as (sim, peer):
+        time.sleep(1.0)
+        assert sim.failsafes == [], "no GCS seen yet: no GCS failsafe"
+        for _ in range(3):
+            peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+            time.sleep(0.2)
+        assert (255, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders and sim.failsafes == []
+        assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
+        assert wait_until(lambda: any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT")), 2)
+        assert sim.state().mode == "ALT_HOLD"  # FS_GCS_ENABLE = depth hold: it stops descending
+        held = sim.state().depth
+        time.sleep(0.3)
+        assert sim.state().depth == held > 0 and sim.state().armed
+        # heartbeats from another system (a companion computer) never arm it
+    with sim_and_peer(system=1, profile=_profile(None), gcs_timeout_s=0.5) as (sim, peer):
+        peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_INVALID,
+                                                 0, 0, 0, 3))
+        time.sleep(1.2)
+        assert sim.failsafes == [] and (1, 190, mav2.MAV_TYPE_ONBOARD_CONTROLLER) in sim.heartbeat_senders
+
+
+def test_depth_hold_in_alt_hold_and_manual_control_z_below_500_descends():
+    with sim_and_peer(profile=_profile(None)) as (sim, peer):
+        peer.send(mav2.MAVLink_set_mode_message(1, mav2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 2))  # ALT_HOLD
+        for _ in range(3):
+            peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 0, 0, 0))  # full down
+            time.sleep(0.1)
+        assert wait_until(lambda: sim.state().depth > 0.5, 3)
+        assert sim.state().vd == pytest.approx(0.5)
+        peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))  # neutral: hold
+        assert wait_until(lambda: sim.state().vd == 0.0, 2)
+        held = sim.state().depth
+        time.sleep(0.3)
+        peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
+        assert sim.state().depth == pytest.approx(held, abs=1e-3) and sim.state().mode == "ALT_HOLD"
+        rel = peer.of_type("GLOBAL_POSITION_INT", since=time.monotonic() - 0.4)
+        assert rel and rel[-1].relative_alt == pytest.approx(-held * 1000, abs=5)
+
+
+def test_origin_delay_is_read_from_the_profile_and_checked():
+    legs = [{"hold": {"s": 1}}]
+    assert compile_profile({"origin": {"lat": 1, "lon": 2}, "legs": legs}).origin.after_s == 16.0  # as in SITL
+    assert compile_profile({"origin": {"lat": 1, "lon": 2, "after_s": 0}, "legs": legs}).origin.after_s == 0.0
+    with pytest.raises(MerlionError, match="origin.after_s must be >= 0"):
+        compile_profile({"origin": {"lat": 1, "lon": 2, "after_s": -1}, "legs": legs})
+    with pytest.raises(MerlionError, match="origin needs numeric lat and lon"):
+        compile_profile({"origin": {"lat": 1, "lon": 2, "after_s": "soon"}, "legs": legs})
