@@ -9,8 +9,8 @@ import cv2
 
 
 def cut_clips(video: Path, out_dir: Path, count: int, seconds: float, starts: list[float]) -> list[Path]:
-    """``count`` clips of ``seconds`` each from consecutive parts of ``video``; clip i's file time says it was
-    recorded from ``starts[i]`` (mtime = start + duration, as a recorder leaves it)."""
+    """``count`` clips of ``seconds`` each from consecutive parts of ``video`` (starting it again when it ends);
+    clip i's file time says it was recorded from ``starts[i]`` (mtime = start + duration, as a recorder would)."""
     cap = cv2.VideoCapture(str(video))
     fps = cap.get(cv2.CAP_PROP_FPS) or 10.0
     per_clip = int(round(seconds * fps))
@@ -21,12 +21,14 @@ def cut_clips(video: Path, out_dir: Path, count: int, seconds: float, starts: li
         for _ in range(per_clip):
             ok, frame = cap.read()
             if not ok:
-                break
+                cap.release()
+                cap = cv2.VideoCapture(str(video))
+                ok, frame = cap.read()
+                assert ok, f"{video}: no frames"
             if writer is None:
                 h, w = frame.shape[:2]
                 writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
             writer.write(frame)
-        assert writer is not None, f"{video}: too short for {count} clips of {seconds} s"
         writer.release()
         end = starts[i] + per_clip / fps
         os.utime(path, (end, end))
