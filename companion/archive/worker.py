@@ -93,7 +93,7 @@ def summarize_dive(job: DiveJob) -> dict:
     """Summarize and tag one dive; returns counts and timings for the driver (raises MerlionError on bad input)."""
     from companion.vision.summarize import summarize
 
-    started, cpu0 = time.monotonic(), time.process_time()
+    started, started_at, cpu0 = time.monotonic(), time.time(), time.process_time()
     _limit_threads()
     encoder, loaded = _encoder(job.cfg)
     scores: list[tuple[int, float, float]] = []
@@ -109,4 +109,5 @@ def summarize_dive(job: DiveJob) -> dict:
         f"{i},{t:.4f},{s:.6f}\n" for i, t, s in scores))
     return {"frames_seen": run.frames_seen, "frames_passed": run.frames_passed, "frames_lost": run.frames_lost,
             "summary_frames": len(run.document["frames"]), "worker_pid": os.getpid(), "encoder_loaded": loaded,
-            "wall_s": round(time.monotonic() - started, 3), "cpu_s": round(time.process_time() - cpu0, 3)}
+            "wall_s": round(time.monotonic() - started, 3), "cpu_s": round(time.process_time() - cpu0, 3),
+            "started_at": started_at, "ended_at": time.time()}
