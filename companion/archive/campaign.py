@@ -75,7 +75,20 @@ def _start_ray(opts: ArchiveOptions):
     else:
         ray.init(num_cpus=opts.workers or os.cpu_count() or 1, include_dashboard=False,
                  object_store_memory=LOCAL_OBJECT_STORE_BYTES, log_to_driver=False, logging_level=logging.WARNING)
+    _check_resources(ray, opts)
     return ray
+
+
+def _check_resources(ray, opts: ArchiveOptions) -> None:
+    """A task that asks more than any node has would wait forever: refuse it now, naming the option."""
+    nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+    wanted = {"CPU": ("--cpus-per-task", opts.cpus_per_task), "GPU": ("--gpus-per-task", opts.gpus_per_task)}
+    for resource, (option, amount) in wanted.items():
+        if amount > 0 and not any(n.get(resource, 0) >= amount for n in nodes):
+            ray.shutdown()
+            most = max((n.get(resource, 0) for n in nodes), default=0)
+            raise MerlionError(f"{option} {amount:g}: no node of this Ray cluster has that many "
+                               f"({resource} per node at most {most:g})")
 
 
 def _bars(total_dives: int, total_frames: int, enabled: bool | None):
