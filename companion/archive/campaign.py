@@ -10,6 +10,7 @@ be shared storage when workers run on other machines).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -26,6 +27,7 @@ from companion.errors import MerlionError
 log = logging.getLogger(__name__)
 
 LOCAL_OBJECT_STORE_BYTES = 100 * 1024 * 1024
+PROGRESS_POLL_S = 0.5
 
 
 @dataclass
@@ -59,10 +61,23 @@ def plan(cfg: Config, opts: ArchiveOptions) -> list[tuple[LogMatch, str]]:
     return [(m, dive_key(m.dive.source, m.tlog, m.dive.start_time, cfg)) for m in match_logs(dives, logs, mapping)]
 
 
-def _job(cfg: Config, match: LogMatch, out_dir: Path) -> DiveJob:
+def _job(cfg: Config, match: LogMatch, out_dir: Path, progress=None) -> DiveJob:
     dive_cfg = cfg.model_copy(update={"source": cfg.source.model_copy(update={"uri": str(match.dive.source)})})
     return DiveJob(match.dive.name, dive_cfg, str(out_dir / match.dive.name), match.dive.start_time,
-                   match.dive.duration_s, str(match.tlog) if match.tlog else None)
+                   match.dive.duration_s, str(match.tlog) if match.tlog else None, progress)
+
+
+class FrameCounter:
+    """Frames scored so far over all workers (a Ray actor, so the frame bar moves while videos are running)."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+
+    def add(self, n: int) -> None:
+        self.frames += n
+
+    def total(self) -> int:
+        return self.frames
 
 
 def _start_ray(opts: ArchiveOptions):
@@ -141,15 +156,19 @@ def _run_tasks(cfg: Config, opts: ArchiveOptions, out_dir: Path, manifest: Manif
     try:
         task = ray.remote(summarize_dive).options(num_cpus=opts.cpus_per_task, num_gpus=opts.gpus_per_task,
                                                   max_retries=0)
+        counter = ray.remote(FrameCounter).options(num_cpus=0).remote()
         pending = {}
         for match, key in todo:
-            ref = task.remote(_job(cfg, match, out_dir))
+            ref = task.remote(_job(cfg, match, out_dir, counter))
             pending[ref] = (match, key)
         expected = sum(_expected_frames(m, cfg.source.fps) for m, _ in todo)
         videos, frames = _bars(len(todo), expected, opts.progress)
         with videos, frames:
             while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=PROGRESS_POLL_S)
+                frames.update(ray.get(counter.total.remote()) - frames.n)
+                if not ready:
+                    continue
                 match, key = pending.pop(ready[0])
                 name = match.dive.name
                 try:
@@ -164,7 +183,6 @@ def _run_tasks(cfg: Config, opts: ArchiveOptions, out_dir: Path, manifest: Manif
                             "tlog": str(match.tlog) if match.tlog else None}
                     manifest.mark_finished(name, key, info)
                     result.done[name] = info
-                    frames.update(info["frames_seen"])
                 videos.update(1)
                 videos.set_postfix(failed=len(result.failed))
     finally:
@@ -174,5 +192,5 @@ def _run_tasks(cfg: Config, opts: ArchiveOptions, out_dir: Path, manifest: Manif
 def _expected_frames(match: LogMatch, fps: float) -> int:
     d = match.dive
     if d.source_fps > 0 and d.frame_count:
-        return int(d.frame_count * min(1.0, fps / d.source_fps))
+        return math.ceil(d.frame_count * min(1.0, fps / d.source_fps))
     return d.frame_count

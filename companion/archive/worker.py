@@ -15,6 +15,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from companion.config import Config
 from companion.storage.atomic_write import atomic_write
@@ -37,6 +38,8 @@ class DiveJob:
     start_time: float
     duration_s: float
     tlog: str | None
+    progress: Any = None
+    """A Ray actor handle with ``add(n)`` for the driver's frame bar (None: nobody is watching)."""
 
 
 def _encoder(cfg: Config) -> tuple[Encoder, bool]:
@@ -100,6 +103,8 @@ def summarize_dive(job: DiveJob) -> dict:
 
     def keep_scores(results: Sequence[FrameResult]) -> None:
         scores.extend((r.frame_index, r.time_s, float(r.score)) for r in results)
+        if job.progress is not None:
+            job.progress.add.remote(len(results))  # fire and forget: never waits on the driver
 
     out = Path(job.out_dir)
     run = summarize(job.cfg, out, force=True, encoder=encoder, progress=False, on_results=keep_scores)
