@@ -12,8 +12,10 @@ from __future__ import annotations
 import logging
 import math
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,9 +152,23 @@ def run_archive(cfg: Config, opts: ArchiveOptions) -> ArchiveRun:
     return result
 
 
+def _interrupt_on_sigterm() -> Callable[[], None]:
+    """SIGTERM (systemd, a batch system, ``kill``) unwinds like Ctrl-C, so the local Ray is shut down and leaves
+    no processes behind; returns what restores the previous handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    return lambda: signal.signal(signal.SIGTERM, previous)
+
+
 def _run_tasks(cfg: Config, opts: ArchiveOptions, out_dir: Path, manifest: Manifest,
                todo: list[tuple[LogMatch, str]], result: ArchiveRun) -> None:
     ray = _start_ray(opts)
+    restore = _interrupt_on_sigterm()  # after ray.init, which installs a handler of its own
     try:
         task = ray.remote(summarize_dive).options(num_cpus=opts.cpus_per_task, num_gpus=opts.gpus_per_task,
                                                   max_retries=0)
@@ -187,6 +203,7 @@ def _run_tasks(cfg: Config, opts: ArchiveOptions, out_dir: Path, manifest: Manif
                 videos.set_postfix(failed=len(result.failed))
     finally:
         ray.shutdown()
+        restore()
 
 
 def _expected_frames(match: LogMatch, fps: float) -> int:
