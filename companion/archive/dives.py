@@ -21,6 +21,9 @@ from companion.sources.folder import IMAGE_SUFFIXES
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".mkv", ".avi", ".m4v", ".ts", ".mts", ".h264", ".h265", ".hevc",
                             ".mjpeg", ".webm"})
 
+RESERVED_NAMES = frozenset({"report", "manifest.json", "index.html", "index.csv", "index.json"})
+"""Names the campaign folder uses itself: a dive called so gets the path hash too."""
+
 
 @dataclass(frozen=True)
 class Dive:
@@ -92,7 +95,7 @@ def make_dives(sources: list[Path]) -> list[Dive]:
     dives = []
     for source, stem in zip(sources, stems, strict=True):
         name = stem
-        if stems.count(stem) > 1:
+        if stems.count(stem) > 1 or name.lower() in RESERVED_NAMES:
             name = f"{stem}-{hashlib.sha1(str(source).encode()).hexdigest()[:8]}"
         duration, count, fps, start = _measure(source)
         dives.append(Dive(name, source, duration, count, fps, start))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -61,9 +62,8 @@ def _limit_threads() -> None:
         cpus = ray.get_runtime_context().get_assigned_resources().get("CPU")
     except Exception:  # not inside Ray (tests call the function directly)
         return
-    if cpus:
-        import torch
-
+    torch = sys.modules.get("torch")  # only an encoder that uses torch has imported it; never import it here
+    if cpus and torch is not None:
         torch.set_num_threads(max(1, int(math.ceil(cpus))))
 
 
@@ -97,8 +97,8 @@ def summarize_dive(job: DiveJob) -> dict:
     from companion.vision.summarize import summarize
 
     started, started_at, cpu0 = time.monotonic(), time.time(), time.process_time()
-    _limit_threads()
     encoder, loaded = _encoder(job.cfg)
+    _limit_threads()
     scores: list[tuple[int, float, float]] = []
 
     def keep_scores(results: Sequence[FrameResult]) -> None:

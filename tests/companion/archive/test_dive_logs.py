@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from companion.archive.dives import make_dives
+from companion.archive.dives import find_sources, make_dives
 from companion.archive.log_match import match_logs, read_mapping
 from companion.archive.manifest import Manifest, dive_key
 from companion.archive.tlog_stream import log_span, poses_at
@@ -83,3 +83,18 @@ def test_manifest_key_changes_with_a_setting_and_survives_a_reload(tmp_path, div
     (out / "manifest.json").write_text(json.dumps({"version": 99}))
     with pytest.raises(MerlionError, match="manifest version 99"):
         Manifest.load(out)
+
+
+def test_dive_names_are_unique_and_never_the_campaign_folders_own(tmp_path):
+    clip = cut_clips(shared_file("survey/survey_480x270.mp4"), tmp_path, 1, 1.0, [T0])[0]
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    same_a, same_b, report = tmp_path / "a" / "dive.mp4", tmp_path / "b" / "dive.mp4", tmp_path / "report.mp4"
+    for p in (same_a, same_b, report):
+        p.write_bytes(clip.read_bytes())
+    names = [d.name for d in make_dives(find_sources([tmp_path / "a", tmp_path / "b", report]))]
+    assert len(set(names)) == 3 and all(n.startswith(("dive-", "report-")) for n in names)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not footage")
+    with pytest.raises(MerlionError, match="notes.txt: not a video"):
+        find_sources([notes])
