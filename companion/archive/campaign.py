@@ -170,8 +170,10 @@ def _run_tasks(cfg: Config, opts: ArchiveOptions, out_dir: Path, manifest: Manif
     ray = _start_ray(opts)
     restore = _interrupt_on_sigterm()  # after ray.init, which installs a handler of its own
     try:
-        task = ray.remote(summarize_dive).options(num_cpus=opts.cpus_per_task, num_gpus=opts.gpus_per_task,
-                                                  max_retries=0)
+        # max_calls=0: a worker is reused for any number of dives, GPU ones included (Ray's default for GPU tasks
+        # is a fresh process per task, which would load the encoder once per video)
+        task = ray.remote(num_cpus=opts.cpus_per_task, num_gpus=opts.gpus_per_task, max_retries=0,
+                          max_calls=0)(summarize_dive)
         counter = ray.remote(FrameCounter).options(num_cpus=0).remote()
         pending = {}
         for match, key in todo:
