@@ -14,6 +14,7 @@ import math
 import shutil
 import sys
 import tempfile
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from companion.sources.frame_feed import FrameFeed
 from companion.vision.contact_sheet import Tile, contact_sheet
 from companion.vision.encoders.base import Encoder
 from companion.vision.events import SummaryFrame
-from companion.vision.pipeline import Pipeline
+from companion.vision.pipeline import FrameResult, Pipeline
 
 log = logging.getLogger(__name__)
 
@@ -134,8 +135,12 @@ def _move_into_place(out_tmp: Path, out_dir: Path) -> None:
 
 
 def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder: Encoder | None = None,
-              progress: bool | None = None) -> SummaryRun:
-    """Summarize ``cfg.source.uri`` into ``out_dir``; raises MerlionError (one line) for anything the user can fix."""
+              progress: bool | None = None,
+              on_results: Callable[[Sequence[FrameResult]], None] | None = None) -> SummaryRun:
+    """Summarize ``cfg.source.uri`` into ``out_dir``; raises MerlionError (one line) for anything the user can fix.
+
+    ``on_results`` sees every batch's per-frame results (the archive keeps the score over time from it).
+    """
     out_dir = Path(out_dir)
     _check_out_dir(out_dir, force)
     try:  # made first, so an output folder that cannot be written fails now, not after the whole video
@@ -143,14 +148,15 @@ def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder:
     except OSError as err:
         raise MerlionError(f"{out_dir}: cannot write there ({err.strerror or err})") from None
     try:
-        return _summarize_into(cfg, out_dir, out_tmp, encoder, progress)
+        return _summarize_into(cfg, out_dir, out_tmp, encoder, progress, on_results)
     finally:
         if out_tmp.exists():
             shutil.rmtree(out_tmp, ignore_errors=True)
 
 
 def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder | None,
-                    progress: bool | None) -> SummaryRun:
+                    progress: bool | None,
+                    on_results: Callable[[Sequence[FrameResult]], None] | None = None) -> SummaryRun:
     source = open_source(cfg.source, realtime=False)
     if encoder is None:
         from companion.vision.encoders.factory import make_encoder
@@ -163,6 +169,8 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
             out = pipeline.process([f for f, _ in batch], [s for _, s in batch])
             seen += len(batch)
             passed += sum(r.passed for r in out.results)
+            if on_results is not None:
+                on_results(out.results)
             bar.update(len(batch))
             bar.set_postfix(passed=passed, held=len(pipeline.sampler))
     lost = int(getattr(source, "lost", 0))

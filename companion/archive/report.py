@@ -1,0 +1,142 @@
+"""The campaign report: one HTML page over all dives, and an index of every summary frame (CSV and JSON).
+
+Per dive the page shows its contact sheet (written by ``summarize``), its depth profile from the log with the
+summary frames marked, and its score over time with the threshold. The pages and PNGs sit in the output folder
+and reference the dive folders by relative path, so the whole folder can be copied and opened anywhere. Plots
+use matplotlib's Agg backend; a dive without a log gets no depth plot and the page says so.
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+
+from companion.storage.atomic_write import atomic_write
+
+INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
+                "file")
+
+
+def _load(out_dir: Path, name: str) -> tuple[dict, dict, list[tuple[float, float]]]:
+    dive = out_dir / name
+    summary = json.loads((dive / "summary.json").read_text(encoding="utf-8"))
+    tags_path = dive / "tags.json"
+    tags = json.loads(tags_path.read_text(encoding="utf-8")) if tags_path.exists() else {"frames": []}
+    scores: list[tuple[float, float]] = []
+    scores_path = dive / "scores.csv"
+    if scores_path.exists():
+        for row in csv.DictReader(scores_path.read_text(encoding="utf-8").splitlines()):
+            scores.append((float(row["time_s"]), float(row["score"])))
+    return summary, tags, scores
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _plot_depth(name: str, tags: dict, path: Path) -> bool:
+    track = tags.get("depth_track") or []
+    marked = [(f["time_s"], f["pose"]["depth_m"]) for f in tags.get("frames", [])
+              if f.get("pose") and f["pose"].get("depth_m") is not None]
+    if not track and not marked:
+        return False
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 3))
+    if track:
+        ax.plot(*zip(*track, strict=True), lw=1, color="tab:blue", label="depth (log)")
+    if marked:
+        ax.scatter(*zip(*marked, strict=True), color="tab:orange", zorder=3, label="summary frames")
+    ax.invert_yaxis()
+    ax.set_xlabel("time in video (s)")
+    ax.set_ylabel("depth (m)")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(f"{name}: depth profile")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return True
+
+
+def _plot_scores(name: str, summary: dict, scores: list[tuple[float, float]], path: Path) -> bool:
+    if not scores:
+        return False
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 3))
+    ax.plot(*zip(*scores, strict=True), lw=1, color="tab:blue", label="semantic score")
+    tau = summary["params"].get("tau_ss")
+    if tau is not None:
+        ax.axhline(tau, color="tab:red", ls="--", lw=1, label=f"tau_ss = {tau:g}")
+    frames = summary.get("frames", [])
+    if frames:
+        ax.scatter([f["time_s"] for f in frames], [f["score"] for f in frames], color="tab:orange", zorder=3,
+                   label="summary frames")
+    ax.set_xlabel("time in video (s)")
+    ax.set_ylabel("score")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(f"{name}: score over time")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return True
+
+
+def _utc(t: float | None) -> str:
+    return "" if t is None else datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")
+
+
+def index_rows(out_dir: Path, names: list[str]) -> list[dict]:
+    """One row per summary frame of every dive, in dive then time order."""
+    rows = []
+    for name in names:
+        summary, tags, _ = _load(out_dir, name)
+        poses = {f["index"]: f for f in tags.get("frames", [])}
+        for f in summary["frames"]:
+            tag = poses.get(f["index"], {})
+            pose = tag.get("pose") or {}
+            rows.append({"dive": name, "time_s": f["time_s"], "wall_time_utc": _utc(tag.get("wall_time")),
+                         "depth_m": pose.get("depth_m"), "heading_deg": pose.get("heading_deg"),
+                         "lat": pose.get("lat"), "lon": pose.get("lon"), "topic": summary["params"]["query"],
+                         "score": f["score"], "file": f"{name}/{f['file']}"})
+    return rows
+
+
+def write_campaign_report(out_dir: Path, names: list[str]) -> Path:
+    """index.html, index.csv and index.json in ``out_dir`` over the finished dives ``names``."""
+    plots = out_dir / "report"
+    plots.mkdir(exist_ok=True)
+    rows = index_rows(out_dir, names)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=INDEX_FIELDS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write(out_dir / "index.csv", buf.getvalue())
+    atomic_write(out_dir / "index.json", json.dumps(rows, indent=2) + "\n")
+    parts = [f"<!doctype html><meta charset='utf-8'><title>MERLION campaign</title>"
+             f"<h1>MERLION campaign: {len(names)} dives, {len(rows)} summary frames</h1>"
+             f"<p>Index of every summary frame: <a href='index.csv'>index.csv</a>, "
+             f"<a href='index.json'>index.json</a></p>"]
+    for name in names:
+        summary, tags, scores = _load(out_dir, name)
+        esc = html.escape(name)
+        parts.append(f"<h2>{esc}</h2><p>{html.escape(summary['source'])} | query "
+                     f"&ldquo;{html.escape(summary['params']['query'])}&rdquo; | {len(summary['frames'])} frames"
+                     f" | log: {html.escape(str(tags.get('tlog') or 'none matched'))}</p>")
+        parts.append(f"<img src='{esc}/contact_sheet.jpg' alt='contact sheet' style='max-width:100%'><br>")
+        if _plot_depth(name, tags, plots / f"{name}_depth.png"):
+            parts.append(f"<img src='report/{esc}_depth.png' alt='depth profile'>")
+        else:
+            parts.append("<p>No depth: no log covers this dive.</p>")
+        if _plot_scores(name, summary, scores, plots / f"{name}_scores.png"):
+            parts.append(f"<img src='report/{esc}_scores.png' alt='score over time'>")
+    page = out_dir / "index.html"
+    atomic_write(page, "\n".join(parts) + "\n")
+    return page
