@@ -32,6 +32,7 @@ import numpy as np
 
 from companion.config import StoreConfig
 from companion.storage.atomic_write import TMP_PREFIX, atomic_write
+from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
 from vehicle.autopilot.pose import Pose
 
@@ -136,6 +137,7 @@ class Store:
 
     # ---- start-up -------------------------------------------------------------------------------------------
     def _open(self) -> None:
+        self._refuse_newer()
         try:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -148,6 +150,16 @@ class Store:
         except OSError as err:
             self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
+
+    def _refuse_newer(self) -> None:
+        """A store written by a newer merlion is neither read as ours nor touched: stop (NewerFileError)."""
+        path = self.dir / SUMMARY_FILE
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return  # absent or damaged: _load rebuilds from the change log
+        if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
+            upgrade(path, data, current=FORMAT_VERSION, migrations={})
 
     def _check_writable(self) -> None:
         probe = self.dir / f"{TMP_PREFIX}probe.{os.getpid()}"
