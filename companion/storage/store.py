@@ -147,6 +147,7 @@ class Store:
         try:
             self._clean_temp_files()
             self._check_writable()
+            self._end_torn_change()
         except OSError as err:
             self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
@@ -160,6 +161,23 @@ class Store:
             return  # absent or damaged: _load rebuilds from the change log
         if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
             upgrade(path, data, current=FORMAT_VERSION, migrations={})
+
+    def _end_torn_change(self) -> None:
+        """A kill in the middle of a change-log line leaves it without its newline: cut it off, or the next run's
+        first line would be glued to it and lost as well."""
+        path = self.dir / CHANGES_FILE
+        try:
+            with open(path, "rb+") as fh:
+                size = fh.seek(0, os.SEEK_END)
+                start = max(0, size - 65536)  # a line is far shorter; the log itself may be long
+                fh.seek(start)
+                tail = fh.read()
+                if tail and not tail.endswith(b"\n"):
+                    cut = tail.rfind(b"\n")
+                    fh.truncate(start + cut + 1 if cut >= 0 else start)
+                    os.fsync(fh.fileno())
+        except FileNotFoundError:
+            return
 
     def _check_writable(self) -> None:
         probe = self.dir / f"{TMP_PREFIX}probe.{os.getpid()}"
