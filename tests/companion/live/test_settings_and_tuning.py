@@ -81,7 +81,7 @@ def test_merl_enhance_switches_enhancement_in_mode_always(tmp_path: Path, dive) 
     store = tmp_path / "store"
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)},
                        enhance={"mode": "always", "method": "classic"}, queries={"tau_ss": 0},
-                       source={"uri": "synthetic://dive?seconds=40&width=160&height=96"}, sampler={"k": 4})
+                       source={"uri": "synthetic://dive?seconds=40&width=160&height=96"}, sampler={"k": 40})
 
     def newest_enhanced() -> bool | None:
         changes = store / "changes.jsonl"
