@@ -169,6 +169,7 @@ class LiveCompanion:
         self.link.healthy = self.health.healthy
         self.telemetry = _make_telemetry(self.link, cfg)
         params_file = self._params_file()
+        defaults = {spec.name: spec.value for spec in default_params(cfg)}
         self.surface = Downlink(
             self.link, cfg.surface, params=default_params(cfg), saved_params=self.saved_params,
             persist_params=params_file.save,
@@ -179,8 +180,9 @@ class LiveCompanion:
         for name, value in self.surface.params.restored.items():  # what the operator set last time
             try:
                 self._on_param(name, value)
-            except ValueError as err:
+            except ValueError as err:  # refused now (e.g. MERL_ENHANCE after enhance.mode became none)
                 log.warning("saved parameter %s=%g not applied: %s", name, value, err)
+                self.surface.params.set(name, defaults[name])  # served and saved as what is in force
         self.surface.on_queries_changed(self._on_queries)
         self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper.document()).encode())
         self.link.on_autopilot(self._on_autopilot)

@@ -65,10 +65,15 @@ def test_an_older_params_file_is_migrated_and_its_values_applied(tmp_path: Path,
 
 def test_merl_enhance_is_refused_with_a_reason_when_no_enhancer_is_loaded(tmp_path: Path, dive) -> None:  # noqa: F811
     hub, gcs, listener = dive
-    cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(tmp_path / "s")},
+    store = tmp_path / "s"
+    store.mkdir()
+    # saved while enhance.mode was selective; the mode is none now
+    (store / "params.json").write_text(json.dumps({"version": FILE_VERSION, "params": {"MERL_ENHANCE": 1}}))
+    cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)},
                        enhance={"mode": "none"})
     companion = Companion("--config", str(cfg))
     companion.wait_for("companion running")
+    assert json.loads((store / "params.json").read_text())["params"]["MERL_ENHANCE"] == 0, "saved as in force"
     _set_param(gcs, listener, "MERL_ENHANCE", 1, integer=True, expect=0)  # a refused value is not taken
     text = listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "MERL_ENHANCE" in m.text, 10, "the reason")
     assert text.text == "MERL_ENHANCE refused: enhance.mode is none"
