@@ -28,7 +28,7 @@ from companion.vision.events import SummaryEvent
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
-HISTORY = 512
+HISTORY = 128
 """How many recent (events applied, summary) pairs ``document`` shows, for audits from the surface."""
 
 
