@@ -70,12 +70,13 @@ class QueryConfig(_Section):
     positive: str = "underwater image with fish"
     negatives: list[str] = Field(default_factory=lambda: ["underwater image without fish"])
     tau_ss: float = 0.5
-    """Semantic pre-sampling threshold, a fraction in (0, 1); a value above 1 is read as a percentage."""
+    """Semantic pre-sampling threshold, a fraction in [0, 1); a value above 1 is read as a percentage; 0 means no
+    semantic gate (every frame goes on to the sampler)."""
 
     @field_validator("tau_ss")
     @classmethod
     def _fraction(cls, value: float) -> float:
-        return as_fraction(value)
+        return as_fraction(value, allow_zero=True)
 
 
 class SamplerConfig(_Section):
@@ -133,12 +134,18 @@ class Config(_Section):
     log: LogConfig = Field(default_factory=LogConfig)
 
 
-def as_fraction(value: float) -> float:
-    """Thresholds are fractions in (0, 1); operators often write percentages, so 40 means 0.4."""
+def as_fraction(value: float, *, allow_zero: bool = False) -> float:
+    """Thresholds are fractions in (0, 1); operators often write percentages, so 40 means 0.4.
+
+    ``allow_zero``: 0 is accepted too, for a gate where 0 means "no gate" (tau_ss).
+    """
     if value > 1.0:
         value = value / 100.0
+    if allow_zero and value == 0.0:
+        return 0.0
     if not 0.0 < value < 1.0:
-        raise ValueError(f"must be a fraction in (0, 1) or a percentage in (1, 100), got {value}")
+        low = "[0" if allow_zero else "(0"
+        raise ValueError(f"must be a fraction in {low}, 1) or a percentage in (1, 100), got {value}")
     return float(value)
 
 

@@ -18,7 +18,7 @@ def register(add_command) -> None:
     p.add_argument("--negative", metavar="TEXT", action="append",
                    help="negative query, repeatable (with --query and no --negative: a generic negative)")
     p.add_argument("--threshold", type=float, metavar="TAU",
-                   help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50)")
+                   help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50); 0: no semantic gate")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
     p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")

@@ -14,6 +14,7 @@ Shutdown runs the other way round; the store is always consistent on disk, so a 
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -28,14 +29,18 @@ from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
 from companion.live.queues import DropOldestQueue
+from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
+from companion.storage.params_file import ParamsFile
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent
 
 log = logging.getLogger(__name__)
 
 LIVE_PREFIXES = ("/dev/video", "/dev/v4l/", "v4l2://", "rtsp://", "rtsps://", "udp://")
+KEEPER_PATH = "/store/summary.json"
+"""The summary the keeper holds, with its recent history, over FTP (audits; see SummaryKeeper.document)."""
 CAPTURE_QUEUE = 4
 """Frames waiting for inference; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
 
@@ -63,9 +68,10 @@ class LiveCompanion:
         self.counters = LiveCounters()
         self.stop_event = threading.Event()
         self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
-        self.pipeline_lock = threading.Lock()
         self.started_at = time.monotonic()
         self.store: Store | None = None
+        self.keeper: SummaryKeeper | None = None
+        self.saved_params: dict[str, float] = {}
         self.pipeline = None
         self.encoder = None
         self.link = None
@@ -85,6 +91,8 @@ class LiveCompanion:
     # ---- start-up -----------------------------------------------------------------------------------------------
     def start(self) -> None:
         cfg = self.cfg
+        # a settings file from a newer version stops the start before anything is opened or written
+        self.saved_params = self._params_file().load()
         self.store = Store(cfg.store)
         resume = self.store.resume_state()
         if resume.frames:
@@ -118,16 +126,35 @@ class LiveCompanion:
             data["queries"]["tau_ss"] = cfg.enhance.tau_ses
             self.pipeline = Pipeline.from_config(build_config(data, origin="enhance"), self.encoder,
                                                  first_image_index=resume.next_image_index)
+            self.keeper = self._make_keeper()
             raw = PreSampler(self.encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
             self.selective = SelectiveStage(self.pipeline, raw, enhancer, queue_size=cfg.enhance.queue,
-                                            lock=self.pipeline_lock)
+                                            lock=self.keeper.lock)
         else:
             self.pipeline = Pipeline.from_config(cfg, self.encoder, first_image_index=resume.next_image_index)
-        removed = self.pipeline.restore(resume.frames)
-        self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
-        if removed:  # a smaller K than before the restart trims at once
-            self._persist(removed)
+            self.keeper = self._make_keeper()
+
+        def restore() -> list[SummaryEvent]:
+            removed = self.pipeline.restore(resume.frames)  # a smaller K than before the restart trims at once
+            self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
+            return removed
+
+        self.keeper.change(restore)
+
+    def _make_keeper(self) -> SummaryKeeper:
+        def tags() -> dict[str, Any]:
+            return {"query": self.pipeline.presampler.positive,  # the live query, which the surface may change
+                    "encoder": getattr(self.encoder, "name", ""), "source": self.cfg.source.uri}
+
+        return SummaryKeeper(self.pipeline, self.store, tags=tags, publish=self._publish)
+
+    def _publish(self, event: SummaryEvent) -> None:
+        if self.surface is not None:
+            self.surface.publish(event)
+
+    def _params_file(self) -> ParamsFile:
+        return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)
 
     def _start_vehicle(self, image_count: int) -> None:
         cfg = self.cfg
@@ -135,32 +162,38 @@ class LiveCompanion:
             log.warning("mavlink.connection is null: no vehicle link, no surface link (store only)")
             return
         from companion.live.tunables import default_params
-        from companion.storage.params_file import ParamsFile
         from vehicle.camera.downlink import Downlink
         from vehicle.link.connection import MavLink
 
         self.link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="companion")
         self.link.healthy = self.health.healthy
         self.telemetry = _make_telemetry(self.link, cfg)
-        params_file = ParamsFile(self.options.params_path or Path(cfg.store.dir) / "params.json")
+        params_file = self._params_file()
+        defaults = {spec.name: spec.value for spec in default_params(cfg)}
         self.surface = Downlink(
-            self.link, cfg.surface, params=default_params(cfg), saved_params=params_file.load(),
+            self.link, cfg.surface, params=default_params(cfg), saved_params=self.saved_params,
             persist_params=params_file.save,
             loader=self.store.frame, image_count=image_count,
             queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
             dive=self.store.dive,
         )
-        self.surface.on_param_changed(self._on_param)
+        self.surface.on_param_changed(self._on_param, replay=False)
+        for name, value in self.surface.params.restored.items():  # what the operator set last time
+            try:
+                self._on_param(name, value)
+            except ValueError as err:  # refused now (e.g. MERL_ENHANCE after enhance.mode became none)
+                log.warning("saved parameter %s=%g not applied: %s", name, value, err)
+                self.surface.params.set(name, defaults[name])  # served and saved as what is in force
         if self.telemetry is not None and hasattr(self.telemetry, "on_notice"):
             self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
         self.surface.on_queries_changed(self._on_queries)
+        self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper.document()).encode())
         self.link.on_autopilot(self._on_autopilot)
         self.link.start()
         if self.telemetry is not None and hasattr(self.telemetry, "start"):
             self.telemetry.start()
         self.surface.start()
-        for frame in self.pipeline.summary:  # the resumed summary is on the FTP tree again
-            self.surface.publish(SummaryEvent("added", frame, [f.image_index for f in self.pipeline.summary]))
+        self.keeper.republish()  # the resumed summary is on the FTP tree again
 
     def _start_loops(self) -> None:
         from companion.sources.factory import open_source
@@ -174,14 +207,13 @@ class LiveCompanion:
         self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event)
         self.inference = InferenceLoop(
             self.pipeline, self.queue, self.health, self.counters, self.stop_event,
-            batch=self.cfg.encoder.batch, pose_at=self._pose_at, on_events=self._persist, lock=self.pipeline_lock,
-            selective=self.selective,
+            batch=self.cfg.encoder.batch, pose_at=self._pose_at, keeper=self.keeper, selective=self.selective,
         )
         if self.selective is not None:
             from companion.live.enhance_worker import EnhanceWorker
 
             self.enhance_worker = EnhanceWorker(self.selective, self.health, self.counters, self.stop_event,
-                                                batch=self.cfg.encoder.batch, on_events=self._persist)
+                                                batch=self.cfg.encoder.batch, keeper=self.keeper)
             self.enhance_worker.start()
         self.inference.start()
         self.capture.start()
@@ -196,54 +228,57 @@ class LiveCompanion:
             log.debug("pose lookup failed", exc_info=True)
             return None
 
-    def _persist(self, events: list[SummaryEvent]) -> None:
-        """Store first (the source of truth), then the surface: a crash in between loses no saved frame."""
-        tags = {"query": self.pipeline.presampler.positive,  # the live query, which the surface may change
-                "encoder": getattr(self.encoder, "name", ""),
-                "source": self.cfg.source.uri}
-        for event in events:
-            self.store.apply(event, tags=tags)
-            if self.surface is not None:
-                try:
-                    self.surface.publish(event)
-                except Exception:  # noqa: BLE001 - the surface link must never stop the summary being kept
-                    log.exception("surface link could not publish image %d", event.frame.image_index)
-
     # ---- live tuning from the surface -------------------------------------------------------------------------
     def _on_param(self, name: str, value: float) -> None:
+        """A MERL_* change from the surface, applied by the keeper between two batches (ValueError refuses it)."""
+        if name == "MERL_ENHANCE":
+            self._check_enhance(bool(value))
+        if name in ("MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_ENHANCE"):
+            self.keeper.change(lambda: self._tune(name, value))
+            log.info("parameter %s set to %g", name, value)
+
+    def _tune(self, name: str, value: float) -> list[SummaryEvent]:
+        """Runs inside the keeper: the pipeline changes and the trims it causes reach the store together."""
         sel = self.selective
-        with self.pipeline_lock:
-            if name == "MERL_TAU_SS":
-                if sel is not None:
-                    sel.raw.tau_ss = value
-                    if not sel.on:
-                        self.pipeline.tau_ss = value
-                else:
+        if name == "MERL_TAU_SS":
+            if sel is not None:
+                sel.raw.tau_ss = value
+                if not sel.on:
                     self.pipeline.tau_ss = value
-            elif name == "MERL_TAU_SES":
-                self.pipeline.tau_ses = value
-                if sel is not None and sel.on:
-                    self.pipeline.tau_ss = value  # the gate on enhanced frames
-            elif name == "MERL_K":
-                events = self.pipeline.set_k(int(value))
-            elif name == "MERL_ENHANCE":
-                if sel is None:
-                    log.warning("MERL_ENHANCE: enhance.mode is %s; restart with enhance.mode: selective to "
-                                "enhance", self.cfg.enhance.mode)
-                    return
+            else:
+                self.pipeline.tau_ss = value
+        elif name == "MERL_TAU_SES":
+            self.pipeline.tau_ses = value
+            if sel is not None and sel.on:
+                self.pipeline.tau_ss = value  # the gate on enhanced frames
+        elif name == "MERL_K":
+            return self.pipeline.set_k(int(value))
+        elif name == "MERL_ENHANCE":
+            if sel is not None:
                 sel.on = bool(value)
                 self.pipeline.tau_ss = self.pipeline.tau_ses if value else sel.raw.tau_ss
-            else:
-                return
-        if name == "MERL_K" and events:
-            self._persist(events)
-        log.info("parameter %s set to %g", name, value)
+            else:  # enhance.mode always: every frame enhanced, or none
+                self.pipeline.enhance_mode = "always" if value else "none"
+        return []
+
+    def _check_enhance(self, on: bool) -> None:
+        """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and
+        say why on the surface, rather than accept a value that changes nothing."""
+        if on and self.cfg.enhance.mode == "none":
+            if self.surface is not None:
+                from vehicle.camera import status as st
+
+                self.surface.event("MERL_ENHANCE refused: enhance.mode is none", st.WARNING)
+            raise ValueError("enhance.mode is none (no enhancer loaded); set enhance.mode: selective or always "
+                             "and restart")
 
     def _on_queries(self, positive: str, negatives: list[str]) -> None:
-        with self.pipeline_lock:
+        def set_queries() -> None:
             self.pipeline.presampler.set_queries(positive, negatives)
             if self.selective is not None:
                 self.selective.raw.set_queries(positive, negatives)
+
+        self.keeper.change(set_queries)
         log.info("queries set: %r against %r", positive, negatives)
 
     def _on_autopilot(self, alive: bool) -> None:

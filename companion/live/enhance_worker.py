@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,8 +19,8 @@ import numpy as np
 from companion.live.health import Health
 from companion.live.loops import LiveCounters
 from companion.live.queues import DropOldestQueue
+from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
-from companion.vision.events import SummaryEvent
 
 log = logging.getLogger(__name__)
 
@@ -68,14 +67,14 @@ class SelectiveStage:
 
 class EnhanceWorker(threading.Thread):
     def __init__(self, stage: SelectiveStage, health: Health, counters: LiveCounters, stop: threading.Event, *,
-                 batch: int, on_events: Callable[[list[SummaryEvent]], None]) -> None:
+                 batch: int, keeper: SummaryKeeper) -> None:
         super().__init__(name="enhance", daemon=True)
         self.stage = stage
         self.health = health
         self.counters = counters
         self.stop_event = stop
         self.batch = batch
-        self.on_events = on_events
+        self.keeper = keeper
 
     def run(self) -> None:
         self.health.register("enhance")
@@ -102,19 +101,22 @@ class EnhanceWorker(threading.Thread):
             frames.append(Frame(enhanced, item.frame.index, item.frame.time_s, item.frame.capture_time))
             self.health.beat("enhance")
         poses = [item.pose for item in items]
-        with stage.lock:
+
+        def sample():
             outcome = stage.pipeline.process(frames, poses=poses)
+            for event in outcome.events:  # the frame as captured goes to the store beside the enhanced one
+                raw = raws.get(event.frame.frame_index)
+                if event.kind == "added" and raw is not None and event.frame.raw_image is None:
+                    event.frame.raw_image = raw
+                    event.frame.enhanced = True
+            return outcome
+
+        outcome = self.keeper.change(sample, lambda o: o.events)
         stage.enhanced += len(items)
         self.counters.frames_enhanced += len(items)
         stage.enhanced_passed += sum(r.passed for r in outcome.results)
         for event in outcome.events:
             if event.kind == "added":
                 self.counters.summary_added += 1
-                raw = raws.get(event.frame.frame_index)
-                if raw is not None and event.frame.raw_image is None:
-                    event.frame.raw_image = raw
-                    event.frame.enhanced = True
             else:
                 self.counters.summary_removed += 1
-        if outcome.events:
-            self.on_events(outcome.events)

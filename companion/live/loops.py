@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 from companion.live.health import Health
 from companion.live.queues import DropOldestQueue
+from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
-from companion.vision.events import SummaryEvent
 
 log = logging.getLogger(__name__)
 
@@ -79,12 +79,11 @@ class CaptureLoop(threading.Thread):
 
 
 class InferenceLoop(threading.Thread):
-    """Drives the pipeline from the queue; ``on_events`` persists and publishes (store first, then surface)."""
+    """Drives the pipeline from the queue through the summary keeper (which stores and publishes the events)."""
 
     def __init__(self, pipeline, queue: DropOldestQueue[Frame], health: Health, counters: LiveCounters,
                  stop: threading.Event, *, batch: int, pose_at: Callable[[float], object] | None,
-                 on_events: Callable[[list[SummaryEvent]], None], lock: threading.Lock,
-                 selective=None) -> None:
+                 keeper: SummaryKeeper, selective=None) -> None:
         super().__init__(name="inference", daemon=True)
         self.pipeline = pipeline
         self.queue = queue
@@ -93,9 +92,8 @@ class InferenceLoop(threading.Thread):
         self.stop_event = stop
         self.batch = batch
         self.pose_at = pose_at
-        self.on_events = on_events
-        self.lock = lock
-        """Held while the pipeline runs, so live tuning (K, tau, queries) never changes it mid-batch."""
+        self.keeper = keeper
+        """Runs each batch and stores its events as one change, so live tuning never lands mid-batch."""
         self.selective = selective
         """companion.live.enhance_worker.SelectiveStage when enhancement runs on its own worker; else None."""
 
@@ -119,8 +117,7 @@ class InferenceLoop(threading.Thread):
         if self.selective is not None and self.selective.on:
             self._score_for_enhancer(frames, poses)
             return
-        with self.lock:
-            outcome = self.pipeline.process(frames, poses=poses)
+        outcome = self.keeper.change(lambda: self.pipeline.process(frames, poses=poses), lambda o: o.events)
         now = time.monotonic()
         c = self.counters
         for result in outcome.results:
@@ -134,8 +131,6 @@ class InferenceLoop(threading.Thread):
                 c.summary_added += 1
             else:
                 c.summary_removed += 1
-        if outcome.events:
-            self.on_events(outcome.events)
 
     def _score_for_enhancer(self, frames: list[Frame], poses: list | None) -> None:
         """MERLION-E: score here, enhance and sample on the enhancer's worker."""

@@ -9,7 +9,8 @@ from vehicle.camera.params import ParamSpec
 def default_params(cfg: Config) -> list[ParamSpec]:
     """The tunable set, starting from the configuration (names at most 16 characters)."""
     return [
-        ParamSpec("MERL_TAU_SS", cfg.queries.tau_ss, 0.01, 0.99, doc="semantic pre-sampling threshold"),
+        ParamSpec("MERL_TAU_SS", cfg.queries.tau_ss, 0.0, 0.99,
+                  doc="semantic pre-sampling threshold (0: no semantic gate)"),
         ParamSpec("MERL_TAU_SES", cfg.enhance.tau_ses, 0.01, 0.99, doc="threshold after enhancement"),
         ParamSpec("MERL_K", cfg.sampler.k, 1, 1000, integer=True, doc="summary size"),
         ParamSpec("MERL_THUMB_B", cfg.surface.thumbnail_bytes, 300, 65000, integer=True,

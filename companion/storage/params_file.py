@@ -2,6 +2,10 @@
 
 The MAVLink side (``vehicle.camera.params.ParamServer``) holds and serves the values; this file is where the app
 keeps them between runs, written with ``atomic_write`` so a power cut leaves the old or the new file.
+
+Versions (``companion.storage.versioned``): 1 held ``params`` only; 2 adds ``written_by``, the merlion version
+that saved it, so that a newer file is refused with a message naming that version. A damaged file is logged and
+ignored (the configuration's values stand); a file from a newer merlion stops the start and is left untouched.
 """
 
 from __future__ import annotations
@@ -10,35 +14,51 @@ import json
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 from companion.storage.atomic_write import atomic_write
+from companion.storage.versioned import upgrade
 
 log = logging.getLogger(__name__)
 
-FILE_VERSION = 1
+FILE_VERSION = 2
+
+
+def _v1_to_v2(data: dict[str, Any]) -> dict[str, Any]:
+    data["written_by"] = "unknown (format version 1)"
+    return data
+
+
+MIGRATIONS = {1: _v1_to_v2}
 
 
 class ParamsFile:
-    """``load()`` the saved values (a damaged file is logged and ignored); ``save(values)`` replaces them."""
+    """``load()`` the saved values; ``save(values)`` replaces them. ``version``: this merlion's, for the file."""
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, version: str = "") -> None:
         self.path = Path(path)
+        self.version = version
 
     def load(self) -> dict[str, float]:
+        """The saved values ({} when none or damaged); raises NewerFileError for a newer version's file."""
         if not self.path.exists():
             return {}
         try:
             data = json.loads(self.path.read_text(encoding="utf-8"))
-            if data.get("version") != FILE_VERSION:
-                raise ValueError(f"version {data.get('version')!r}, expected {FILE_VERSION}")
+        except (OSError, ValueError) as err:
+            log.warning("%s: ignoring saved parameters (%s)", self.path, err)
+            return {}
+        try:
+            data = upgrade(self.path, data, current=FILE_VERSION, migrations=MIGRATIONS, app_version=self.version)
             saved = data["params"]
             if not isinstance(saved, dict):
                 raise TypeError("params is not an object")
-        except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        except (ValueError, KeyError, TypeError) as err:
             log.warning("%s: ignoring saved parameters (%s)", self.path, err)
             return {}
         return saved
 
     def save(self, values: dict[str, float]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(self.path, json.dumps({"version": FILE_VERSION, "params": values}, indent=1) + "\n")
+        body = {"version": FILE_VERSION, "written_by": self.version or "unknown", "params": values}
+        atomic_write(self.path, json.dumps(body, indent=1) + "\n")

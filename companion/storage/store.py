@@ -33,6 +33,7 @@ import numpy as np
 
 from companion.config import StoreConfig
 from companion.storage.atomic_write import TMP_PREFIX, atomic_write
+from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
 from vehicle.autopilot.pose import Pose
 
@@ -140,6 +141,7 @@ class Store:
 
     # ---- start-up -------------------------------------------------------------------------------------------
     def _open(self) -> None:
+        self._refuse_newer()
         try:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -149,9 +151,37 @@ class Store:
         try:
             self._clean_temp_files()
             self._check_writable()
+            self._end_torn_change()
         except OSError as err:
             self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
+
+    def _refuse_newer(self) -> None:
+        """A store written by a newer merlion is neither read as ours nor touched: stop (NewerFileError)."""
+        path = self.dir / SUMMARY_FILE
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return  # absent or damaged: _load rebuilds from the change log
+        if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
+            upgrade(path, data, current=FORMAT_VERSION, migrations={})
+
+    def _end_torn_change(self) -> None:
+        """A kill in the middle of a change-log line leaves it without its newline: cut it off, or the next run's
+        first line would be glued to it and lost as well."""
+        path = self.dir / CHANGES_FILE
+        try:
+            with open(path, "rb+") as fh:
+                size = fh.seek(0, os.SEEK_END)
+                start = max(0, size - 65536)  # a line is far shorter; the log itself may be long
+                fh.seek(start)
+                tail = fh.read()
+                if tail and not tail.endswith(b"\n"):
+                    cut = tail.rfind(b"\n")
+                    fh.truncate(start + cut + 1 if cut >= 0 else start)
+                    os.fsync(fh.fileno())
+        except FileNotFoundError:
+            return
 
     def _check_writable(self) -> None:
         probe = self.dir / f"{TMP_PREFIX}probe.{os.getpid()}"

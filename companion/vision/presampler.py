@@ -42,9 +42,9 @@ class PreSampler:
 
     @tau_ss.setter
     def tau_ss(self, value: float) -> None:
-        """A fraction in (0, 1); a value above 1 is read as a percentage (40 -> 0.4)."""
+        """A fraction in [0, 1); a value above 1 is read as a percentage (40 -> 0.4); 0: no semantic gate."""
         try:
-            self._tau = as_fraction(float(value))
+            self._tau = as_fraction(float(value), allow_zero=True)
         except ValueError as err:
             raise UsageError(f"tau_ss: {err}") from None
 
@@ -81,8 +81,14 @@ class PreSampler:
         return np.asarray(self.encoder.semantic_scores(image_embeddings, self.text_embeddings), dtype=np.float32)
 
     def passes(self, scores: np.ndarray, tau: float | None = None) -> np.ndarray:
-        """Boolean mask: ``score > tau`` (``tau_ss`` unless another threshold, e.g. tau_ses, is given)."""
-        return np.asarray(scores) > (self._tau if tau is None else tau)
+        """Boolean mask: ``score > tau`` (``tau_ss`` unless another threshold, e.g. tau_ses, is given).
+
+        A threshold of 0 is no gate at all: every frame passes, also one whose share underflowed to 0.0.
+        """
+        tau = self._tau if tau is None else tau
+        if tau <= 0.0:
+            return np.ones(len(scores), dtype=bool)
+        return np.asarray(scores) > tau
 
 
 def softmax_share(image_embeddings: np.ndarray, text_embeddings: np.ndarray, scale: float = 100.0) -> np.ndarray:

@@ -14,6 +14,15 @@ def test_defaults_are_complete_and_valid():
     assert cfg.mavlink.component_id == 100
 
 
+def test_tau_ss_zero_is_accepted_as_no_gate_but_tau_ses_zero_is_not(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("queries:\n  tau_ss: 0\n")
+    assert load_config(f, environ={}).queries.tau_ss == 0.0
+    f.write_text("enhance:\n  tau_ses: 0\n")
+    with pytest.raises(ConfigError, match="enhance.tau_ses"):
+        load_config(f, environ={})
+
+
 def test_percentage_threshold_is_read_as_fraction(tmp_path):
     f = tmp_path / "c.yaml"
     f.write_text("queries:\n  tau_ss: 40\n")

@@ -13,6 +13,7 @@ import pytest
 
 from companion.config import StoreConfig
 from companion.storage.store import CHANGES_FILE, SUMMARY_FILE, TMP_PREFIX, Store
+from companion.storage.versioned import NewerFileError
 from companion.vision.events import SummaryEvent, SummaryFrame
 from vehicle.autopilot.pose import Pose
 
@@ -175,3 +176,28 @@ def test_store_path_that_is_a_file_degrades_with_a_warning(tmp_path: Path, caplo
     store.apply(added(make_frame(0), [0]))
     assert store.summary == [0]
     assert target.read_text() == "x"
+
+
+def test_a_torn_change_line_is_cut_so_the_next_run_logs_whole_lines(tmp_path: Path) -> None:
+    store = Store(StoreConfig(dir=str(tmp_path)))
+    store.apply(added(make_frame(0), [0]))
+    with open(tmp_path / CHANGES_FILE, "a") as fh:
+        fh.write('{"kind": "added", "summ')  # killed in the middle of a line
+    again = Store(StoreConfig(dir=str(tmp_path)))
+    again.apply(added(make_frame(1), [0, 1]))
+    lines = [json.loads(line) for line in (tmp_path / CHANGES_FILE).read_text().splitlines()]
+    assert [e["image_index"] for e in lines] == [0, 1]
+
+
+def test_a_store_written_by_a_newer_version_is_refused_and_left_untouched(tmp_path: Path) -> None:
+    store = Store(StoreConfig(dir=str(tmp_path)))
+    store.apply(added(make_frame(0), [0]))
+    index = tmp_path / SUMMARY_FILE
+    doc = json.loads(index.read_text())
+    doc["version"] = 7
+    index.write_text(json.dumps(doc))
+    before = index.read_bytes()
+    with pytest.raises(NewerFileError, match=rf"{SUMMARY_FILE}: written in format version 7, but .* reads format "
+                                             r"version 1 at most"):
+        Store(StoreConfig(dir=str(tmp_path)))
+    assert index.read_bytes() == before

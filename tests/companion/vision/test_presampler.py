@@ -46,7 +46,17 @@ def test_tau_accepts_a_percentage_and_refuses_nonsense(encoder):
     pre.tau_ss = 0.7
     assert pre.tau_ss == 0.7
     with pytest.raises(UsageError, match="tau_ss"):
-        pre.tau_ss = 0
+        pre.tau_ss = -0.1
+    with pytest.raises(UsageError, match="tau_ss"):
+        pre.tau_ss = 150
+
+
+def test_tau_zero_is_no_semantic_gate(encoder):
+    pre = PreSampler(encoder, "fish", tau_ss=0)
+    assert pre.tau_ss == 0.0
+    assert pre.passes(np.array([0.0, 1e-30, 0.5, 0.99])).all()  # a share that underflowed to 0 still passes
+    pre.tau_ss = 0.3
+    assert pre.passes(np.array([0.0, 0.3, 0.31])).tolist() == [False, False, True]
 
 
 def test_no_negative_uses_the_generic_one_or_the_positive_alone(encoder):

@@ -9,7 +9,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import Config, SurfaceConfig
 from companion.live.tunables import default_params
-from companion.storage.params_file import ParamsFile
+from companion.storage.params_file import FILE_VERSION, ParamsFile
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import companion_link, ground_station, wait_for
 from vehicle.camera.downlink import Downlink
@@ -67,7 +67,7 @@ def test_list_read_set_and_restart(tmp_path):
         link.stop()
 
     saved = json.loads(path.read_text())
-    assert saved["params"]["MERL_TAU_SS"] == pytest.approx(0.42) and saved["version"] == 1
+    assert saved["params"]["MERL_TAU_SS"] == pytest.approx(0.42) and saved["version"] == FILE_VERSION
     assert not [p for p in tmp_path.iterdir() if p.name != "params.json"]  # no temp files left behind
     link2 = companion_link(free_udp_port())
     again = Downlink(link2, SurfaceConfig(), params=default_params(cfg), saved_params=ParamsFile(path).load(),
