@@ -192,16 +192,18 @@ class MavLink:
         self._autopilot_cbs.append(callback)
 
     def send(self, msg: MAVLinkMessage) -> int:
-        """Pack ``msg`` with our ids and sequence and write it; the wire bytes written (0: no peer yet)."""
+        """Pack ``msg`` with our ids and sequence and write it; the wire bytes written (0: no peer yet).
+
+        This is the one send path: packing and writing happen together under the send lock, so a message object
+        is packed by one thread at a time (pymavlink's ``pack`` writes into the message) and the sequence numbers
+        on the wire are in the order the packets leave. Callers charge budgets with the returned byte count.
+        """
         with self._send_lock:
             conn = self._conn
             if conn is None or not self._has_peer(conn):
                 return 0
             try:
-                buf = msg.pack(self._tx)
-                self._tx.seq = (self._tx.seq + 1) % 256
-                self._tx.total_packets_sent += 1
-                self._tx.total_bytes_sent += len(buf)
+                buf = self._pack(msg)
                 conn.write(buf)
             except Exception as err:  # a dying socket must not reach the caller's loop
                 log.debug("%s: send %s failed: %s", self.name, msg.get_type(), err)
@@ -240,6 +242,14 @@ class MavLink:
         }
 
     # ----------------------------------------------------------------------------------------------- internals
+    def _pack(self, msg: MAVLinkMessage) -> bytes:
+        """The one place an outgoing message becomes bytes (called with the send lock held)."""
+        buf = msg.pack(self._tx)
+        self._tx.seq = (self._tx.seq + 1) % 256
+        self._tx.total_packets_sent += 1
+        self._tx.total_bytes_sent += len(buf)
+        return buf
+
     @staticmethod
     def _new_parser() -> mavlink2.MAVLink:
         parser = mavlink2.MAVLink(None)
@@ -382,6 +392,8 @@ class MavLink:
         return b""
 
     def _dispatch(self, msg: MAVLinkMessage) -> None:
+        """The one place an incoming message is accepted and handed to subscribers (on the receive loop: they
+        must only record or queue, never wait)."""
         mtype = msg.get_type()
         if mtype == "BAD_DATA":
             self._count_bad(getattr(msg, "reason", "bad data"))
