@@ -136,8 +136,9 @@ class Downlink:
         self._status_thread: threading.Thread | None = None
         self.ftp_worker = RequestWorker("surface-ftp")
         self.control_worker = RequestWorker("surface-control")
-        self.tree.put(INDEX_PATH, self.index_json)
-        self.tree.put(QUERIES_PATH, lambda: format_queries(*self._queries).encode())
+        self.tree.put(INDEX_PATH, self.index_json, size=lambda: len(self.index_json()))
+        queries_text = lambda: format_queries(*self._queries).encode()  # noqa: E731
+        self.tree.put(QUERIES_PATH, queries_text, size=lambda: len(queries_text()))
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
         self.budget.add_source(Priority.BULK, self._next_burst)
         for name, value in self.params.restored.items():
@@ -215,9 +216,11 @@ class Downlink:
             for old in gone:
                 self._forget(old)
             self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
-            self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
+            self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i),
+                          size=lambda i=idx: self._full_size(i))
             if frame.raw_image is not None:
-                self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True))
+                self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True),
+                              size=lambda i=idx: self._full_size(i, raw=True))
             resumed = idx < self._earlier_runs
             capture = self.captures.record(frame, count=not resumed)
             if resumed:
@@ -273,6 +276,12 @@ class Downlink:
             ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
             held.encoded[key] = buf.tobytes() if ok else b""
         return held.encoded[key]
+
+    def _full_size(self, idx: int, raw: bool = False) -> int:
+        """What a listing shows for a full frame: its JPEG size once encoded, 0 before (listing never encodes)."""
+        with self._lock:
+            held = self._held.get(idx)
+        return 0 if held is None else len(held.encoded.get("raw" if raw else "full", b""))
 
     def index_json(self) -> bytes:
         """The current summary with its tags, newest first (what /summary/index.json serves)."""

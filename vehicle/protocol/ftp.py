@@ -111,8 +111,10 @@ def ack(request: FtpPacket, *, data: bytes = b"", session: int | None = None, of
     )
 
 
-def nak(request: FtpPacket, error: FtpErr, *, seq_step: int = 1, offset: int | None = None) -> FtpPacket:
-    """A negative reply carrying one error byte."""
-    reply = ack(request, data=bytes([int(error)]), seq_step=seq_step, offset=offset)
+def nak(request: FtpPacket, error: FtpErr, *, seq_step: int = 1, offset: int | None = None,
+        errno: int | None = None) -> FtpPacket:
+    """A negative reply carrying one error byte (two for ``FAIL_ERRNO``: the error and the errno)."""
+    data = bytes([int(error)]) if errno is None else bytes([int(FtpErr.FAIL_ERRNO), errno & 0xFF])
+    reply = ack(request, data=data, seq_step=seq_step, offset=offset)
     reply.opcode = Op.NAK
     return reply
