@@ -28,9 +28,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.config import MavlinkConfig
 from companion.topside.ftp_client import FtpClient, crc32_mavftp
 from companion.topside.gallery import Capture, Gallery
-from companion.topside.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
 from companion.topside.messages import capture_from_message, mftp_path, parse_index, parse_statustext
 from vehicle.link.connection import MavLink, is_autopilot_heartbeat
+from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
 log = logging.getLogger("merlion.surface")
 

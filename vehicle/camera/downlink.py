@@ -31,12 +31,12 @@ from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.camera.component import CameraComponent, CameraIdentity
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
-from vehicle.camera.image_push import push_messages
 from vehicle.camera.params import ParamServer, ParamSpec
 from vehicle.camera.request_worker import RequestWorker
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
 from vehicle.protocol.ftp import Op
+from vehicle.protocol.image_push import push_messages
 from vehicle.settings import SurfaceConfig
 
 log = logging.getLogger(__name__)

@@ -21,12 +21,13 @@ import posixpath
 import struct
 import threading
 import time
-import zlib
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, nak
+from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, crc32_ardupilot, nak
+
+__all__ = ["FtpServer", "VirtualTree", "clean_path", "crc32_ardupilot"]
 
 log = logging.getLogger(__name__)
 
@@ -39,11 +40,6 @@ RETRANSMIT_WINDOW_S = 5.0
 """A repeated request is a retransmission only this soon after the first (a restarted client reuses seqs)."""
 STALE_SESSION_S = 30.0
 """A session nobody used for this long may be closed to make room for another client's open."""
-
-
-def crc32_ardupilot(data: bytes) -> int:
-    """CRC-32 as ArduPilot and PX4 compute it for CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor)."""
-    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
 
 
 def clean_path(raw: str) -> str | None:

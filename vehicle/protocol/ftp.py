@@ -8,6 +8,7 @@ offset u32, then up to 239 data bytes; little endian).
 from __future__ import annotations
 
 import struct
+import zlib
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -53,6 +54,20 @@ class FtpErr(IntEnum):
     FILE_NOT_FOUND = 10
 
 
+ERROR_NAMES = {
+    FtpErr.NONE: "none", FtpErr.FAIL: "fail", FtpErr.FAIL_ERRNO: "errno", FtpErr.INVALID_DATA_SIZE: "invalid data size",
+    FtpErr.INVALID_SESSION: "invalid session", FtpErr.NO_SESSIONS_AVAILABLE: "no sessions available",
+    FtpErr.EOF: "end of file", FtpErr.UNKNOWN_COMMAND: "unknown command", FtpErr.FILE_EXISTS: "file exists",
+    FtpErr.FILE_PROTECTED: "file protected", FtpErr.FILE_NOT_FOUND: "file not found",
+}
+"""How a client words a NAK's error code."""
+
+
+def crc32_ardupilot(data: bytes) -> int:
+    """CRC-32 as ArduPilot and PX4 compute it for CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor)."""
+    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
+
+
 @dataclass
 class FtpPacket:
     """One FTP request or reply; ``data`` is the meaningful bytes (``size`` is derived from it)."""
@@ -91,6 +106,22 @@ class FtpPacket:
         if size != len(data):
             pkt.size_override = size
         return pkt
+
+    @classmethod
+    def request(cls, seq: int, session: int, opcode: int, offset: int = 0, data: bytes = b"",
+                size: int | None = None) -> bytes:
+        """A client's request payload; ``size`` is for requests that carry a size but no data (ReadFile)."""
+        pkt = cls(seq, session, opcode, offset=offset, data=data)
+        if size is not None:
+            pkt.size_override = size
+        return pkt.pack()
+
+    def error_text(self) -> str:
+        """A NAK's error code in words ("file not found"; "errno 28" for Fail with an errno)."""
+        code = self.data[0] if self.data else 0
+        if code == FtpErr.FAIL_ERRNO and len(self.data) > 1:
+            return f"errno {self.data[1]}"
+        return ERROR_NAMES.get(code, f"error {code}")
 
     def path(self) -> str:
         """The request's path argument: data up to the first NUL, as UTF-8 (clients send ASCII)."""

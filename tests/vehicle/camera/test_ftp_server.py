@@ -9,7 +9,6 @@ import pytest
 from pymavlink import mavftp
 
 from companion.config import SurfaceConfig
-from companion.topside.ftp_client import crc32_mavftp
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import LossyRelay, added, companion_link, ground_station
 from vehicle.camera.downlink import Downlink
@@ -245,8 +244,8 @@ def test_mavftp_lists_and_downloads(companion, tmp_path):
         # size and CRC of each thumbnail, so a surface tool checks a pushed one without a CalcFileCRC32 request
         four = next(e for e in index["summary"] if e["image_index"] == 4)
         got = (tmp_path / "4.jpg").read_bytes()
-        assert (four["thumbnail_bytes"], four["thumbnail_crc32"]) == (len(got), crc32_mavftp(got))
-        assert all(e["thumbnail_crc32"] == crc32_mavftp(surface.tree.read(e["thumbnail"])) for e in index["summary"])
+        assert (four["thumbnail_bytes"], four["thumbnail_crc32"]) == (len(got), crc32_ardupilot(got))
+        assert all(e["thumbnail_crc32"] == crc32_ardupilot(surface.tree.read(e["thumbnail"])) for e in index["summary"])
         assert _get(client, "/summary/full/5.jpg", tmp_path / "full5.jpg")
         assert (tmp_path / "full5.jpg").read_bytes()[:2] == b"\xff\xd8"
         assert client.cmd_crc(["/summary/3.jpg"]).error_code == mavftp.FtpError.Success
