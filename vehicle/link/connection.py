@@ -122,6 +122,8 @@ class MavLink:
         self.rx_unknown = 0
         self.tx_messages = 0
         self.reconnects = 0
+        self.rx_longest_s = 0.0
+        """The longest the receive loop spent on one datagram (parse + dispatch): its worst stall so far."""
         self.last_autopilot_heartbeat: MAVLinkMessage | None = None
         self._last_autopilot_seen: float | None = None
         self._conn: mavutil.mavfile | None = None
@@ -239,6 +241,7 @@ class MavLink:
             "autopilot": self.autopilot, "autopilot_alive": self.autopilot_alive, "tx_bytes": self.tx_bytes,
             "tx_messages": self.tx_messages, "rx_bytes": self.rx_bytes, "rx_messages": self.rx_messages,
             "rx_bad": self.rx_bad, "rx_unknown": self.rx_unknown, "reconnects": self.reconnects,
+            "rx_longest_ms": round(self.rx_longest_s * 1000.0, 2),
         }
 
     # ----------------------------------------------------------------------------------------------- internals
@@ -343,7 +346,14 @@ class MavLink:
         return True
 
     def _feed(self, data: bytes, scheme: str) -> None:
-        """Parse received bytes and dispatch the messages in them."""
+        """Parse received bytes and dispatch the messages in them, timing it (the loop reads nothing meanwhile)."""
+        start = time.perf_counter()
+        try:
+            self._parse_and_dispatch(data, scheme)
+        finally:
+            self.rx_longest_s = max(self.rx_longest_s, time.perf_counter() - start)
+
+    def _parse_and_dispatch(self, data: bytes, scheme: str) -> None:
         self.rx_bytes += len(data)
         if scheme.startswith("udp") and self._rx.buf_len() > 0 and data[0] in _MAGIC:
             # the last datagram left half a packet and this one starts a new packet: the half was truncated.
