@@ -93,9 +93,10 @@ class GroundStationLoad:
         local = folder / remote.strip("/").replace("/", "_")
         local.unlink(missing_ok=True)
         self.ftp.cmd_get([remote, str(local)])
-        ret = self.ftp.process_ftp_reply("OpenFileRO", timeout=20)
+        ret = self.ftp.process_ftp_reply("OpenFileRO", timeout=60)
         if ret.error_code != mavftp.FtpError.Success or not local.exists():
             self.result["download_failures"] += 1
+            self.result.setdefault("failure_reasons", []).append(f"{remote}: {ret.error_code.name}")
             return
         data = local.read_bytes()
         crc = self._server_crc(remote)

@@ -103,6 +103,8 @@ def run_link_bench(log: Path, speeds: list[float], *, start_s: float = 30.0, dur
 
 # ---- many clients at once: corrupted packets and receive-loop stalls ------------------------------------------
 
+STRESS_BUDGET = 250_000
+"""Bytes/s for the stress run: a BlueROV2 tether is Ethernet, and a 1280x720 frame is ~300 KB on FTP."""
 STRESS_PARAM = ("MERL_STRESS", 1.0, 9.0)
 """The parameter the stress clients set; its change handler is slow on purpose (a lock wait and an fsync)."""
 
@@ -177,7 +179,7 @@ def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 128
 
     port = _free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="stress")
-    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=60000, push=True, ftp_writable=True),
+    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=STRESS_BUDGET, push=True, ftp_writable=True),
                        params=[ParamSpec(STRESS_PARAM[0], 5.0, STRESS_PARAM[1], STRESS_PARAM[2], integer=True)])
     surface.on_param_changed(_slow_param_change, replay=False)
     surface.on_queries_changed(_refuse_queries)
@@ -231,6 +233,7 @@ def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 128
         "worker_longest_ms": round(max(surface.ftp_worker.longest_s, surface.control_worker.longest_s) * 1000, 1),
         "downloads": sum(len(c) for r in got for c in r.get("downloads", {}).values()),
         "download_failures": sum(int(r.get("download_failures", 0)) for r in got),
+        "failure_reasons": [f for r in got for f in r.get("failure_reasons", [])],
         "mismatched": mismatched,
         "lists": sum(int(r.get("lists", 0)) for r in got),
         "params_set": sum(int(r.get("params_set", 0)) for r in got),
