@@ -123,7 +123,12 @@ class MavLink:
         self.tx_messages = 0
         self.reconnects = 0
         self.rx_longest_s = 0.0
-        """The longest the receive loop spent on one datagram (parse + dispatch): its worst stall so far."""
+        """The longest the receive loop spent on one datagram (parse + dispatch), wall time: its worst stall so
+        far, including time the thread was descheduled (a loaded machine, the GIL)."""
+        self.rx_longest_cpu_s = 0.0
+        """The same in the thread's own CPU time: the work done on the loop, without waiting or being preempted."""
+        self.rx_slow = 0
+        """Datagrams that held the loop longer than 50 ms (wall)."""
         self.last_autopilot_heartbeat: MAVLinkMessage | None = None
         self._last_autopilot_seen: float | None = None
         self._conn: mavutil.mavfile | None = None
@@ -242,6 +247,7 @@ class MavLink:
             "tx_messages": self.tx_messages, "rx_bytes": self.rx_bytes, "rx_messages": self.rx_messages,
             "rx_bad": self.rx_bad, "rx_unknown": self.rx_unknown, "reconnects": self.reconnects,
             "rx_longest_ms": round(self.rx_longest_s * 1000.0, 2),
+            "rx_longest_cpu_ms": round(self.rx_longest_cpu_s * 1000.0, 2), "rx_slow": self.rx_slow,
         }
 
     # ----------------------------------------------------------------------------------------------- internals
@@ -347,11 +353,14 @@ class MavLink:
 
     def _feed(self, data: bytes, scheme: str) -> None:
         """Parse received bytes and dispatch the messages in them, timing it (the loop reads nothing meanwhile)."""
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.thread_time()
         try:
             self._parse_and_dispatch(data, scheme)
         finally:
-            self.rx_longest_s = max(self.rx_longest_s, time.perf_counter() - start)
+            took = time.perf_counter() - start
+            self.rx_longest_s = max(self.rx_longest_s, took)
+            self.rx_longest_cpu_s = max(self.rx_longest_cpu_s, time.thread_time() - cpu)
+            self.rx_slow += took > 0.05
 
     def _parse_and_dispatch(self, data: bytes, scheme: str) -> None:
         self.rx_bytes += len(data)

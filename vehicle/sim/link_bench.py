@@ -230,6 +230,8 @@ def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 128
         "corrupted_by_client": [r.get("corrupted") for r in got],
         "received_by_client": [r.get("received") for r in got],
         "rx_longest_ms": round(link.rx_longest_s * 1000.0, 2),
+        "rx_longest_cpu_ms": round(link.rx_longest_cpu_s * 1000.0, 2),
+        "rx_messages": link.rx_messages, "rx_over_50ms": link.rx_slow,
         "worker_longest_ms": round(max(surface.ftp_worker.longest_s, surface.control_worker.longest_s) * 1000, 1),
         "downloads": sum(len(c) for r in got for c in r.get("downloads", {}).values()),
         "download_failures": sum(int(r.get("download_failures", 0)) for r in got),
@@ -243,7 +245,8 @@ def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 128
     }
     if report is not None:
         report(f"bench link: {clients} client(s), {duration_s:g} s: {out['corrupted']} corrupted packets, "
-               f"receive loop longest stall {out['rx_longest_ms']:.1f} ms (slowest request on a worker "
+               f"receive loop longest stall {out['rx_longest_ms']:.1f} ms wall / {out['rx_longest_cpu_ms']:.1f} ms "
+               f"CPU, {out['rx_over_50ms']} of {out['rx_messages']} messages over 50 ms (slowest request on a worker "
                f"{out['worker_longest_ms']:.0f} ms), {out['downloads']} downloads ({out['mismatched']} differ), "
                f"autopilot lost {out['autopilot_lost']} times")
     return out
