@@ -19,27 +19,15 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import cv2
 import pytest
 
 from companion.live.udp_hub import UdpHub
-from companion.sources.synthetic import SyntheticSource
+from tests.companion.live.test_reliability import write_clip  # the live tests' short video
 from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
 from vehicle.sim.gcs_load import run_client
 
 DURATION_S = float(os.environ.get("MERLION_STRESS_S", "20"))
 PARAM = ("MERL_TAU_SES", 0.3, 0.6)
-
-
-def _clip(path: Path, frames: int = 40) -> Path:
-    source = SyntheticSource("synthetic://dive?seconds=4&width=320&height=192", fps=10, realtime=False)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (320, 192))
-    for i, frame in enumerate(source):
-        if i >= frames:
-            break
-        writer.write(frame.image)
-    writer.release()
-    return path
 
 
 def _mavsdk_client(port: int, duration_s: float, out: dict) -> None:
@@ -87,7 +75,7 @@ def test_companion_serves_many_ground_stations_at_once(tmp_path: Path) -> None:
     hub = UdpHub().start()
     sim = subprocess.Popen([sys.executable, "-m", "companion", "-q", "sim-vehicle", "--connect", hub.url,
                             "--duration", str(DURATION_S + 120)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    clip = _clip(tmp_path / "dive.avi")
+    clip = write_clip(tmp_path / "dive.avi", frames=40)
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url},
                        store={"dir": str(tmp_path / "store")},
                        surface={"ftp_writable": True, "budget_bytes_per_s": 40000})
