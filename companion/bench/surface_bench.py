@@ -22,8 +22,8 @@ from companion.sources.factory import open_source
 from companion.vision.events import SummaryEvent, SummaryFrame
 from vehicle.autopilot.pose import Pose
 from vehicle.camera.downlink import Downlink
-from vehicle.camera.image_push import CHUNK, PushReassembler
 from vehicle.link.connection import MavLink
+from vehicle.protocol.image_push import CHUNK, ImageReceiver
 
 MAVLINK2_HEADER = 10
 """STX, len, incompat and compat flags, seq, sysid, compid, 3-byte msgid."""
@@ -99,7 +99,7 @@ class _Receiver:
     captures: set = field(default_factory=set)
     images: list = field(default_factory=list)
     done_at: list = field(default_factory=list)
-    rx: PushReassembler = field(default_factory=PushReassembler)
+    rx: ImageReceiver = field(default_factory=ImageReceiver)
     stop: threading.Event = field(default_factory=threading.Event)
 
     arrivals: list = field(default_factory=list)

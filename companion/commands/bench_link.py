@@ -1,4 +1,5 @@
-"""``merlion bench link``: telemetry the MAVLink link can take (log replay at rising speed) and pose lookup cost."""
+"""``merlion bench link``: telemetry the MAVLink link can take (log replay at rising speed) and pose lookup cost;
+with ``--clients N``: the on-board link under N ground stations at once (corrupted packets, receive-loop stall)."""
 
 from __future__ import annotations
 
@@ -9,18 +10,50 @@ from pathlib import Path
 
 
 def register(add_command) -> None:
-    p = add_command("link", "MAVLink receive capacity (a tlog replayed at rising speeds) and pose_at cost",
+    p = add_command("link", "MAVLink receive capacity (a tlog replayed at rising speeds) and pose_at cost; "
+                    "--clients N: corrupted packets and receive-loop stalls with N ground stations at once",
                     group="bench")
-    p.add_argument("log", metavar="LOG.tlog", help="telemetry log to replay (e.g. ../shared/data/ardusub/surface_small.tlog)")
+    p.add_argument("log", metavar="LOG.tlog", nargs="?",
+                   help="telemetry log to replay (e.g. ../shared/data/ardusub/surface_small.tlog); "
+                        "not needed with --clients")
     p.add_argument("--speeds", default="5,20,50", help="comma-separated replay speeds (default 5,20,50)")
     p.add_argument("--start", type=float, default=30.0, help="log second to start at (default 30)")
-    p.add_argument("--duration", type=float, default=30.0, help="log seconds per speed (default 30)")
+    p.add_argument("--duration", type=float, default=30.0,
+                   help="log seconds per speed; with --clients, seconds of load per client count (default 30)")
+    p.add_argument("--clients", metavar="N[,N...]",
+                   help="stress the on-board link with N ground-station processes at once (e.g. 1,2,4): FTP "
+                        "lists and downloads, parameter sets, refused uploads, with a simulated vehicle")
     p.add_argument("--json", action="store_true", help="last line: one JSON object")
     p.set_defaults(func=run)
 
 
+def _counts(text: str) -> list[int]:
+    from companion.errors import UsageError
+
+    try:
+        counts = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise UsageError(f"--clients {text}: expected whole numbers like 1,2,4") from None
+    if not counts or not all(1 <= n <= 16 for n in counts):
+        raise UsageError(f"--clients {text}: client counts must be between 1 and 16")
+    return counts
+
+
 def run(args: argparse.Namespace) -> int:
     from companion.errors import UsageError
+
+    if not math.isfinite(args.duration) or args.duration <= 0:
+        raise UsageError(f"--duration {args.duration}: must be a positive number of seconds")
+    if args.clients is not None:
+        from vehicle.sim.link_bench import stress
+
+        results = [stress(n, args.duration, report=lambda line: print(line, flush=True))
+                   for n in _counts(args.clients)]
+        if args.json:
+            print(json.dumps({"stress": results}), flush=True)
+        return 0
+    if args.log is None:
+        raise UsageError("bench link: give a LOG.tlog to replay, or --clients N")
     from vehicle.sim.link_bench import run_link_bench
     from vehicle.sim.replay import read_tlog
 

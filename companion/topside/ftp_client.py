@@ -12,58 +12,20 @@ from __future__ import annotations
 import logging
 import struct
 import time
-import zlib
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-log = logging.getLogger("merlion.surface.ftp")
+from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, crc32_ardupilot
 
-OP_TERMINATE, OP_RESET, OP_OPEN_RO, OP_READ, OP_CRC, OP_BURST = 1, 2, 4, 5, 14, 15
-OP_ACK, OP_NAK = 128, 129
-NAK_NAMES = {
-    0: "none", 1: "fail", 2: "errno", 3: "invalid data size", 4: "invalid session", 5: "no sessions available",
-    6: "end of file", 7: "unknown command", 8: "file exists", 9: "file protected", 10: "file not found",
-}
-NAK_EOF = 6
-HEADER = struct.Struct("<HBBBBBxI")
-PAYLOAD_LEN = 251
-MAX_DATA = PAYLOAD_LEN - HEADER.size  # 239
+log = logging.getLogger("merlion.surface.ftp")
 
 SendFn = Callable[[int, int, bytes], None]
 """send(target_system, target_component, payload) puts one FILE_TRANSFER_PROTOCOL on the wire."""
 DoneFn = Callable[[str, "bytes | None", str], None]
 """done(path, data or None, error text) is called once per fetch."""
-
-
-def crc32_mavftp(data: bytes) -> int:
-    """CRC-32 as ArduPilot and PX4 answer CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor), so a file
-    we hold can be checked against the server's with one small request instead of reading it again."""
-    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
-
-
-def pack(seq: int, session: int, opcode: int, offset: int = 0, data: bytes = b"", size: int | None = None) -> bytes:
-    """One FTP payload, padded to the 251 bytes of the message."""
-    body = HEADER.pack(seq & 0xFFFF, session, opcode, len(data) if size is None else size, 0, 0, offset) + data
-    return body.ljust(PAYLOAD_LEN, b"\0")
-
-
-@dataclass
-class Reply:
-    seq: int
-    session: int
-    opcode: int
-    size: int
-    req_opcode: int
-    burst_complete: int
-    offset: int
-    data: bytes
-
-
-def unpack(payload: bytes | list[int]) -> Reply:
-    raw = bytes(payload).ljust(PAYLOAD_LEN, b"\0")
-    seq, session, opcode, size, req_opcode, burst, offset = HEADER.unpack_from(raw)
-    return Reply(seq, session, opcode, size, req_opcode, burst, offset, raw[HEADER.size : HEADER.size + size])
+crc32_mavftp = crc32_ardupilot
+"""The CRC-32 a server answers CalcFileCRC32 with, so a file we hold is checked with one small request."""
 
 
 @dataclass
@@ -193,11 +155,11 @@ class FtpClient:
             return
         if self._own is not None and (msg.target_system, msg.target_component) not in (self._own, (self._own[0], 0)):
             return
-        reply = unpack(msg.payload)
+        reply = FtpPacket.unpack(msg.payload)
         opcode, _, offset = self._request
-        if reply.opcode not in (OP_ACK, OP_NAK) or reply.req_opcode != opcode:
+        if reply.opcode not in (Op.ACK, Op.NAK) or reply.req_opcode != opcode:
             return
-        if opcode == OP_BURST:
+        if opcode == Op.BURST_READ_FILE:
             if reply.session != self._job.session:
                 return
             self._sample()
@@ -220,13 +182,13 @@ class FtpClient:
         self.retransmissions += 1
         if self._tries >= self._max_tries:
             self._request = None
-            if opcode == OP_TERMINATE:
+            if opcode == Op.TERMINATE_SESSION:
                 self._complete()  # every byte is in; the server ends an idle session on its own
                 return
-            what = {OP_OPEN_RO: "open", OP_TERMINATE: "close", OP_CRC: "CRC request"}.get(opcode, "read")
+            what = {Op.OPEN_FILE_RO: "open", Op.TERMINATE_SESSION: "close", Op.CALC_FILE_CRC32: "CRC request"}.get(opcode, "read")
             self._finish(None, f"no answer to {what} after {self._tries} tries")
             return
-        if opcode == OP_BURST:
+        if opcode == Op.BURST_READ_FILE:
             tries = self._tries
             self._continue()  # ask again from the first hole (a new burst replaces the server's old one)
             self._tries = tries + 1
@@ -261,7 +223,7 @@ class FtpClient:
 
     def _request_op(self, opcode: int, *, session: int = 0, offset: int = 0, data: bytes = b"",
                     size: int | None = None) -> None:
-        self._transmit(opcode, pack(self._seq, session, opcode, offset, data, size), offset)
+        self._transmit(opcode, FtpPacket.request(self._seq, session, opcode, offset, data, size), offset)
 
     def _next_job(self) -> None:
         if not self._queue:
@@ -273,28 +235,28 @@ class FtpClient:
         if len(path) >= MAX_DATA:
             self._finish(None, "path too long")
             return
-        opcode = OP_CRC if self._job.crc_only else OP_OPEN_RO
+        opcode = Op.CALC_FILE_CRC32 if self._job.crc_only else Op.OPEN_FILE_RO
         self._request_op(opcode, data=path + b"\0", size=len(path))
 
-    def _on_reply(self, opcode: int, offset: int, reply: Reply) -> None:
+    def _on_reply(self, opcode: int, offset: int, reply: FtpPacket) -> None:
         job = self._job
         assert job is not None
-        if opcode == OP_CRC:
-            if reply.opcode == OP_NAK:
-                self._finish(None, f"CRC failed: {_nak(reply)}", terminate=False)
+        if opcode == Op.CALC_FILE_CRC32:
+            if reply.opcode == Op.NAK:
+                self._finish(None, f"CRC failed: {reply.error_text()}", terminate=False)
             else:
                 self._finish(reply.data[:4].ljust(4, b"\0"), "", terminate=False)
             return
-        if opcode == OP_OPEN_RO:
-            if reply.opcode == OP_NAK:
-                self._finish(None, f"open failed: {_nak(reply)}", terminate=False)
+        if opcode == Op.OPEN_FILE_RO:
+            if reply.opcode == Op.NAK:
+                self._finish(None, f"open failed: {reply.error_text()}", terminate=False)
                 return
             job.session = reply.session
             job.start(struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None)  # 0: read to EOF
             self._continue()
-        elif opcode == OP_READ:
-            if reply.opcode == OP_NAK:
-                if reply.data[:1] == bytes([NAK_EOF]):
+        elif opcode == Op.READ_FILE:
+            if reply.opcode == Op.NAK:
+                if reply.data[:1] == bytes([FtpErr.EOF]):
                     if job.size is not None:
                         self._finish(None, f"file ended at {offset}, before its announced {job.size} bytes")
                         return
@@ -302,27 +264,27 @@ class FtpClient:
                     job.have = bytearray(b"\1" * job.size)
                     self._continue()
                 else:
-                    self._finish(None, f"read failed at {offset}: {_nak(reply)}")
+                    self._finish(None, f"read failed at {offset}: {reply.error_text()}")
                 return
             self._store(offset, reply.data)
             self._continue()
-        elif opcode == OP_TERMINATE:
+        elif opcode == Op.TERMINATE_SESSION:
             self._complete()
 
-    def _on_burst(self, reply: Reply) -> None:
+    def _on_burst(self, reply: FtpPacket) -> None:
         job = self._job
         assert job is not None
         self._seq = (reply.seq + 1) & 0xFFFF
         self._sent_at = self._clock()  # progress: the timeout counts from the latest packet
         self._tries = 1
-        if reply.opcode == OP_NAK:
-            if reply.data[:1] != bytes([NAK_EOF]) or job.hole() is not None:
+        if reply.opcode == Op.NAK:
+            if reply.data[:1] != bytes([FtpErr.EOF]) or job.hole() is not None:
                 self._request = None
-                self._finish(None, f"burst read failed: {_nak(reply)}")
+                self._finish(None, f"burst read failed: {reply.error_text()}")
                 return
         else:
             self._store(reply.offset, reply.data)
-        if reply.opcode == OP_NAK or reply.burst_complete or job.hole() is None:
+        if reply.opcode == Op.NAK or reply.burst_complete or job.hole() is None:
             self._request = None
             self._continue()
 
@@ -336,21 +298,21 @@ class FtpClient:
         job = self._job
         assert job is not None and job.session is not None
         if job.size is None:
-            self._request_op(OP_READ, session=job.session, offset=len(job.buf), size=MAX_DATA)
+            self._request_op(Op.READ_FILE, session=job.session, offset=len(job.buf), size=MAX_DATA)
             return
         hole = job.hole()
         if hole is None:
             self._terminate()
         elif job.have.count(0) <= 2 * MAX_DATA or not self._burst:
             offset, length = hole
-            self._request_op(OP_READ, session=job.session, offset=offset, size=min(MAX_DATA, length))
+            self._request_op(Op.READ_FILE, session=job.session, offset=offset, size=min(MAX_DATA, length))
         else:
-            self._request_op(OP_BURST, session=job.session, offset=hole[0], size=MAX_DATA)
+            self._request_op(Op.BURST_READ_FILE, session=job.session, offset=hole[0], size=MAX_DATA)
 
     def _terminate(self) -> None:
         job = self._job
         assert job is not None
-        self._request_op(OP_TERMINATE, session=job.session or 0)
+        self._request_op(Op.TERMINATE_SESSION, session=job.session or 0)
 
     def _complete(self) -> None:
         job = self._job
@@ -382,7 +344,3 @@ class FtpClient:
         if self._job is None:
             self._next_job()
 
-
-def _nak(reply: Reply) -> str:
-    code = reply.data[0] if reply.data else 0
-    return NAK_NAMES.get(code, f"error {code}")

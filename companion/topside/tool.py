@@ -30,7 +30,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.config import MavlinkConfig
 from companion.topside.ftp_client import FtpClient, crc32_mavftp
 from companion.topside.gallery import Capture, Gallery
-from companion.topside.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
 from companion.topside.messages import (
     capture_from_message,
     index_dive,
@@ -40,6 +39,7 @@ from companion.topside.messages import (
 )
 from companion.topside.offline_page import write_offline_page
 from vehicle.link.connection import MavLink, is_autopilot_heartbeat
+from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
 log = logging.getLogger("merlion.surface")
 

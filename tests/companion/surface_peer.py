@@ -1,6 +1,6 @@
 """A companion stand-in for the surface tool's tests, built from the real companion-side pieces.
 
-It packs real MAVLink 2 messages (vehicle/camera/captures.py, vehicle/camera/image_push.py, vehicle/camera/status.py) onto a real UDP
+It packs real MAVLink 2 messages (vehicle/camera/captures.py, vehicle/protocol/image_push.py, vehicle/camera/status.py) onto a real UDP
 socket on 127.0.0.1 and answers FTP with the real ``vehicle.camera.ftp_server.FtpServer``. Only the scheduling is the
 test's own (no byte budget), so a test can drop exactly the packets it wants lost.
 """
@@ -22,9 +22,9 @@ from vehicle.autopilot.pose import Pose
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.camera.component import CameraComponent
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
-from vehicle.camera.image_push import push_messages
 from vehicle.camera.status import push_marker
 from vehicle.camera.thumbnails import make_thumbnail
+from vehicle.protocol.image_push import push_messages
 
 
 def summary_frame(index: int, *, depth: float = 12.5, yaw_deg: float = 90.0, score: float = 0.8) -> SummaryFrame:

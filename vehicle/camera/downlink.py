@@ -5,6 +5,10 @@ object turns them into the camera protocol (CAMERA_IMAGE_CAPTURED, answers to re
 (DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA), a MAVLink FTP tree (/summary/index.json, thumbnails, full
 frames, /config/queries.txt), STATUSTEXT lines, 1 Hz NAMED_VALUE_FLOAT values and the parameter protocol, and
 queues all of it through one ``LinkBudget`` so the link is never asked for more than it has.
+
+Requests arrive on the link's receive loop, which only parses: this object hands each one to a worker (FTP on
+one, commands and parameters on another, so a full frame's JPEG encoding never delays a PARAM_SET answer) and
+the worker's replies go out through the budget's one sender thread.
 """
 
 from __future__ import annotations
@@ -27,11 +31,12 @@ from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.camera.component import CameraComponent, CameraIdentity
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
-from vehicle.camera.image_push import push_messages
 from vehicle.camera.params import ParamServer, ParamSpec
+from vehicle.camera.request_worker import RequestWorker
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
 from vehicle.protocol.ftp import Op
+from vehicle.protocol.image_push import push_messages
 from vehicle.settings import SurfaceConfig
 
 log = logging.getLogger(__name__)
@@ -132,8 +137,11 @@ class Downlink:
         self._unsubscribe: Callable[[], None] | None = None
         self._stop = threading.Event()
         self._status_thread: threading.Thread | None = None
-        self.tree.put(INDEX_PATH, self.index_json)
-        self.tree.put(QUERIES_PATH, lambda: format_queries(*self._queries).encode())
+        self.ftp_worker = RequestWorker("surface-ftp")
+        self.control_worker = RequestWorker("surface-control")
+        self.tree.put(INDEX_PATH, self.index_json, size=lambda: len(self.index_json()))
+        queries_text = lambda: format_queries(*self._queries).encode()  # noqa: E731
+        self.tree.put(QUERIES_PATH, queries_text, size=lambda: len(queries_text()))
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
         self.budget.add_source(Priority.BULK, self._next_burst)
         for name, value in self.params.restored.items():
@@ -146,6 +154,8 @@ class Downlink:
         if self._unsubscribe is not None:
             return
         self._stop.clear()
+        self.ftp_worker.start()
+        self.control_worker.start()
         self._unsubscribe = self.link.subscribe(self._on_message, _REQUEST_TYPES)
         self.budget.start()
         self._status_thread = threading.Thread(target=self._status_loop, name="surface-status", daemon=True)
@@ -160,6 +170,8 @@ class Downlink:
         if self._status_thread is not None:
             self._status_thread.join(timeout=5)
             self._status_thread = None
+        self.ftp_worker.stop()
+        self.control_worker.stop()
         self.budget.stop()
 
     def __enter__(self) -> Downlink:
@@ -209,9 +221,11 @@ class Downlink:
             self.tree.put(thumbnail_path(idx, self.ext), thumb.data)
             if self.dive:
                 self.tree.put(thumbnail_path(idx, self.ext, self.dive), thumb.data)
-            self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i))
+            self.tree.put(f"/summary/full/{idx}.jpg", lambda i=idx: self._full(i),
+                          size=lambda i=idx: self._full_size(i))
             if frame.raw_image is not None:
-                self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True))
+                self.tree.put(f"/summary/raw/{idx}.jpg", lambda i=idx: self._full(i, raw=True),
+                              size=lambda i=idx: self._full_size(i, raw=True))
             resumed = idx < self._earlier_runs
             capture = self.captures.record(frame, count=not resumed)
             if resumed:
@@ -269,6 +283,12 @@ class Downlink:
             held.encoded[key] = buf.tobytes() if ok else b""
         return held.encoded[key]
 
+    def _full_size(self, idx: int, raw: bool = False) -> int:
+        """What a listing shows for a full frame: its JPEG size once encoded, 0 before (listing never encodes)."""
+        with self._lock:
+            held = self._held.get(idx)
+        return 0 if held is None else len(held.encoded.get("raw" if raw else "full", b""))
+
     def index_json(self) -> bytes:
         """The current summary with its tags, newest first (what /summary/index.json serves)."""
         with self._lock:
@@ -304,11 +324,14 @@ class Downlink:
     # ---- incoming -------------------------------------------------------------------------------------------
 
     def _on_message(self, msg: mav.MAVLink_message) -> None:
-        kind = msg.get_type()
-        if kind == "FILE_TRANSFER_PROTOCOL":
-            self._on_ftp(msg)
-            return
-        handler = self.camera.handle if kind.startswith("COMMAND") else self.params.handle
+        """On the receive loop: hand the request to its worker and return at once."""
+        if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
+            self.ftp_worker.submit(lambda: self._on_ftp(msg))
+        else:
+            self.control_worker.submit(lambda: self._on_control(msg))
+
+    def _on_control(self, msg: mav.MAVLink_message) -> None:
+        handler = self.camera.handle if msg.get_type().startswith("COMMAND") else self.params.handle
         for reply in handler(msg):
             self.budget.submit(reply, Priority.CONTROL)
 

@@ -6,6 +6,12 @@ replaces an older one instead of piling up). The interoperability rules come fro
 echo the request opcode and carry seq + 1, OpenFileRO's ACK carries the size as uint32 LE, reads return at most
 239 bytes, TerminateSession is acknowledged, a retransmitted request is answered again, paths are NUL terminated
 and ``..`` cannot leave the tree (nothing on disk is reachable at all: every file is a callable in memory).
+
+Many clients at once (QGroundControl, BlueOS, MAVProxy, the surface tool): a cached answer is replayed only for
+the very same request (requester, seq, opcode, session, offset, size and path/data) within a few seconds; sessions
+belong to the requester that opened them; every refused or failed request gets a NAK with its error code
+(FileNotFound, Fail, Fail+errno, NoSessionsAvailable, ...), never silence. Listings come from each file's size
+metadata, so listing the frames never produces (JPEG-encodes) them.
 """
 
 from __future__ import annotations
@@ -14,12 +20,14 @@ import logging
 import posixpath
 import struct
 import threading
-import zlib
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, nak
+from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, crc32_ardupilot, nak
+
+__all__ = ["FtpServer", "VirtualTree", "clean_path", "crc32_ardupilot"]
 
 log = logging.getLogger(__name__)
 
@@ -28,11 +36,10 @@ Requester = tuple[int, int]
 
 BURST_PACKETS = 32
 """Packets per BurstReadFile answer before burst_complete asks the client for more."""
-
-
-def crc32_ardupilot(data: bytes) -> int:
-    """CRC-32 as ArduPilot and PX4 compute it for CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor)."""
-    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
+RETRANSMIT_WINDOW_S = 5.0
+"""A repeated request is a retransmission only this soon after the first (a restarted client reuses seqs)."""
+STALE_SESSION_S = 30.0
+"""A session nobody used for this long may be closed to make room for another client's open."""
 
 
 def clean_path(raw: str) -> str | None:
@@ -53,16 +60,28 @@ class VirtualTree:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._files: dict[str, Callable[[], bytes]] = {}
+        self._sizes: dict[str, Callable[[], int]] = {}
         self._uploads: dict[str, Callable[[bytes], None]] = {}
 
-    def put(self, path: str, content: bytes | Callable[[], bytes]) -> None:
-        getter = content if callable(content) else (lambda data=bytes(content): data)
+    def put(self, path: str, content: bytes | Callable[[], bytes], *, size: Callable[[], int] | None = None) -> None:
+        """``content`` is the file or how to produce it; ``size`` says what a listing shows without producing it
+        (a file produced on demand with no ``size`` lists as 0 bytes until then: the open's ACK has the truth)."""
+        key = clean_path(path) or path
+        if callable(content):
+            getter, sizer = content, size or (lambda: 0)
+        else:
+            data = bytes(content)
+            length = len(data)
+            getter, sizer = (lambda: data), (lambda: length)
         with self._lock:
-            self._files[clean_path(path) or path] = getter
+            self._files[key] = getter
+            self._sizes[key] = sizer
 
     def remove(self, path: str) -> None:
+        key = clean_path(path) or path
         with self._lock:
-            self._files.pop(clean_path(path) or path, None)
+            self._files.pop(key, None)
+            self._sizes.pop(key, None)
 
     def uploadable(self, path: str, on_upload: Callable[[bytes], None]) -> None:
         """``path`` may be written by a client (when the server is writable); ``on_upload`` gets the whole file."""
@@ -86,8 +105,8 @@ class VirtualTree:
             return None
         prefix = path.rstrip("/") + "/"
         with self._lock:
-            files = dict(self._files)
-            names = set(files) | set(self._uploads)
+            sizes = dict(self._sizes)
+            names = set(self._files) | set(self._uploads)
         entries: dict[str, tuple[str, bool, int]] = {}
         for name in names:
             if not name.startswith(prefix):
@@ -96,8 +115,8 @@ class VirtualTree:
             if rest:
                 entries[head] = (head, True, 0)
             elif head not in entries:
-                getter = files.get(name)
-                entries[head] = (head, False, len(getter()) if getter else 0)
+                sizer = sizes.get(name)
+                entries[head] = (head, False, sizer() if sizer else 0)
         return [entries[k] for k in sorted(entries)]
 
     def upload_target(self, path: str) -> Callable[[bytes], None] | None:
@@ -115,6 +134,7 @@ class _Session:
     burst_seq: int = 0
     burst_left: int = 0
     burst_session: int = 0
+    used: float = 0.0
 
 
 class FtpServer:
@@ -123,19 +143,23 @@ class FtpServer:
     Sessions are kept per client, and an open is granted the session number the client asked with: pymavlink's
     mavftp adopts whatever the ACK says, but MAVSDK 4 keeps using its own number, so echoing it serves both. An
     open on a number the same client still holds replaces that session (the client has abandoned it). When every
-    session is taken the oldest is closed rather than the open refused: on a lossy link a TerminateSession is
-    easily lost, and a server that locks clients out is worse than one that forgets a stale session.
+    session is taken, the opener's own oldest session is closed (its TerminateSession was lost), else one idle
+    for ``STALE_SESSION_S``; a busy server answers NoSessionsAvailable rather than close another client's file.
     """
 
-    def __init__(self, tree: VirtualTree, *, writable: bool = False, max_sessions: int = 4) -> None:
+    def __init__(self, tree: VirtualTree, *, writable: bool = False, max_sessions: int = 8,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.tree = tree
         self.writable = writable
         self.max_sessions = max_sessions
+        self._clock = clock
         self._lock = threading.Lock()
         self._sessions: OrderedDict[tuple[Requester, int], _Session] = OrderedDict()
-        self._recent: OrderedDict[tuple, list[bytes]] = OrderedDict()
+        self._recent: OrderedDict[tuple, tuple[float, list[bytes]]] = OrderedDict()
         self.requests = 0
         self.retransmits_answered = 0
+        self.naks: dict[int, int] = {}
+        """NAKs sent, by error code (what a status line or a test checks)."""
 
     # ---- requests -------------------------------------------------------------------------------------------
 
@@ -148,22 +172,37 @@ class FtpServer:
             return []
         if req.opcode in (Op.ACK, Op.NAK):
             return []
-        pre = self._prefetch(req)  # outside the lock: a file may be produced on demand (a full frame's JPEG)
-        key = (requester, req.seq, req.opcode, req.session, req.offset, req.size)
+        # the very same request from the same client: path/data, size and session included
+        key = (requester, req.seq, req.opcode, req.session, req.offset, req.size, req.data)
+        now = self._clock()
         with self._lock:
             self.requests += 1
-            if req.opcode != Op.BURST_READ_FILE and key in self._recent:
+            cached = self._recent.get(key)
+            if req.opcode != Op.BURST_READ_FILE and cached is not None and now - cached[0] <= RETRANSMIT_WINDOW_S:
                 self.retransmits_answered += 1
-                return list(self._recent[key])
-            upload = self._finished_upload(req, requester)
-            if upload is None:
-                replies = [p.pack() for p in self._dispatch(req, requester, pre)]
-        if upload is not None:  # the receiver of an upload may take its time (new queries are encoded)
-            replies = [self._commit(req, upload).pack()]
-        if req.opcode != Op.BURST_READ_FILE:
+                return list(cached[1])
+        try:
+            pre = self._prefetch(req)  # outside the lock: a file may be produced on demand (a full frame's JPEG)
             with self._lock:
-                self._recent[key] = replies
-                while len(self._recent) > 64:
+                upload = self._finished_upload(req, requester)
+                if upload is None:
+                    packets = self._dispatch(req, requester, pre)
+            if upload is not None:  # the receiver of an upload may take its time (new queries are encoded)
+                packets = [self._commit(req, upload)]
+        except OSError as err:
+            log.warning("FTP: request %d failed: %s", req.opcode, err)
+            packets = [nak(req, FtpErr.FAIL_ERRNO, errno=err.errno or 5)]
+        except Exception:
+            log.exception("FTP: request %d failed", req.opcode)
+            packets = [nak(req, FtpErr.FAIL)]
+        replies = [p.pack() for p in packets]
+        with self._lock:
+            for p in packets:
+                if p.opcode == Op.NAK:
+                    self.naks[p.data[0]] = self.naks.get(p.data[0], 0) + 1
+            if req.opcode != Op.BURST_READ_FILE:
+                self._recent[key] = (now, replies)
+                while len(self._recent) > 256:
                     self._recent.popitem(last=False)
         return replies
 
@@ -176,6 +215,11 @@ class FtpServer:
             return None
         return self.tree.listdir(path) if req.opcode == Op.LIST_DIRECTORY else self.tree.read(path)
 
+    def _forget_requester(self, who: Requester) -> None:
+        """A client reset its sessions (it restarted): its cached answers must not answer its new requests."""
+        for key in [k for k in self._recent if k[0] == who]:
+            del self._recent[key]
+
     def _dispatch(self, req: FtpPacket, who: Requester, pre: object = None) -> list[FtpPacket]:
         op = req.opcode
         if op == Op.NONE:
@@ -183,6 +227,7 @@ class FtpServer:
         if op == Op.RESET_SESSIONS:
             for key in [k for k in self._sessions if k[0] == who]:
                 del self._sessions[key]
+            self._forget_requester(who)
             return [ack(req)]
         if op == Op.TERMINATE_SESSION:
             return [self._terminate(req, who)]
@@ -200,18 +245,31 @@ class FtpServer:
             if not self.writable:
                 return [nak(req, FtpErr.FILE_PROTECTED)]
             return [self._write_op(req, who)]
+        if op in (Op.CREATE_DIRECTORY, Op.REMOVE_DIRECTORY) and not self.writable:
+            return [nak(req, FtpErr.FILE_PROTECTED)]
         return [nak(req, FtpErr.UNKNOWN_COMMAND)]
 
     def _session(self, req: FtpPacket, who: Requester) -> _Session | None:
-        return self._sessions.get((who, req.session))
+        sess = self._sessions.get((who, req.session))
+        if sess is not None:
+            sess.used = self._clock()
+        return sess
 
-    def _new_session(self, req: FtpPacket, who: Requester, path: str, data: bytes, writing: bool) -> int:
+    def _new_session(self, req: FtpPacket, who: Requester, path: str, data: bytes, writing: bool) -> int | None:
+        """The session number granted, or None when every session is held by active clients."""
         key = (who, req.session)
         self._sessions.pop(key, None)
+        now = self._clock()
         while len(self._sessions) >= self.max_sessions:
-            old, _ = self._sessions.popitem(last=False)
-            log.info("FTP: all %d sessions taken, closing the oldest (%s)", self.max_sessions, old)
-        self._sessions[key] = _Session(who, path, bytearray(data), writing)
+            own = [k for k in self._sessions if k[0] == who]
+            stale = [k for k, s in self._sessions.items() if now - s.used > STALE_SESSION_S]
+            victims = own or stale
+            if not victims:
+                log.info("FTP: all %d sessions in use, refusing an open from %s", self.max_sessions, who)
+                return None
+            del self._sessions[victims[0]]
+            log.info("FTP: all %d sessions taken, closing %s", self.max_sessions, victims[0])
+        self._sessions[key] = _Session(who, path, bytearray(data), writing, used=now)
         return req.session
 
     def _terminate(self, req: FtpPacket, who: Requester) -> FtpPacket:
@@ -237,7 +295,10 @@ class FtpServer:
             if target is None:
                 raise ValueError("not uploadable")
             target(bytes(sess.data))
-        except ValueError as err:
+        except OSError as err:  # the receiver could not store it: the client learns the errno
+            log.warning("FTP: upload to %s failed: %s", sess.path, err)
+            return nak(req, FtpErr.FAIL_ERRNO, errno=err.errno or 5)
+        except Exception as err:  # refused (a queries file the product rejects), whatever error type says so
             log.warning("FTP: upload to %s refused: %s", sess.path, err)
             return nak(req, FtpErr.FAIL)
         return ack(req)
@@ -261,6 +322,8 @@ class FtpServer:
         if data is None:
             return nak(req, FtpErr.FILE_NOT_FOUND)
         sid = self._new_session(req, who, clean_path(req.path()) or "", data, writing=False)
+        if sid is None:
+            return nak(req, FtpErr.NO_SESSIONS_AVAILABLE)
         return ack(req, session=sid, data=struct.pack("<I", len(data)))
 
     def _read(self, req: FtpPacket, who: Requester) -> FtpPacket:
@@ -312,13 +375,12 @@ class FtpServer:
             return nak(req, FtpErr.FILE_PROTECTED)
         current = self.tree.read(path) or b""
         if op == Op.TRUNCATE_FILE:
-            try:
-                target(current[: req.offset])
-            except ValueError:
-                return nak(req, FtpErr.FAIL)
+            target(current[: req.offset])  # a refusal raises: handle() answers it with a NAK
             return ack(req)
         start = b"" if op == Op.CREATE_FILE else current
         sid = self._new_session(req, who, path, start, writing=True)
+        if sid is None:
+            return nak(req, FtpErr.NO_SESSIONS_AVAILABLE)
         return ack(req, session=sid)
 
     # ---- bursts ---------------------------------------------------------------------------------------------

@@ -2,9 +2,11 @@
 
 A token bucket in wire bytes: it fills at ``rate`` up to a small ``capacity`` and every byte the link writes
 drains it, including bytes the link sent on its own (its 1 Hz heartbeat, read from ``link.tx_bytes``). A queued
-message goes only when the bucket holds its size, so over any window W the wire carries at most
-``rate * W + capacity + one message`` bytes; with the default capacity (a tenth of a second, at least one frame) that is within 3% over
-10 s. Queues are served strictly by priority; bulk sources (FTP bursts) are asked for a packet only when all
+message goes only when the bucket holds a full frame (``MAX_WIRE``), and is then charged the bytes the link
+reports it actually wrote: the budget never packs a message itself (packing mutates the message object, and a
+second pack on another thread is how packets left corrupted), so the link's one send path packs each message
+exactly once. Over any window W the wire carries at most ``rate * W + capacity + one message`` bytes; with the
+default capacity (a tenth of a second, at least one frame) that is within 3% over 10 s. Queues are served strictly by priority; bulk sources (FTP bursts) are asked for a packet only when all
 queues above them are empty and the budget allows, so a new burst never waits behind a stale one.
 """
 
@@ -45,14 +47,7 @@ class Link(Protocol):
 @dataclass
 class _Item:
     msg: mav.MAVLink_message
-    size: int
     tag: Any
-
-
-def wire_size(msg: mav.MAVLink_message) -> int:
-    """Bytes ``msg`` takes on the wire as MAVLink 2 (trailing zero bytes of the payload trimmed)."""
-    scratch = mav.MAVLink(None)
-    return len(msg.pack(scratch))
 
 
 class LinkBudget:
@@ -95,7 +90,7 @@ class LinkBudget:
                replace: bool = False, unique: bool = False) -> bool:
         """Queue ``msg``; False when ``unique`` and a message with the same ``tag`` is still queued (a reply to a
         retransmitted request). ``replace`` drops queued messages with the same ``tag`` first (latest value wins)."""
-        item = _Item(msg, wire_size(msg), tag)
+        item = _Item(msg, tag)
         with self._cond:
             queue = self._queues[priority]
             if unique and tag is not None and any(i.tag == tag for i in queue):
@@ -181,8 +176,8 @@ class LinkBudget:
         for prio in Priority:
             queue = self._queues[prio]
             if queue:
-                if self._level < queue[0].size:
-                    return max(0.001, (queue[0].size - self._level) / self.rate)
+                if self._level < MAX_WIRE:
+                    return max(0.001, (MAX_WIRE - self._level) / self.rate)
                 self._send(prio, queue.popleft().msg)
                 return 0.0
             for sprio, pull in self._sources:

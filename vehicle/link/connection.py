@@ -1,9 +1,11 @@
-"""The one MAVLink connection of the companion: a receive thread, a 1 Hz heartbeat and publish/subscribe.
+"""The one MAVLink connection of the companion: a receive thread, a writer thread, a 1 Hz heartbeat, pub/sub.
 
 Everything MAVLink in the process goes through one ``MavLink``: other parts subscribe to the message types they
 care about and ``send`` pymavlink message objects, which the link packs as MAVLink 2 with *its* system and
-component id and sequence number. The link never blocks its callers: opening, reconnecting (TCP and serial, with
-back-off) and reading all happen on its own thread, and sending before a peer is known writes 0 bytes.
+component id and sequence number. Opening, reconnecting (TCP and serial, with back-off) and reading happen on the
+receive thread, which only parses and dispatches (``_dispatch``, the one place incoming messages are accepted);
+every outgoing message is packed once (``_pack``, the one place) and written on the writer thread; sending
+before a peer is known writes 0 bytes.
 
 pymavlink's ``mavutil`` opens the transports; packing and parsing use the MAVLink 2 ``ardupilotmega`` dialect
 directly, so the wire version never depends on the environment or on which module imported pymavlink first.
@@ -11,12 +13,13 @@ directly, so the wire version never depends on the environment or on which modul
 
 from __future__ import annotations
 
+import collections
 import logging
 import socket
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -43,6 +46,7 @@ _POLL_S = 0.1
 _MAGIC = (mavlink2.PROTOCOL_MARKER_V2, mavlink2.PROTOCOL_MARKER_V1)
 _UDP_BURST = 64
 _SERIAL_WRITE_TIMEOUT_S = 0.2
+_SEND_WAIT_S = 2.0
 _UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
 
 
@@ -61,6 +65,15 @@ class Endpoint:
 
     def __str__(self) -> str:
         return f"{self.address},{self.baud}" if self.scheme == "serial" else f"{self.scheme}:{self.address}"
+
+
+@dataclass
+class _Outgoing:
+    """One packet handed to the writer thread, and how many bytes it became."""
+
+    item: MAVLinkMessage | bytes
+    done: threading.Event = field(default_factory=threading.Event)
+    sent: int = 0
 
 
 def parse_connection(connection: str) -> Endpoint:
@@ -123,6 +136,13 @@ class MavLink:
         self.rx_unknown = 0
         self.tx_messages = 0
         self.reconnects = 0
+        self.rx_longest_s = 0.0
+        """The longest the receive loop spent on one datagram (parse + dispatch), wall time: its worst stall so
+        far, including time the thread was descheduled (a loaded machine, the GIL)."""
+        self.rx_longest_cpu_s = 0.0
+        """The same in the thread's own CPU time: the work done on the loop, without waiting or being preempted."""
+        self.rx_slow = 0
+        """Datagrams that held the loop longer than 50 ms (wall)."""
         self.last_autopilot_heartbeat: MAVLinkMessage | None = None
         self._last_autopilot_seen: float | None = None
         self._conn: mavutil.mavfile | None = None
@@ -130,6 +150,9 @@ class MavLink:
         self.signing = LinkSigning.from_settings(cfg, name=name)
         self._rx = self._new_parser()
         self._send_lock = threading.Lock()
+        self._out_cond = threading.Condition()
+        self._outbox: collections.deque[_Outgoing] = collections.deque()
+        self._writer: threading.Thread | None = None
         self._subs_lock = threading.Lock()
         self._subs: list[tuple[Callable[[MAVLinkMessage], None], frozenset[str] | None]] = []
         self._autopilot_cbs: list[Callable[[bool], None]] = []
@@ -144,19 +167,25 @@ class MavLink:
         if self._threads:
             return
         self._stop.clear()
+        self._writer = threading.Thread(target=self._writer_loop, name=f"{self.name}-mavlink-tx", daemon=True)
         self._threads = [
             threading.Thread(target=self._receive_loop, name=f"{self.name}-mavlink-rx", daemon=True),
             threading.Thread(target=self._timer_loop, name=f"{self.name}-mavlink-hb", daemon=True),
+            self._writer,
         ]
         for t in self._threads:
             t.start()
 
     def stop(self) -> None:
-        """Stop the threads and close the connection; safe to call twice."""
+        """Stop the threads (the writer first sends what was handed to it) and close the connection; safe to
+        call twice."""
         self._stop.set()
+        with self._out_cond:
+            self._out_cond.notify_all()
         for t in self._threads:
             t.join(timeout=5.0)
         self._threads = []
+        self._writer = None
         self._close()
 
     def __enter__(self) -> MavLink:
@@ -194,39 +223,18 @@ class MavLink:
         self._autopilot_cbs.append(callback)
 
     def send(self, msg: MAVLinkMessage) -> int:
-        """Pack ``msg`` with our ids and sequence and write it; the wire bytes written (0: no peer yet)."""
-        with self._send_lock:
-            conn = self._conn
-            if conn is None or not self._has_peer(conn):
-                return 0
-            try:
-                self.signing.prepare(self._tx)
-                buf = msg.pack(self._tx)
-                self._tx.seq = (self._tx.seq + 1) % 256
-                self._tx.total_packets_sent += 1
-                self._tx.total_bytes_sent += len(buf)
-                conn.write(buf)
-            except Exception as err:  # a dying socket must not reach the caller's loop
-                log.debug("%s: send %s failed: %s", self.name, msg.get_type(), err)
-                return 0
-            self.tx_bytes += len(buf)
-            self.tx_messages += 1
-            return len(buf)
+        """Pack ``msg`` with our ids and sequence and write it; the wire bytes written (0: no peer yet).
+
+        This is the one send path: every message is packed exactly once and written on the link's one writer
+        thread, in the order ``send`` was called (pymavlink's ``pack`` writes into the message object, so it must
+        never run on two threads; the sequence numbers leave in order). The caller waits for its packet to be
+        written and gets the byte count, with which budgets charge what was really sent.
+        """
+        return self._through_writer(msg)
 
     def send_raw(self, packet: bytes) -> int:
         """Write an already packed MAVLink packet unchanged (log replay keeps the recorded ids and sequence)."""
-        with self._send_lock:
-            conn = self._conn
-            if conn is None or not self._has_peer(conn):
-                return 0
-            try:
-                conn.write(packet)
-            except Exception as err:
-                log.debug("%s: raw send failed: %s", self.name, err)
-                return 0
-            self.tx_bytes += len(packet)
-            self.tx_messages += 1
-            return len(packet)
+        return self._through_writer(bytes(packet))
 
     @property
     def connected(self) -> bool:
@@ -241,9 +249,66 @@ class MavLink:
             "tx_messages": self.tx_messages, "rx_bytes": self.rx_bytes, "rx_messages": self.rx_messages,
             "rx_bad": self.rx_bad, "rx_unknown": self.rx_unknown, "reconnects": self.reconnects,
             "signing": self.signing.stats(),
+            "rx_longest_ms": round(self.rx_longest_s * 1000.0, 2),
+            "rx_longest_cpu_ms": round(self.rx_longest_cpu_s * 1000.0, 2), "rx_slow": self.rx_slow,
         }
 
     # ----------------------------------------------------------------------------------------------- internals
+    def _through_writer(self, item: MAVLinkMessage | bytes) -> int:
+        writer = self._writer
+        if writer is None or threading.current_thread() is writer or self._stop.is_set():
+            # not started, or stopping: no writer to wait for (the send lock still keeps packing one at a time)
+            return self._write(item)
+        job = _Outgoing(item)
+        with self._out_cond:
+            self._outbox.append(job)
+            self._out_cond.notify()
+        if not job.done.wait(_SEND_WAIT_S):  # a stalled serial port: the packet may still go, and is counted then
+            return 0
+        return job.sent
+
+    def _writer_loop(self) -> None:
+        while True:
+            with self._out_cond:
+                while not self._outbox and not self._stop.is_set():
+                    self._out_cond.wait(_POLL_S)
+                if not self._outbox:
+                    return
+                job = self._outbox.popleft()
+            job.sent = self._write(job.item)
+            job.done.set()
+
+    def _write(self, item: MAVLinkMessage | bytes) -> int:
+        """Pack (unless raw) and write one packet; the bytes written."""
+        with self._send_lock:
+            conn = self._conn
+            if conn is None or not self._has_peer(conn):
+                return 0
+            try:
+                buf = item if isinstance(item, bytes) else self._pack(item)
+            except Exception as err:
+                log.warning("%s: cannot pack %r: %s", self.name, item, err)
+                return 0
+            self.tx_bytes += len(buf)  # counted before the write: a peer may answer before write() returns
+            self.tx_messages += 1
+            try:
+                conn.write(buf)
+            except Exception as err:  # a dying socket must not reach the caller's loop
+                log.debug("%s: send failed: %s", self.name, err)
+                self.tx_bytes -= len(buf)
+                self.tx_messages -= 1
+                return 0
+            return len(buf)
+
+    def _pack(self, msg: MAVLinkMessage) -> bytes:
+        """The one place an outgoing message becomes bytes (called with the send lock held)."""
+        self.signing.prepare(self._tx)  # with a key: the next timestamp, persisted ahead of use
+        buf = msg.pack(self._tx)
+        self._tx.seq = (self._tx.seq + 1) % 256
+        self._tx.total_packets_sent += 1
+        self._tx.total_bytes_sent += len(buf)
+        return buf
+
     @staticmethod
     def _new_parser() -> mavlink2.MAVLink:
         parser = mavlink2.MAVLink(None)
@@ -337,7 +402,17 @@ class MavLink:
         return True
 
     def _feed(self, data: bytes, scheme: str) -> None:
-        """Parse received bytes and dispatch the messages in them."""
+        """Parse received bytes and dispatch the messages in them, timing it (the loop reads nothing meanwhile)."""
+        start, cpu = time.perf_counter(), time.thread_time()
+        try:
+            self._parse_and_dispatch(data, scheme)
+        finally:
+            took = time.perf_counter() - start
+            self.rx_longest_s = max(self.rx_longest_s, took)
+            self.rx_longest_cpu_s = max(self.rx_longest_cpu_s, time.thread_time() - cpu)
+            self.rx_slow += took > 0.05
+
+    def _parse_and_dispatch(self, data: bytes, scheme: str) -> None:
         self.rx_bytes += len(data)
         if scheme.startswith("udp") and self._rx.buf_len() > 0 and data[0] in _MAGIC:
             # the last datagram left half a packet and this one starts a new packet: the half was truncated.
@@ -386,6 +461,8 @@ class MavLink:
         return b""
 
     def _dispatch(self, msg: MAVLinkMessage) -> None:
+        """The one place an incoming message is accepted and handed to subscribers (on the receive loop: they
+        must only record or queue, never wait)."""
         mtype = msg.get_type()
         if mtype == "BAD_DATA":
             self._count_bad(getattr(msg, "reason", "bad data"))

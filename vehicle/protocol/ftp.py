@@ -8,6 +8,7 @@ offset u32, then up to 239 data bytes; little endian).
 from __future__ import annotations
 
 import struct
+import zlib
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -53,6 +54,20 @@ class FtpErr(IntEnum):
     FILE_NOT_FOUND = 10
 
 
+ERROR_NAMES = {
+    FtpErr.NONE: "none", FtpErr.FAIL: "fail", FtpErr.FAIL_ERRNO: "errno", FtpErr.INVALID_DATA_SIZE: "invalid data size",
+    FtpErr.INVALID_SESSION: "invalid session", FtpErr.NO_SESSIONS_AVAILABLE: "no sessions available",
+    FtpErr.EOF: "end of file", FtpErr.UNKNOWN_COMMAND: "unknown command", FtpErr.FILE_EXISTS: "file exists",
+    FtpErr.FILE_PROTECTED: "file protected", FtpErr.FILE_NOT_FOUND: "file not found",
+}
+"""How a client words a NAK's error code."""
+
+
+def crc32_ardupilot(data: bytes) -> int:
+    """CRC-32 as ArduPilot and PX4 compute it for CalcFileCRC32 (reflected 0xEDB88320, start 0, no final xor)."""
+    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
+
+
 @dataclass
 class FtpPacket:
     """One FTP request or reply; ``data`` is the meaningful bytes (``size`` is derived from it)."""
@@ -92,6 +107,22 @@ class FtpPacket:
             pkt.size_override = size
         return pkt
 
+    @classmethod
+    def request(cls, seq: int, session: int, opcode: int, offset: int = 0, data: bytes = b"",
+                size: int | None = None) -> bytes:
+        """A client's request payload; ``size`` is for requests that carry a size but no data (ReadFile)."""
+        pkt = cls(seq, session, opcode, offset=offset, data=data)
+        if size is not None:
+            pkt.size_override = size
+        return pkt.pack()
+
+    def error_text(self) -> str:
+        """A NAK's error code in words ("file not found"; "errno 28" for Fail with an errno)."""
+        code = self.data[0] if self.data else 0
+        if code == FtpErr.FAIL_ERRNO and len(self.data) > 1:
+            return f"errno {self.data[1]}"
+        return ERROR_NAMES.get(code, f"error {code}")
+
     def path(self) -> str:
         """The request's path argument: data up to the first NUL, as UTF-8 (clients send ASCII)."""
         return self.data.split(b"\0", 1)[0].decode("utf-8", errors="replace")
@@ -111,8 +142,10 @@ def ack(request: FtpPacket, *, data: bytes = b"", session: int | None = None, of
     )
 
 
-def nak(request: FtpPacket, error: FtpErr, *, seq_step: int = 1, offset: int | None = None) -> FtpPacket:
-    """A negative reply carrying one error byte."""
-    reply = ack(request, data=bytes([int(error)]), seq_step=seq_step, offset=offset)
+def nak(request: FtpPacket, error: FtpErr, *, seq_step: int = 1, offset: int | None = None,
+        errno: int | None = None) -> FtpPacket:
+    """A negative reply carrying one error byte (two for ``FAIL_ERRNO``: the error and the errno)."""
+    data = bytes([int(error)]) if errno is None else bytes([int(FtpErr.FAIL_ERRNO), errno & 0xFF])
+    reply = ack(request, data=data, seq_step=seq_step, offset=offset)
     reply.opcode = Op.NAK
     return reply

@@ -1,20 +1,28 @@
-"""How much telemetry the companion's link can take, and what a pose lookup costs.
+"""How much telemetry the companion's link can take, what a pose lookup costs, and the link under many clients.
 
 A real log is replayed by a separate ``merlion replay-vehicle`` process (so sender and receiver do not share an
 interpreter) at increasing speeds into a ``MavLink`` with ``VehicleTelemetry`` attached, as in the live companion;
 the share of packets that arrive tells where the receive thread saturates. ArduSub sends ~150-300 messages/s, so
 the margin is the ratio to that.
+
+``stress`` runs the on-board link with a simulated ArduSub process and N ground-station processes
+(``vehicle/sim/gcs_load.py``) at once, and reports corrupted packets at each receiver and the receive loop's
+longest stall.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import random
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from vehicle.autopilot.telemetry import VehicleTelemetry
 from vehicle.errors import UserError as MerlionError
@@ -91,3 +99,154 @@ def run_link_bench(log: Path, speeds: list[float], *, start_s: float = 30.0, dur
     if report is not None:
         report(f"bench link: pose_at {pose_us:.1f} us per lookup (30 s of 10 Hz history)")
     return {"log": str(log), "replay": results, "pose_at_us": round(pose_us, 2)}
+
+
+# ---- many clients at once: corrupted packets and receive-loop stalls ------------------------------------------
+
+STRESS_BUDGET = 250_000
+"""Bytes/s for the stress run: a BlueROV2 tether is Ethernet, and a 1280x720 frame is ~300 KB on FTP."""
+STRESS_PARAM = ("MERL_STRESS", 1.0, 9.0)
+"""The parameter the stress clients set; its change handler is slow on purpose (a lock wait and an fsync)."""
+
+
+class _Refused(Exception):
+    """Not a ValueError: how the app refuses a queries file (its error type), which once escaped as silence."""
+
+
+def _stress_frames(count: int, width: int, height: int) -> list[Any]:
+    """Summary frames with textured full-size images (their JPEG encoding costs what a real frame's does)."""
+    import cv2
+    import numpy as np
+
+    from vehicle.autopilot.pose import Pose
+
+    frames = []
+    for i in range(count):
+        rng = np.random.default_rng(i)
+        img = cv2.resize((rng.random((height // 8, width // 8, 3)) * 255).astype(np.uint8), (width, height),
+                         interpolation=cv2.INTER_CUBIC)
+        pose = Pose(time=1_700_000_000.0 + i, age_s=0.05, stale=False, depth_m=3.0 + i, depth_source="sim")
+        frames.append(_Frame(image_index=i, frame_index=10 * i, time_s=float(i), capture_time=1_700_000_000.0 + i,
+                             score=0.5, image=img, pose=pose))
+    held = [f.image_index for f in frames]
+    return [_Event("added", f, held[: k + 1]) for k, f in enumerate(frames)]
+
+
+@dataclass
+class _Frame:
+    image_index: int
+    frame_index: int
+    time_s: float
+    capture_time: float
+    score: float
+    image: Any
+    pose: Any
+    enhanced: bool = False
+    raw_image: Any = None
+
+
+@dataclass
+class _Event:
+    kind: str
+    frame: _Frame
+    summary: list[int]
+
+
+def _slow_param_change(name: str, value: float) -> None:
+    """What the live app's handler costs: a wait on the pipeline lock and a crash-safe save (fsync)."""
+    time.sleep(0.05)
+    with tempfile.NamedTemporaryFile() as f:
+        f.write(f"{name}={value}\n".encode())
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _refuse_queries(positive: str, negatives: list[str]) -> None:
+    raise _Refused("queries refused by the app")
+
+
+def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 1280, height: int = 720,
+           report: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The on-board link (``MavLink`` + ``Downlink``) with a simulated ArduSub process and ``clients`` ground
+    station processes at once for ``duration_s``: corrupted packets at each receiver, the receive loop's longest
+    stall, downloads that differ from the on-board tree, refused uploads answered, autopilot-lost events."""
+    import multiprocessing
+
+    from vehicle.camera.downlink import Downlink
+    from vehicle.camera.params import ParamSpec
+    from vehicle.settings import SurfaceConfig
+    from vehicle.sim.gcs_load import REFUSED_QUERIES, WELL_FORMED_QUERIES, run_client
+
+    port = _free_udp_port()
+    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="stress")
+    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=STRESS_BUDGET, push=True, ftp_writable=True),
+                       params=[ParamSpec(STRESS_PARAM[0], 5.0, STRESS_PARAM[1], STRESS_PARAM[2], integer=True)])
+    surface.on_param_changed(_slow_param_change, replay=False)
+    surface.on_queries_changed(_refuse_queries)
+    lost: list[float] = []
+    link.on_autopilot(lambda alive: None if alive else lost.append(time.monotonic()))
+    link.start()
+    if not link.wait_open(5):
+        raise MerlionError("bench link: could not open a loopback UDP port")
+    surface.start()
+    for event in _stress_frames(frames, width, height):
+        surface.publish(event)
+    sim = subprocess.Popen([sys.executable, "-m", "companion", "-q", "sim-vehicle", "--connect",
+                            f"udpout:127.0.0.1:{port}", "--duration", str(duration_s + 30)],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ctx = multiprocessing.get_context("spawn")
+    results = ctx.Queue()
+    procs = [ctx.Process(target=run_client, args=(f"udpout:127.0.0.1:{port}", 200 + i, duration_s, STRESS_PARAM,
+                                                  i, results, (REFUSED_QUERIES, WELL_FORMED_QUERIES)), daemon=True)
+             for i in range(clients)]
+    try:
+        if not link.wait_autopilot(20):
+            raise MerlionError("bench link: the simulated vehicle never sent a heartbeat")
+        for p in procs:
+            p.start()
+        got = [results.get(timeout=duration_s + 120) for _ in procs]
+        for p in procs:
+            p.join(10)
+        tree = {path: surface.tree.read(path) for r in got for path in r.get("downloads", {})}
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+        sim.terminate()
+        sim.wait(10)
+        surface.stop()
+        link.stop()
+    from vehicle.protocol.ftp import crc32_ardupilot
+
+    mismatched = 0
+    for r in got:
+        for path, copies in r.get("downloads", {}).items():
+            data = tree.get(path)
+            want = None if data is None else [len(data), crc32_ardupilot(data)]
+            mismatched += sum(1 for c in copies if want is not None and c != want)
+    out = {
+        "clients": clients, "duration_s": duration_s,
+        "corrupted": sum(int(r.get("corrupted", 0)) for r in got),
+        "corrupted_by_client": [r.get("corrupted") for r in got],
+        "received_by_client": [r.get("received") for r in got],
+        "rx_longest_ms": round(link.rx_longest_s * 1000.0, 2),
+        "rx_longest_cpu_ms": round(link.rx_longest_cpu_s * 1000.0, 2),
+        "rx_messages": link.rx_messages, "rx_over_50ms": link.rx_slow,
+        "worker_longest_ms": round(max(surface.ftp_worker.longest_s, surface.control_worker.longest_s) * 1000, 1),
+        "downloads": sum(len(c) for r in got for c in r.get("downloads", {}).values()),
+        "download_failures": sum(int(r.get("download_failures", 0)) for r in got),
+        "failure_reasons": [f for r in got for f in r.get("failure_reasons", [])],
+        "mismatched": mismatched,
+        "lists": sum(int(r.get("lists", 0)) for r in got),
+        "params_set": sum(int(r.get("params_set", 0)) for r in got),
+        "param_echoes": sum(int(r.get("param_echoes", 0)) for r in got),
+        "refused_uploads": [a for r in got for a in r.get("refused_upload", [])],
+        "autopilot_lost": len(lost), "errors": [r["error"] for r in got if "error" in r],
+    }
+    if report is not None:
+        report(f"bench link: {clients} client(s), {duration_s:g} s: {out['corrupted']} corrupted packets, "
+               f"receive loop longest stall {out['rx_longest_ms']:.1f} ms wall / {out['rx_longest_cpu_ms']:.1f} ms "
+               f"CPU, {out['rx_over_50ms']} of {out['rx_messages']} messages over 50 ms (slowest request on a worker "
+               f"{out['worker_longest_ms']:.0f} ms), {out['downloads']} downloads ({out['mismatched']} differ), "
+               f"autopilot lost {out['autopilot_lost']} times")
+    return out

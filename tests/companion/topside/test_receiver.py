@@ -9,7 +9,6 @@ import cv2
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.topside.image_receiver import Abandoned, ImageReceiver, LostHandshake, PushedImage
 from companion.topside.messages import (
     capture_from_message,
     heading_from_q,
@@ -20,6 +19,7 @@ from companion.topside.messages import (
 from tests.companion.surface_peer import CompanionPeer, summary_frame
 from vehicle.camera.captures import added_text, captured_message, trimmed_text
 from vehicle.camera.thumbnails import make_thumbnail
+from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
 
 def _receive(sock: socket.socket, receiver: ImageReceiver, want: int, timeout: float = 5.0) -> list:

@@ -9,7 +9,6 @@ import pytest
 from pymavlink import mavftp
 
 from companion.config import SurfaceConfig
-from companion.topside.ftp_client import crc32_mavftp
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import LossyRelay, added, companion_link, ground_station
 from vehicle.camera.downlink import Downlink
@@ -82,6 +81,73 @@ def test_sessions_are_per_client_and_numbered_as_asked(tree):
     assert (read_a.data, read_b.data) == (bytes(range(4)), b'{"su')
     assert _one(server, _req(Op.READ_FILE, 3, session=1, size=4), who=(255, 190)).data == bytes(
         [FtpErr.INVALID_SESSION])
+
+
+def test_a_cached_answer_replays_only_the_very_same_request(tree):
+    server = FtpServer(tree)
+    first = _one(server, _req(Op.OPEN_FILE_RO, 7, data=b"/summary/1.jpg\0"))
+    assert struct.unpack("<I", first.data)[0] == 768
+    # a restarted client (or another session) reuses seq 7 for another file: it gets that file, not the cache
+    _one(server, _req(Op.TERMINATE_SESSION, 8))
+    other = _one(server, _req(Op.OPEN_FILE_RO, 7, data=b"/summary/index.json\0"))
+    assert struct.unpack("<I", other.data)[0] == 14 and server.retransmits_answered == 0
+    # the same bytes from another requester are that requester's own request
+    _one(server, _req(Op.OPEN_FILE_RO, 7, data=b"/summary/index.json\0"), who=(254, 190))
+    assert server.retransmits_answered == 0
+    # and a reset forgets what was cached for the client that reset
+    _one(server, _req(Op.RESET_SESSIONS, 9))
+    assert _one(server, _req(Op.READ_FILE, 3, size=4)).data == bytes([FtpErr.INVALID_SESSION])
+
+
+def test_sessions_are_not_shared_and_a_full_table_naks(tree):
+    clock = [0.0]
+    server = FtpServer(tree, max_sessions=2, clock=lambda: clock[0])
+    _one(server, _req(Op.OPEN_FILE_RO, 1, session=0, data=b"/summary/1.jpg"), who=(1, 1))
+    _one(server, _req(Op.OPEN_FILE_RO, 1, session=1, data=b"/summary/1.jpg"), who=(2, 1))
+    stolen = _one(server, _req(Op.READ_FILE, 2, session=0, size=4), who=(2, 1))  # client 1's session number
+    assert (stolen.opcode, stolen.data) == (Op.NAK, bytes([FtpErr.INVALID_SESSION]))
+    full = _one(server, _req(Op.OPEN_FILE_RO, 1, session=3, data=b"/summary/1.jpg"), who=(3, 1))
+    assert (full.opcode, full.data) == (Op.NAK, bytes([FtpErr.NO_SESSIONS_AVAILABLE]))
+    assert server.naks[FtpErr.NO_SESSIONS_AVAILABLE] == 1
+    # the opener's own old session makes room; so does one idle for long (its client is gone)
+    assert _one(server, _req(Op.OPEN_FILE_RO, 4, session=5, data=b"/summary/1.jpg"), who=(2, 1)).opcode == Op.ACK
+    clock[0] = 100.0
+    assert _one(server, _req(Op.OPEN_FILE_RO, 5, session=3, data=b"/summary/1.jpg"), who=(3, 1)).opcode == Op.ACK
+
+
+def test_refusals_and_failures_are_naks_never_silence(tree):
+    class Refused(Exception):
+        """Not a ValueError: what the app raises for a queries file it rejects."""
+
+    def refuse(data: bytes) -> None:
+        raise Refused("no negative queries")
+
+    def disk_full(data: bytes) -> None:
+        raise OSError(28, "No space left on device")
+
+    tree.uploadable("/config/queries.txt", refuse)
+    tree.uploadable("/config/other.txt", disk_full)
+    tree.put("/summary/broken.jpg", lambda: 1 // 0)
+    rw = FtpServer(tree, writable=True)
+    for seq, target, expected in ((1, b"/config/queries.txt", bytes([FtpErr.FAIL])),
+                                  (11, b"/config/other.txt", bytes([FtpErr.FAIL_ERRNO, 28]))):
+        made = _one(rw, _req(Op.CREATE_FILE, seq, data=target))
+        _one(rw, _req(Op.WRITE_FILE, seq + 1, session=made.session, data=b"only one line\n"))
+        done = _one(rw, _req(Op.TERMINATE_SESSION, seq + 2, session=made.session))
+        assert (done.opcode, done.req_opcode, done.data) == (Op.NAK, Op.TERMINATE_SESSION, expected)
+    broken = _one(rw, _req(Op.OPEN_FILE_RO, 4, data=b"/summary/broken.jpg"))
+    assert (broken.opcode, broken.data) == (Op.NAK, bytes([FtpErr.FAIL]))
+    assert _one(rw, _req(Op.LIST_DIRECTORY, 5, data=b"/nowhere")).data == bytes([FtpErr.FILE_NOT_FOUND])
+    assert _one(FtpServer(tree), _req(Op.CREATE_DIRECTORY, 6, data=b"/x")).data == bytes([FtpErr.FILE_PROTECTED])
+
+
+def test_listing_uses_size_metadata_and_never_produces_files():
+    produced = []
+    t = VirtualTree()
+    t.put("/frames/1.jpg", lambda: produced.append(1) or b"x" * 50, size=lambda: 50)
+    t.put("/frames/2.jpg", lambda: produced.append(2) or b"y" * 9)
+    listing = _one(FtpServer(t), _req(Op.LIST_DIRECTORY, data=b"/frames"))
+    assert listing.data == b"F1.jpg\t50\0F2.jpg\t0\0" and produced == []
 
 
 def test_burst_streams_the_file_with_advancing_seq(tree):
@@ -178,8 +244,8 @@ def test_mavftp_lists_and_downloads(companion, tmp_path):
         # size and CRC of each thumbnail, so a surface tool checks a pushed one without a CalcFileCRC32 request
         four = next(e for e in index["summary"] if e["image_index"] == 4)
         got = (tmp_path / "4.jpg").read_bytes()
-        assert (four["thumbnail_bytes"], four["thumbnail_crc32"]) == (len(got), crc32_mavftp(got))
-        assert all(e["thumbnail_crc32"] == crc32_mavftp(surface.tree.read(e["thumbnail"])) for e in index["summary"])
+        assert (four["thumbnail_bytes"], four["thumbnail_crc32"]) == (len(got), crc32_ardupilot(got))
+        assert all(e["thumbnail_crc32"] == crc32_ardupilot(surface.tree.read(e["thumbnail"])) for e in index["summary"])
         assert _get(client, "/summary/full/5.jpg", tmp_path / "full5.jpg")
         assert (tmp_path / "full5.jpg").read_bytes()[:2] == b"\xff\xd8"
         assert client.cmd_crc(["/summary/3.jpg"]).error_code == mavftp.FtpError.Success

@@ -10,15 +10,15 @@ from companion.config import SurfaceConfig
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import added, companion_link, ground_station, removed, wait_for
 from vehicle.camera.downlink import Downlink
-from vehicle.camera.image_push import CHUNK, PushReassembler, push_messages
+from vehicle.protocol.image_push import CHUNK, ImageReceiver, push_messages
 
 
 def _receive_images(gcs, count: int, timeout: float = 10.0) -> list[tuple[int, object, bytes]]:
-    """Handshake, then chunk ``seqnr`` written at ``seqnr * payload``; an image is done when every packet came.
-    The MRL_PUSH value just before a handshake names the frame (image index) the image belongs to."""
+    """Reassembled by the one shared receiver (QGroundControl's rules); the MRL_PUSH value just before a
+    handshake names the frame (image index) the image belongs to."""
     done: list[tuple[int, object, bytes]] = []
-    hs, buf, got = None, None, set()
-    marker = index = None
+    rx = ImageReceiver()
+    marker = index = hs = None
     while len(done) < count:
         msg = wait_for(gcs, ["DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA", "NAMED_VALUE_INT"],
                        timeout=timeout)
@@ -28,17 +28,10 @@ def _receive_images(gcs, count: int, timeout: float = 10.0) -> list[tuple[int, o
             continue
         if msg.get_type() == "DATA_TRANSMISSION_HANDSHAKE":
             assert marker is not None, "a handshake came with no MRL_PUSH marker before it"
-            index, marker = marker, None
-            hs, buf, got = msg, bytearray(msg.packets * msg.payload), set()
-            continue
-        if hs is None:
-            continue
-        start = msg.seqnr * hs.payload
-        buf[start:start + hs.payload] = bytes(msg.data)[: hs.payload]
-        got.add(msg.seqnr)
-        if len(got) == hs.packets:
-            done.append((index, hs, bytes(buf[: hs.size])))
-            hs = None
+            index, marker, hs = marker, None, msg
+        image = rx.feed(msg)
+        if image is not None:
+            done.append((index, hs, image))
     return done
 
 
@@ -48,7 +41,7 @@ def test_push_messages_are_what_the_protocol_says():
     hs = msgs[0]
     assert (hs.type, hs.size, hs.width, hs.height, hs.packets, hs.payload, hs.jpg_quality) == (0, 768, 160, 90, 4, CHUNK, 80)
     assert [m.seqnr for m in msgs[1:]] == [0, 1, 2, 3]
-    rx = PushReassembler()
+    rx = ImageReceiver()
     for m in msgs:
         out = rx.feed(m)
     assert out == data

@@ -1,15 +1,43 @@
-"""Reassembles images pushed with DATA_TRANSMISSION_HANDSHAKE (130) + ENCAPSULATED_DATA (131).
+"""The MAVLink image transmission protocol, both halves, written once: framing on the vehicle, reassembly topside.
 
-It follows QGroundControl's reading of the protocol so that what we receive is what the operator's ground
-station receives: a handshake starts a new image, chunk ``seqnr`` is written at ``seqnr * payload``, the image is
-complete when every packet has arrived, and a lost packet leaves the image stalled until the next handshake
-(which abandons it; the caller then fetches that image another way).
+One DATA_TRANSMISSION_HANDSHAKE (130) announces type, size, width, height, packet count, payload per packet and
+JPEG quality; ENCAPSULATED_DATA (131) follows with ``seqnr`` 0..packets-1, chunk ``seqnr`` holding bytes
+``seqnr * 253`` onwards (the last one zero padded; MAVLink 2 trims the trailing zeros on the wire).
+
+``ImageReceiver`` follows QGroundControl's reading of the protocol so that what the surface tool, the benchmarks
+and the tests receive is what the operator's ground station receives: a handshake starts a new image, chunk
+``seqnr`` is written at ``seqnr * payload``, the image is complete when every packet has arrived, and a lost
+packet leaves the image stalled until the next handshake (which abandons it; the caller then fetches that image
+another way).
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+CHUNK = 253
+"""ENCAPSULATED_DATA.data length."""
+TYPE_JPEG = mav.MAVLINK_DATA_STREAM_IMG_JPEG
+
+
+def push_messages(data: bytes, width: int, height: int, quality: int, *,
+                  image_type: int = TYPE_JPEG) -> list[mav.MAVLink_message]:
+    """Handshake then every chunk of ``data``: the whole image as the receiver needs it, in order."""
+    if not data:
+        raise ValueError("cannot push an empty image")
+    packets = (len(data) + CHUNK - 1) // CHUNK
+    if packets > 0xFFFF:
+        raise ValueError(f"image of {len(data)} bytes needs {packets} packets, more than 65535")
+    msgs: list[mav.MAVLink_message] = [mav.MAVLink_data_transmission_handshake_message(
+        image_type, len(data), width, height, packets, CHUNK, max(0, min(100, quality)))]
+    for seq in range(packets):
+        chunk = data[seq * CHUNK:(seq + 1) * CHUNK]
+        msgs.append(mav.MAVLink_encapsulated_data_message(seq, list(chunk.ljust(CHUNK, b"\0"))))
+    return msgs
+
 
 IMAGE_TYPES = {0: "jpeg", 1: "bmp", 2: "raw8u", 3: "raw32u", 4: "pgm", 5: "png"}
 """MAVLINK_DATA_STREAM_TYPE values, as file-name extensions."""
@@ -89,6 +117,11 @@ class ImageReceiver:
         self.completed = 0
         self.abandoned = 0
         self.bytes_received = 0
+
+    def feed(self, msg) -> bytes | None:
+        """The image bytes when ``msg`` completes one (for callers that need nothing else)."""
+        got = self.handle(msg)
+        return got.data if isinstance(got, PushedImage) else None
 
     def handle(self, msg) -> PushedImage | Abandoned | LostHandshake | None:
         """Process one message (others are ignored); say what, if anything, it finished or abandoned."""
