@@ -101,7 +101,7 @@ def test_bad_input_is_one_line_and_nonzero(tmp_path):
     assert proc.returncode != 0
     assert "broken.mp4" in one_error_line(proc.stderr)
     assert not out.exists()
-    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--threshold", "0")
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--threshold", "-0.2")  # 0 is valid (no gate); below 0 is not
     assert proc.returncode == 2
     assert "tau_ss" in one_error_line(proc.stderr)
 
