@@ -84,3 +84,30 @@ def test_score_command_takes_like_and_unlike(suim, tmp_path):
     out = run_merlion("score", empty, "--encoder", "imagenet", "--like", str(bad))
     assert out.returncode != 0
     assert out.stderr.strip().splitlines()[-1] == f"merlion: error: --like {bad}: cannot decode as an image"
+
+
+def test_summarize_keeps_frames_by_the_combined_score(tmp_path):
+    """Marks that contradict the query win: the summary follows the marks, not the text."""
+    import cv2
+
+    video = shared_file("survey/survey_480x270.mp4")
+    rows = list(csv.DictReader(shared_file("survey/survey_480x270_labels.csv").open()))
+    fish = [r["fish_present"] == "1" for r in rows]
+    cap = cv2.VideoCapture(str(video))
+    frames = [cap.read()[1] for _ in range(len(fish))]
+    cap.release()
+    first = {}  # first frame of each segment
+    for i, r in enumerate(rows):
+        first.setdefault(int(r["segment"]), i)
+    marks = {}
+    for seg, option in ((0, "--like"), (2, "--like"), (1, "--unlike"), (3, "--unlike")):
+        path = tmp_path / f"seg{seg}.png"
+        cv2.imwrite(str(path), frames[first[seg]])
+        marks.setdefault(option, []).append(str(path))
+    args = [a for option, paths in marks.items() for p in paths for a in (option, p)]
+    r = run_merlion("summarize", str(video), "--out", str(tmp_path / "s"), "--encoder", "imagenet", "-k", "4", *args)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "s" / "summary.json").read_text())
+    assert doc["params"]["marks"] == {"like": marks["--like"], "unlike": marks["--unlike"]}
+    kept = [fish[f["index"]] for f in doc["frames"]]
+    assert kept and not any(kept)  # only no-fish frames, although the query asks for fish
