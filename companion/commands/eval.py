@@ -303,7 +303,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
-def _labelled_items(paths: list[str], labels: dict[str, bool]) -> tuple[list, list[bool], list[str]]:
+def _labelled_items(paths: list[str], labels: dict[str, bool], labels_path: str) -> tuple[list, list[bool], list[str]]:
     """(images, positive, names) in name order (images) or frame order (one video); every item needs a label."""
     import cv2
 
@@ -315,7 +315,7 @@ def _labelled_items(paths: list[str], labels: dict[str, bool]) -> tuple[list, li
         cap = cv2.VideoCapture(str(one))
         if not cap.isOpened():
             raise MerlionError(f"{one}: OpenCV cannot open this video")
-        images, names = [], []
+        images, names, kind = [], [], "frame index"
         while True:
             ok, img = cap.read()
             if not ok:
@@ -325,7 +325,7 @@ def _labelled_items(paths: list[str], labels: dict[str, bool]) -> tuple[list, li
         cap.release()
     else:
         files = collect_images(paths)
-        names = [f.name for f in files]
+        names, kind = [f.name for f in files], "image"
         images = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
         bad = [f for f, img in zip(files, images, strict=True) if img is None]
         if bad:
@@ -334,7 +334,7 @@ def _labelled_items(paths: list[str], labels: dict[str, bool]) -> tuple[list, li
         raise MerlionError(f"{paths[0]}: no frames could be decoded")
     missing = [n for n in names if n not in labels]
     if missing:
-        raise MerlionError(f"--labels: no label for {missing[0]}")
+        raise MerlionError(f"--labels {labels_path}: no label for {kind} {missing[0]}")
     return images, [labels[n] for n in names], names
 
 
@@ -345,7 +345,7 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
     if args.marks < 0:
         raise UsageError(f"--marks {args.marks}: must be 0 or more")
     labels = read_item_labels(args.labels)
-    images, positive, _ = _labelled_items(args.items, labels)
+    images, positive, _ = _labelled_items(args.items, labels, args.labels)
     split_marks(positive, args.marks)  # refuse an impossible --marks before loading the encoder
     cfg = _config(args, args.encoder)
     encoder = make_encoder(cfg)

@@ -41,3 +41,29 @@ def test_eval_feedback_on_suim():
     assert too_many.returncode == 1
     assert too_many.stderr.strip() == ("merlion: error: --marks 5: needs 5 positive and 5 negative items, "
                                        "have 4 and 4")
+
+
+def test_eval_feedback_on_a_video_reads_frame_index_labels(tmp_path):
+    import csv
+
+    import cv2
+
+    labels = shared_file("suim/labels.csv")
+    rows = list(csv.DictReader(labels.open()))
+    video = tmp_path / "dive.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 5.0, (640, 480))
+    for r in rows:
+        writer.write(cv2.resize(cv2.imread(str(labels.parent / "images" / r["image"])), (640, 480)))
+    writer.release()
+    frame_labels = tmp_path / "dive.csv"
+    frame_labels.write_text("frame_index,fish_present\n" + "".join(
+        f"{i},{r['fish_present']}\n" for i, r in enumerate(rows)))
+    r = run_merlion("eval", "feedback", str(video), "--labels", str(frame_labels), "--marks", "2",
+                    "--encoder", "imagenet", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["scored"] == 4 and out["positives"] == 2
+    short = tmp_path / "short.csv"
+    short.write_text("frame_index,fish_present\n0,1\n")
+    r = run_merlion("eval", "feedback", str(video), "--labels", str(short), "--marks", "1", "--encoder", "imagenet")
+    assert r.returncode == 1 and r.stderr.strip() == f"merlion: error: --labels {short}: no label for frame index 1"
