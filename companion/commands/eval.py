@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from companion.errors import MerlionError, UsageError
 
 GROUP = "eval"
@@ -65,13 +67,31 @@ def register(add_command) -> None:
 
     p = add_command("auroc", "how well the semantic score ranks labelled positive frames over negatives",
                     group=GROUP)
-    p.add_argument("video", help="the labelled video")
-    p.add_argument("--labels", required=True, help="label CSV, one row per source frame")
+    p.add_argument("video", nargs="?", help="the labelled video (or --data for the shared data by source)")
+    p.add_argument("--labels", help="label CSV, one row per source frame (with VIDEO)")
+    p.add_argument("--data", metavar="DIR", help="the shared data folder (../shared/data): AUROC per source and "
+                                                 "pooled over its labelled frames")
+    p.add_argument("--stress", action="store_true",
+                   help="with --data: add a synthetic murky green-cast copy of every frame (sources NAME~murky)")
+    p.add_argument("--sweep", action="store_true",
+                   help="with --data: the packaged encoder's settings, leave-one-group-out (slow: 6 encoder passes)")
     p.add_argument("--config", help="YAML configuration (encoder and queries)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="override encoder.name")
     p.add_argument("--query", help="the label that counts as positive (default: fish when present, else any)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_auroc)
+
+    p = add_command("feedback", "AUROC with and without the operator's marks: the first N positive and N "
+                    "negative items become marks, the rest are scored", group=GROUP)
+    p.add_argument("items", metavar="IMAGES", nargs="+",
+                   help="images or folders (name order), or one video (frame order)")
+    p.add_argument("--labels", required=True,
+                   help="CSV: image name (or 0-based frame_index) first, then a *_present or label column")
+    p.add_argument("--marks", type=int, required=True, metavar="N", help="marks per class (0: the query alone)")
+    p.add_argument("--config", help="YAML configuration (encoder and queries)")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet"], help="override encoder.name")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_feedback)
 
     p = add_command("compare", "summarize one video with MERLION and with the visual baseline; score both",
                     group=GROUP)
@@ -240,6 +260,14 @@ def _cmd_auroc(args: argparse.Namespace) -> int:
     from companion.evaluation.frame_scores import score_video
     from companion.evaluation.labels_eval import default_query, is_positive
 
+    if args.data:
+        if args.video or args.labels:
+            raise UsageError("--data scores the shared data by source: give it without VIDEO and --labels")
+        return _auroc_by_source(args)
+    if not args.video or not args.labels:
+        raise UsageError("eval auroc needs VIDEO --labels CSV, or --data DIR")
+    if args.stress or args.sweep:
+        raise UsageError("--stress and --sweep go with --data")
     cfg = _config(args, args.encoder)
     table = load_labels(args.labels)
     query = args.query or default_query(table)
@@ -272,4 +300,98 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     print(json.dumps(result) if args.json else format_compare(result))
     if args.report:
         print(f"report: {Path(args.report) / 'index.html'}")
+    return 0
+
+
+def _labelled_items(paths: list[str], labels: dict[str, bool], labels_path: str) -> tuple[list, list[bool], list[str]]:
+    """(images, positive, names) in name order (images) or frame order (one video); every item needs a label."""
+    import cv2
+
+    from companion.sources.folder import IMAGE_SUFFIXES
+    from companion.vision.score_images import collect_images
+
+    one = Path(paths[0])
+    if len(paths) == 1 and one.is_file() and one.suffix.lower() not in IMAGE_SUFFIXES:
+        cap = cv2.VideoCapture(str(one))
+        if not cap.isOpened():
+            raise MerlionError(f"{one}: OpenCV cannot open this video")
+        images, names, kind = [], [], "frame index"
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            images.append(img)
+            names.append(str(len(names)))
+        cap.release()
+    else:
+        files = collect_images(paths)
+        names, kind = [f.name for f in files], "image"
+        images = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
+        bad = [f for f, img in zip(files, images, strict=True) if img is None]
+        if bad:
+            raise MerlionError(f"{bad[0]}: cannot decode as an image")
+    if not images:
+        raise MerlionError(f"{paths[0]}: no frames could be decoded")
+    missing = [n for n in names if n not in labels]
+    if missing:
+        raise MerlionError(f"--labels {labels_path}: no label for {kind} {missing[0]}")
+    return images, [labels[n] for n in names], names
+
+
+def _cmd_feedback(args: argparse.Namespace) -> int:
+    from companion.evaluation.feedback_eval import evaluate, read_item_labels, split_marks
+    from companion.vision.presampler import PreSampler
+
+    if args.marks < 0:
+        raise UsageError(f"--marks {args.marks}: must be 0 or more")
+    labels = read_item_labels(args.labels)
+    images, positive, _ = _labelled_items(args.items, labels, args.labels)
+    split_marks(positive, args.marks)  # refuse an impossible --marks before loading the encoder
+    cfg = _config(args, args.encoder)
+    encoder = make_encoder(cfg)
+    presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+    embeddings = np.concatenate([encoder.encode_images(images[i:i + cfg.encoder.batch])
+                                 for i in range(0, len(images), cfg.encoder.batch)])
+    result = evaluate(encoder, presampler, embeddings, positive, args.marks).as_dict()
+    result["encoder"] = encoder.name
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"AUROC query alone {result['auroc_query']:.4f}  with {args.marks} + {args.marks} marks "
+              f"{result['auroc_marked']:.4f}  ({result['positives']} positive of {result['scored']} scored; "
+              f"encoder {encoder.name})")
+    return 0
+
+
+def _auroc_by_source(args: argparse.Namespace) -> int:
+    """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
+    import sys
+
+    from companion.evaluation.holdout import leave_one_group_out, per_source
+    from companion.evaluation.sources import load_sources
+    from companion.vision.presampler import PreSampler
+
+    frames = load_sources(args.data, stress=args.stress)
+    cfg = _config(args, args.encoder)
+    encoder = make_encoder(cfg)
+    presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+    batch = cfg.encoder.batch
+    scores = np.concatenate([presampler.scores(encoder.encode_images([f.image for f in frames[i:i + batch]]))
+                             for i in range(0, len(frames), batch)])
+    result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
+    if args.sweep:
+        from companion.evaluation.encoder_sweep import sweep
+
+        variants = sweep(frames, progress=lambda name: print(f"sweep: {name}", file=sys.stderr, flush=True))
+        result["variants"] = {name: per_source(s, frames) for name, s in variants.items()}
+        result["leave_one_group_out"] = leave_one_group_out(variants, frames)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    print(f"encoder {encoder.name}, {len(frames)} frames")
+    for source, value in result["auroc"].items():
+        print(f"  {source:24s} AUROC {value:.3f}")
+    for row in result.get("leave_one_group_out", []):
+        print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
+              f"held-out {row['held_out_auroc']:.3f}")
     return 0

@@ -23,6 +23,10 @@ def register(add_command) -> None:
     p.add_argument("--pretrained", metavar="TAG", help="open_clip pretrained tag, used if already cached")
     p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16", "int8"], help="encoder precision")
     p.add_argument("--batch", type=int, help="images encoded together (default 8)")
+    p.add_argument("--like", metavar="FILE", action="append", default=[],
+                   help="an example of what is wanted (image or folder of images), repeatable")
+    p.add_argument("--unlike", metavar="FILE", action="append", default=[],
+                   help="an example of what is not wanted (image or folder of images), repeatable")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--json", action="store_true", help='JSON lines: {"file": ..., "score": ...}')
     p.set_defaults(func=run)
@@ -40,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config, overrides=overrides_from(args))
     failed = 0
-    for item in score_images(cfg, args.paths):
+    for item in score_images(cfg, args.paths, like=args.like, unlike=args.unlike):
         if item.score is None:
             failed += 1
             print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)

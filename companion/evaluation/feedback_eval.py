@@ -1,0 +1,80 @@
+"""How much the operator's marks help: AUROC of the rest of a labelled set with and without N + N marks.
+
+The first N positive and the first N negative items (in name order, as an operator would meet them on a dive)
+become the marks; every other item is scored twice, by the query alone and by the query combined with the marks
+(``companion.vision.feedback``), on the same encoder pass. Used by ``merlion eval feedback``.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from companion.errors import MerlionError, UsageError
+from companion.evaluation.roc import auroc
+from companion.vision.encoders.base import Encoder
+from companion.vision.feedback import MarkedPreSampler, Marks
+from companion.vision.presampler import PreSampler
+
+
+@dataclass(frozen=True)
+class FeedbackResult:
+    marks: int
+    scored: int
+    positives: int
+    auroc_query: float
+    auroc_marked: float
+
+    def as_dict(self) -> dict:
+        return self.__dict__.copy()
+
+
+def read_item_labels(path: str | Path) -> dict[str, bool]:
+    """A CSV with a header: first column the image name (or 0-based ``frame_index``), then a ``*_present``
+    column (else ``label`` / ``positive``), non-zero = positive. Keys are file names or frame numbers as text."""
+    p = Path(path)
+    if not p.is_file():
+        raise UsageError(f"--labels {p}: no such file")
+    with p.open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        fields = reader.fieldnames or []
+        column = next((f for f in fields if f.endswith("_present")), None) or next(
+            (f for f in fields if f in ("label", "positive")), None)
+        if not fields or column is None:
+            raise MerlionError(f"{p}: needs a header with an image column and a *_present (or label) column")
+        out: dict[str, bool] = {}
+        for row in reader:
+            try:
+                out[row[fields[0]].strip()] = float(row[column] or 0) != 0
+            except ValueError:
+                raise MerlionError(f"{p}: {column}={row[column]!r} is not a number") from None
+    return out
+
+
+def split_marks(positive: Sequence[bool], n: int) -> tuple[list[int], list[int], list[int]]:
+    """Indices of the first n positives, the first n negatives, and the rest (the items to score)."""
+    pos = [i for i, y in enumerate(positive) if y][:n]
+    neg = [i for i, y in enumerate(positive) if not y][:n]
+    if len(pos) < n or len(neg) < n:
+        raise MerlionError(f"--marks {n}: needs {n} positive and {n} negative items, "
+                           f"have {sum(positive)} and {len(positive) - sum(positive)}")
+    taken = set(pos) | set(neg)
+    return pos, neg, [i for i in range(len(positive)) if i not in taken]
+
+
+def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, positive: Sequence[bool],
+             n: int) -> FeedbackResult:
+    """AUROC of the unmarked items by the query alone and with the first n + n items as marks."""
+    y = np.asarray(positive, dtype=bool)
+    pos, neg, rest = split_marks(list(y), n)
+    if not y[rest].any() or y[rest].all():
+        raise MerlionError(f"--marks {n}: the items left to score hold only one class")
+    feats = encoder.sampler_features(embeddings)
+    marked = MarkedPreSampler(presampler, Marks.from_features(feats[pos], feats[neg]))
+    query = presampler.scores(embeddings[rest])
+    combined = marked.scores(embeddings[rest])
+    return FeedbackResult(n, len(rest), int(y[rest].sum()), auroc(query, y[rest]), auroc(combined, y[rest]))
