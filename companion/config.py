@@ -103,6 +103,16 @@ class EnhanceConfig(_Section):
         return as_fraction(value)
 
 
+class GateConfig(_Section):
+    mode: Literal["none", "difference"] = "difference"
+    """difference: a frame is encoded only when its tiny grey copy differs from the last encoded one (see
+    docs/vision.md, the frame gate); none: every frame is encoded."""
+    threshold: float = Field(8.0, ge=0, le=255)
+    """Mean absolute difference in grey levels (0-255) on 32x18 copies above which a frame is encoded."""
+    max_gap_s: float = Field(1.0, gt=0)
+    """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows."""
+
+
 class StoreConfig(_Section):
     dir: str = "merlion-store"
     disk_budget_mb: float = Field(2048.0, gt=0)
@@ -125,6 +135,7 @@ class Config(_Section):
     queries: QueryConfig = Field(default_factory=QueryConfig)
     sampler: SamplerConfig = Field(default_factory=SamplerConfig)
     enhance: EnhanceConfig = Field(default_factory=EnhanceConfig)
+    gate: GateConfig = Field(default_factory=GateConfig)
     mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
     surface: SurfaceConfig = Field(default_factory=SurfaceConfig)
