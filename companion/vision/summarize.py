@@ -92,6 +92,7 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
             "fps": cfg.source.fps,
             "enhance": cfg.enhance.mode,
             "tau_ses": pipeline.tau_ses if cfg.enhance.mode == "selective" else None,
+            "gate": cfg.gate.model_dump(),
             "encoder": encoder.describe(),
             "stats": stats,
         },
@@ -170,7 +171,8 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
         log.warning("%s: %d frames could not be decoded and were skipped", cfg.source.uri, lost)
     frames = pipeline.summary
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
-             "frames_added": pipeline.counts["added"]}
+             "frames_added": pipeline.counts["added"], "frames_encoded": pipeline.counts["encoded"],
+             "frames_skipped": pipeline.counts["skipped"]}
     document = build_document(cfg, encoder, pipeline, frames, stats)
     try:
         _write(out_tmp, document, frames)
