@@ -116,6 +116,7 @@ class LiveCompanion:
             data = cfg.model_dump()
             data["enhance"]["mode"] = "none"
             data["queries"]["tau_ss"] = cfg.enhance.tau_ses
+            data["gate"]["mode"] = "none"  # candidates arrive sparse and already chosen: never skip one
             self.pipeline = Pipeline.from_config(build_config(data, origin="enhance"), self.encoder,
                                                  first_image_index=resume.next_image_index)
             raw = PreSampler(self.encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
@@ -223,6 +224,12 @@ class LiveCompanion:
                     self.pipeline.tau_ss = value  # the gate on enhanced frames
             elif name == "MERL_K":
                 events = self.pipeline.set_k(int(value))
+            elif name == "MERL_GATE":
+                if sel is not None:
+                    log.warning("MERL_GATE: the frame gate does not run with enhance.mode selective")
+                    return
+                self.pipeline.gate.mode = "difference" if value > 0 else "none"
+                self.pipeline.gate.threshold = max(0.0, float(value))
             elif name == "MERL_ENHANCE":
                 if sel is None:
                     log.warning("MERL_ENHANCE: enhance.mode is %s; restart with enhance.mode: selective to "
