@@ -6,10 +6,10 @@ UDP hub. A ground-station socket on the hub receives what the surface would. Rep
 
 - frames/s actually scored (by the encoder; frames the gate skipped are counted apart), and frames dropped at
   the input because inference was busy;
-- the encoder's own rate in the same process right after the run (the same frames of the generated dive,
-  downscaled as the pipeline does, at the configured batch): ``scored_vs_encoder`` = scored frames/s over it,
-  how much of the encoder's rate the live loop keeps (target >= 0.8 with ``--gate none`` and a camera faster
-  than the encoder);
+- the encoder's own rate during the run (frames encoded over the seconds spent inside the encoder, the figure
+  ``bench pipeline`` reports as ``encoder_fps``): ``scored_vs_encoder`` = scored frames/s over it, how much of
+  the encoder's rate the live loop keeps (target >= 0.8 with ``--gate none`` and a camera faster than the
+  encoder), measured in the same window under the same machine load;
 - peak RSS and RSS growth from the end of the first minute (warm-up: model, caches, allocator) to the end
   (target: at most 5%); with runs of a minute or less the first quarter counts as warm-up;
 - latency from capture (the frame's wall-clock time, which CAMERA_IMAGE_CAPTURED carries as time_utc) to
@@ -50,6 +50,8 @@ class SoakResult:
     encoder_fps: float = 0.0
     scored_vs_encoder: float | None = None
     gate: str = ""
+    stage_ms: dict = field(default_factory=dict)
+    """Milliseconds per item of each pipeline stage during the run (where the inference thread's time went)."""
     summary_added: int = 0
     captures_received: int = 0
     rss_start_mb: float = 0.0
@@ -102,24 +104,15 @@ class _Surface:
         self.sock.close()
 
 
-ENCODER_FRAMES = 48
-"""Frames for the encoder-only rate after the run (a few seconds of encoding)."""
+def encoder_rate(companion: LiveCompanion) -> float:
+    """Frames/s of the encoder itself during the run: frames encoded over the seconds spent inside the encoder.
 
-
-def encoder_rate(companion: LiveCompanion, source_uri: str, fps: float, frames: int = ENCODER_FRAMES) -> float:
-    """Frames/s of the live encoder alone on frames of the same generated dive, at the configured batch."""
-    from companion.sources.synthetic import SyntheticSource
-
-    source = SyntheticSource(source_uri, fps=fps, realtime=False)
-    prepare = companion.pipeline.prepare
-    small = [prepare(source.render(i)) for i in range(frames)]
-    batch = companion.cfg.encoder.batch
-    encoder = companion.encoder
-    encoder.encode_images(small[:batch])  # warm, as the live loop is
-    start = time.perf_counter()
-    for i in range(0, frames, batch):
-        encoder.encode_images(small[i:i + batch])
-    return frames / (time.perf_counter() - start)
+    Taken from the pipeline's stage clock in the same window as the scored rate, so both see the same machine
+    load (a separate encoder-only pass before or after the run would not, on a shared machine).
+    """
+    clock = companion.pipeline.clock
+    seconds = clock.seconds.get("encode", 0.0)
+    return clock.items.get("encode", 0) / seconds if seconds > 0 else 0.0
 
 
 def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_dir: str | None = None,
@@ -177,7 +170,8 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
         result.rss_after_warmup_mb = after_warmup or end_rss
         companion.drain(10.0)
         time.sleep(0.5)
-        result.encoder_fps = round(encoder_rate(companion, uri, fps), 2)
+        result.encoder_fps = round(encoder_rate(companion), 2)
+        result.stage_ms = {k: round(v, 2) for k, v in companion.pipeline.clock.ms_per_item().items()}
     finally:
         companion.stop()
         sim.stop()

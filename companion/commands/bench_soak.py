@@ -44,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"frames            seen {d['frames_seen']}, scored {d['frames_scored']} ({d['scored_fps']} /s), "
           f"skipped by the gate ({d['gate']}) {d['frames_skipped']}, dropped at the input {d['frames_dropped']}")
     ratio = "-" if d["scored_vs_encoder"] is None else f"{d['scored_vs_encoder']:.2f}"
-    print(f"encoder alone     {d['encoder_fps']} frames/s in the same process: scored/s is {ratio} x that")
+    print(f"encoder           {d['encoder_fps']} frames/s inside the encoder during the run: scored/s is {ratio} x "
+          "that")
+    print("stages            " + ", ".join(f"{k} {v:g}" for k, v in d["stage_ms"].items()) + " ms/frame")
     print(f"summary           {d['summary_added']} frames added; {d['captures_received']} captures at the surface")
     print(f"memory            peak RSS {d['peak_rss_mb']} MB; {d['rss_after_warmup_mb']} MB after {d['warmup_s']:g} s "
           f"warm-up -> {d['rss_end_mb']} MB at the end: growth {d['rss_growth_pct']}% (target <= 5%)")
