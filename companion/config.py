@@ -60,6 +60,9 @@ class EncoderConfig(_Section):
     """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp32 elsewhere; int8 (CLIP, CPU only, never auto)."""
     runtime: Literal["torch", "onnx"] = "torch"
     """onnx: CLIP's image tower exported at start-up and run by ONNX Runtime in fp32 (CPU; see docs/encoders.md)."""
+    providers: list[str] = Field(default_factory=list)
+    """runtime onnx: ONNX Runtime execution providers, most preferred first (on a Jetson Orin
+    [TensorrtExecutionProvider, CUDAExecutionProvider, CPUExecutionProvider]); empty: the CPU one."""
     batch: int = Field(8, ge=1, le=256)
     """Largest batch taken from the queue at once; smaller batches go as soon as they are there."""
     input_size: int | None = Field(None, gt=0)
