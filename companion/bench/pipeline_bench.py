@@ -251,10 +251,11 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     start = time.perf_counter()
     done = passed = 0
     bar = tqdm(total=frames, desc="end to end", unit="frame", file=sys.stderr, disable=not progress)
-    with bar, FrameFeed(open_source(looped.source), pipeline.prepare, limit=frames) as feed:
+    gate = pipeline.gate if pipeline.gate.on else None  # as summarize does: gated in the decode thread
+    with bar, FrameFeed(open_source(looped.source), pipeline.prepare, limit=frames, gate=gate) as feed:
         for chunk in feed.batches(batch):
             chunk = chunk[: frames - done]
-            out = pipeline.process([f for f, _ in chunk], [s for _, s in chunk])
+            out = pipeline.process([f for f, _ in chunk], [s for _, s in chunk], gated=feed.gated)
             done += len(chunk)
             bar.update(len(chunk))
             passed += sum(r.passed for r in out.results)

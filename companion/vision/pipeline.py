@@ -202,11 +202,13 @@ class Pipeline:
         with self.clock.stage(stage, len(small)):
             return self.encoder.encode_images(list(small))
 
-    def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None = None,
-                poses: Sequence[Pose | None] | None = None) -> BatchOutcome:
+    def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray | None] | None = None,
+                poses: Sequence[Pose | None] | None = None, *, gated: bool = False) -> BatchOutcome:
         """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
 
         The gate goes first: only the frames it admits are encoded; the others get ``encoded=False`` results.
+        ``gated``: the caller already ran this pipeline's gate (``FrameFeed(gate=pipeline.gate)`` in its decode
+        thread) and ``prepared[i] is None`` marks the frames it skipped.
         """
         n = len(frames)
         if n == 0:
@@ -216,9 +218,14 @@ class Pipeline:
             self.gate.seen += n
             self.gate.encoded += n
             return self._process_encoded(frames, prepared, poses)
-        with self.clock.stage("gate", n):
-            views = prepared if prepared is not None else [f.image for f in frames]
-            keep = self.gate.admit_batch(list(views), [f.time_s for f in frames])
+        if gated:
+            if prepared is None:
+                raise ValueError("gated=True needs the prepared images (None marks a skipped frame)")
+            keep = np.array([p is not None for p in prepared], dtype=bool)
+        else:
+            with self.clock.stage("gate", n):
+                views = prepared if prepared is not None else [f.image for f in frames]
+                keep = self.gate.admit_batch(list(views), [f.time_s for f in frames])
         go = np.flatnonzero(keep)
         self.counts["skipped"] += n - len(go)
         if len(go) == n:

@@ -159,9 +159,11 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
         encoder = make_encoder(cfg.encoder)
     pipeline = Pipeline.from_config(cfg, encoder)
     seen = passed = 0
-    with FrameFeed(source, pipeline.prepare) as feed, _progress(expected_frames(source), progress) as bar:
+    gate = pipeline.gate if pipeline.gate.on else None  # gated in the decode thread: full batches to encode
+    with FrameFeed(source, pipeline.prepare, gate=gate) as feed, \
+            _progress(expected_frames(source), progress) as bar:
         for batch in feed.batches(cfg.encoder.batch):
-            out = pipeline.process([f for f, _ in batch], [s for _, s in batch])
+            out = pipeline.process([f for f, _ in batch], [s for _, s in batch], gated=feed.gated)
             seen += len(batch)
             passed += sum(r.passed for r in out.results)
             bar.update(len(batch))

@@ -164,3 +164,26 @@ def test_the_default_gate_skips_frames_of_the_survey_but_keeps_both_fish_segment
     assert pipe.counts["frames"] == len(frames) == len(results)
     held = sorted(f.frame_index for f in pipe.summary)
     assert any(11 <= i <= 40 for i in held) and any(52 <= i <= 81 for i in held)
+
+
+def test_gating_in_the_decode_thread_fills_batches_and_gives_the_same_summary(encoder):
+    """FrameFeed(gate=...) decides in the decode thread: skipped frames ride along as (frame, None) and only the
+    frames to encode count toward the batch; the results are those of gating inside Pipeline.process."""
+    video = shared_file("survey/survey_480x270.mp4")
+    inline = make(encoder, k=4, gate="difference")
+    expected = []
+    with FrameFeed(VideoSource(video, fps=10), inline.prepare) as feed:
+        for batch in feed.batches(4):
+            expected += inline.process([f for f, _ in batch], [s for _, s in batch]).results
+    fed = make(encoder, k=4, gate="difference")
+    got, sizes = [], []
+    with FrameFeed(VideoSource(video, fps=10), fed.prepare, gate=fed.gate) as feed:
+        assert feed.gated
+        for batch in feed.batches(4):
+            sizes.append(sum(s is not None for _, s in batch))
+            got += fed.process([f for f, _ in batch], [s for _, s in batch], gated=True).results
+    assert [r.frame_index for r in got] == [r.frame_index for r in expected]
+    assert [r.encoded for r in got] == [r.encoded for r in expected]
+    assert [r.added for r in got] == [r.added for r in expected]
+    assert max(sizes) == 4 and fed.counts == inline.counts
+    assert [f.frame_index for f in fed.summary] == [f.frame_index for f in inline.summary]
