@@ -60,6 +60,9 @@ class EncoderConfig(_Section):
     """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp32 elsewhere; int8 (CLIP, CPU only, never auto)."""
     runtime: Literal["torch", "onnx"] = "torch"
     """onnx: CLIP's image tower exported at start-up and run by ONNX Runtime in fp32 (CPU; see docs/encoders.md)."""
+    providers: list[str] = Field(default_factory=list)
+    """runtime onnx: ONNX Runtime execution providers, most preferred first (on a Jetson Orin
+    [TensorrtExecutionProvider, CUDAExecutionProvider, CPUExecutionProvider]); empty: the CPU one."""
     batch: int = Field(8, ge=1, le=256)
     """Largest batch taken from the queue at once; smaller batches go as soon as they are there."""
     input_size: int | None = Field(None, gt=0)
@@ -104,6 +107,16 @@ class EnhanceConfig(_Section):
         return as_fraction(value)
 
 
+class GateConfig(_Section):
+    mode: Literal["none", "difference"] = "difference"
+    """difference: a frame is encoded only when its tiny grey copy differs from the last encoded one (see
+    docs/vision.md, the frame gate); none: every frame is encoded."""
+    threshold: float = Field(8.0, ge=0, le=255)
+    """Mean absolute difference in grey levels (0-255) on 32x18 copies above which a frame is encoded."""
+    max_gap_s: float = Field(1.0, gt=0)
+    """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows."""
+
+
 class StoreConfig(_Section):
     dir: str = "merlion-store"
     disk_budget_mb: float = Field(2048.0, gt=0)
@@ -126,6 +139,7 @@ class Config(_Section):
     queries: QueryConfig = Field(default_factory=QueryConfig)
     sampler: SamplerConfig = Field(default_factory=SamplerConfig)
     enhance: EnhanceConfig = Field(default_factory=EnhanceConfig)
+    gate: GateConfig = Field(default_factory=GateConfig)
     mavlink: MavlinkConfig = Field(default_factory=MavlinkConfig)
     telemetry: TelemetryConfig = Field(default_factory=TelemetryConfig)
     surface: SurfaceConfig = Field(default_factory=SurfaceConfig)

@@ -4,7 +4,12 @@ The companion runs in this process exactly as ``merlion run`` does (capture, inf
 fed by the generated dive at a higher frame rate than a camera would give, against the simulated ArduSub on a
 UDP hub. A ground-station socket on the hub receives what the surface would. Reported:
 
-- frames/s actually scored, and frames dropped at the input because inference was busy;
+- frames/s actually scored (by the encoder; frames the gate skipped are counted apart), and frames dropped at
+  the input because inference was busy;
+- the encoder's own rate during the run (frames encoded over the seconds spent inside the encoder, the figure
+  ``bench pipeline`` reports as ``encoder_fps``): ``scored_vs_encoder`` = scored frames/s over it, how much of
+  the encoder's rate the live loop keeps (target >= 0.8 with ``--gate none`` and a camera faster than the
+  encoder), measured in the same window under the same machine load;
 - peak RSS and RSS growth from the end of the first minute (warm-up: model, caches, allocator) to the end
   (target: at most 5%); with runs of a minute or less the first quarter counts as warm-up;
 - latency from capture (the frame's wall-clock time, which CAMERA_IMAGE_CAPTURED carries as time_utc) to
@@ -39,8 +44,14 @@ class SoakResult:
     source_fps: float
     frames_seen: int = 0
     frames_scored: int = 0
+    frames_skipped: int = 0
     frames_dropped: int = 0
     scored_fps: float = 0.0
+    encoder_fps: float = 0.0
+    scored_vs_encoder: float | None = None
+    gate: str = ""
+    stage_ms: dict = field(default_factory=dict)
+    """Milliseconds per item of each pipeline stage during the run (where the inference thread's time went)."""
     summary_added: int = 0
     captures_received: int = 0
     rss_start_mb: float = 0.0
@@ -93,8 +104,19 @@ class _Surface:
         self.sock.close()
 
 
+def encoder_rate(companion: LiveCompanion) -> float:
+    """Frames/s of the encoder itself during the run: frames encoded over the seconds spent inside the encoder.
+
+    Taken from the pipeline's stage clock in the same window as the scored rate, so both see the same machine
+    load (a separate encoder-only pass before or after the run would not, on a shared machine).
+    """
+    clock = companion.pipeline.clock
+    seconds = clock.seconds.get("encode", 0.0)
+    return clock.items.get("encode", 0) / seconds if seconds > 0 else 0.0
+
+
 def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_dir: str | None = None,
-             progress=None) -> SoakResult:
+             progress=None, gate: str | None = None) -> SoakResult:
     from vehicle.sim.vehicle import SimVehicle
 
     duration = minutes * 60.0
@@ -107,8 +129,11 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
     if store_dir is None:
         tmp = tempfile.TemporaryDirectory(prefix="merlion-soak-")
         store_dir = tmp.name
+    uri = "synthetic://dive?seconds=4"
+    sections = {"gate": {"mode": gate}} if gate else {}
     cfg = build_config({
-        "source": {"uri": "synthetic://dive?seconds=4", "fps": fps, "realtime": True},
+        **sections,
+        "source": {"uri": uri, "fps": fps, "realtime": True},
         "encoder": {"name": encoder},
         "queries": {"tau_ss": 0.3},
         "mavlink": {"connection": hub.url},
@@ -117,7 +142,8 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
         "health": {"stall_after_s": 120.0},
     }, origin="soak")
     proc = psutil.Process()
-    result = SoakResult(minutes=minutes, encoder=encoder, source_fps=fps, warmup_s=round(warmup, 1))
+    result = SoakResult(minutes=minutes, encoder=encoder, source_fps=fps, warmup_s=round(warmup, 1),
+                        gate=cfg.gate.mode)
     result.rss_start_mb = proc.memory_info().rss / 2**20
     companion = LiveCompanion(cfg, LiveOptions())
     try:
@@ -144,6 +170,8 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
         result.rss_after_warmup_mb = after_warmup or end_rss
         companion.drain(10.0)
         time.sleep(0.5)
+        result.encoder_fps = round(encoder_rate(companion), 2)
+        result.stage_ms = {k: round(v, 2) for k, v in companion.pipeline.clock.ms_per_item().items()}
     finally:
         companion.stop()
         sim.stop()
@@ -154,10 +182,13 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
     report = companion.report()
     result.frames_seen = report["frames_seen"]
     result.frames_scored = report["frames_scored"]
+    result.frames_skipped = companion.counters.frames_skipped
     result.frames_dropped = report["frames_dropped"]
     result.summary_added = report["summary_added"]
     result.inference_errors = report["inference_errors"]
     result.scored_fps = round(report["frames_scored"] / duration, 2)
+    if result.encoder_fps:
+        result.scored_vs_encoder = round(result.scored_fps / result.encoder_fps, 3)
     result.captures_received = len(surface.latencies)
     result.rss_growth_pct = round(100.0 * (result.rss_end_mb - result.rss_after_warmup_mb)
                                   / max(result.rss_after_warmup_mb, 1e-6), 2)

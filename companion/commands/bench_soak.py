@@ -15,6 +15,9 @@ def register(add_command) -> None:
     p.add_argument("--fps", type=float, default=15.0, help="frames/s the generated camera delivers (default 15, "
                    "three times the vehicle's 5)")
     p.add_argument("--encoder", default="auto", choices=["auto", "clip", "imagenet", "visual"])
+    p.add_argument("--gate", choices=["none", "difference"],
+                   help="frame gate (default: the configuration's); none to compare with the encoder's rate")
+    p.add_argument("--duration", type=float, metavar="S", help="length of the run in seconds (instead of --minutes)")
     p.add_argument("--json", action="store_true", help="last line: one JSON object with every figure")
     p.set_defaults(func=run)
 
@@ -24,6 +27,9 @@ def run(args: argparse.Namespace) -> int:
     from companion.commands.arg_checks import require_positive
 
     require_positive("--minutes", args.minutes)
+    if args.duration is not None:
+        require_positive("--duration", args.duration)
+        args.minutes = args.duration / 60.0
     require_positive("--fps", args.fps)
     last = [-1]
 
@@ -32,11 +38,15 @@ def run(args: argparse.Namespace) -> int:
             last[0] = int(elapsed) // 30
             print(f"soak {elapsed:5.0f}/{total:.0f} s: {status}", file=sys.stderr, flush=True)
 
-    result = run_soak(args.minutes, encoder=args.encoder, fps=args.fps, progress=progress)
+    result = run_soak(args.minutes, encoder=args.encoder, fps=args.fps, progress=progress, gate=args.gate)
     d = summary_dict(result)
     print(f"encoder           {d['encoder']}, generated camera at {d['source_fps']:g} fps, {d['minutes']:g} min")
     print(f"frames            seen {d['frames_seen']}, scored {d['frames_scored']} ({d['scored_fps']} /s), "
-          f"dropped at the input {d['frames_dropped']}")
+          f"skipped by the gate ({d['gate']}) {d['frames_skipped']}, dropped at the input {d['frames_dropped']}")
+    ratio = "-" if d["scored_vs_encoder"] is None else f"{d['scored_vs_encoder']:.2f}"
+    print(f"encoder           {d['encoder_fps']} frames/s inside the encoder during the run: scored/s is {ratio} x "
+          "that")
+    print("stages            " + ", ".join(f"{k} {v:g}" for k, v in d["stage_ms"].items()) + " ms/frame")
     print(f"summary           {d['summary_added']} frames added; {d['captures_received']} captures at the surface")
     print(f"memory            peak RSS {d['peak_rss_mb']} MB; {d['rss_after_warmup_mb']} MB after {d['warmup_s']:g} s "
           f"warm-up -> {d['rss_end_mb']} MB at the end: growth {d['rss_growth_pct']}% (target <= 5%)")

@@ -1,7 +1,10 @@
 """MERLION against the ROST-style visual baseline on one labelled video, in one call.
 
 Both runs go through the very same ``companion.vision.summarize.summarize`` (same source, subsampling, sampler, K);
-only the encoder differs: the configured one (MERLION) or ``visual`` (no semantic filter). Each summary is then
+only the encoder differs: the configured one (MERLION) or ``visual`` (no semantic filter). When the frame gate is
+on (``gate:``), MERLION also runs with it off on the same video ("MERLION ungated"), and ``gate`` in the result
+says what skipping frames cost: each gated summary's SRUM with the ungated one as the reference and the reverse,
+and the difference of their SRUM against the oracle, precision and coverage. Each summary is then
 scored against the video's per-frame labels (labels_eval: precision, coverage, SRUM vs the oracle, with one
 shared oracle of size ``sampler.k``). MERLION's per-frame scores (a second, full-rate pass) give its AUROC and
 the score-over-time plot of the report.
@@ -24,10 +27,13 @@ from companion.evaluation.labels_eval import default_query, evaluate_labels, is_
 from companion.evaluation.report import write_report
 from companion.evaluation.runs import run_from_summary
 from companion.evaluation.srum import SrumParams
+from companion.evaluation.srum import score as srum_score
 from companion.vision.encoders.base import Encoder
 
 MERLION = "MERLION"
+UNGATED = "MERLION ungated"
 BASELINE = "visual baseline"
+FOLDERS = {MERLION: "merlion", UNGATED: "merlion-ungated", BASELINE: "visual"}
 
 
 def _with(cfg: Config, **sections: dict) -> Config:
@@ -73,7 +79,10 @@ def compare(
         table.fps = _video_fps(video)
     query = query or default_query(table)
     base = _with(cfg, source={"uri": str(video)})
-    plans = [(MERLION, base), (BASELINE, _with(base, encoder={"name": "visual"}))]
+    plans = [(MERLION, base)]
+    if cfg.gate.mode != "none":
+        plans.append((UNGATED, _with(base, gate={"mode": "none"})))
+    plans.append((BASELINE, _with(base, encoder={"name": "visual"})))
     from companion.vision.summarize import summarize
 
     result: dict = {"video": str(video), "labels": str(labels), "query": query, "k": cfg.sampler.k,
@@ -87,10 +96,12 @@ def compare(
             raise MerlionError(f"--out {root}: cannot create the folder ({err.strerror or err})") from None
         for name, run_cfg in plans:
             encoder = encoder_factory(run_cfg)
-            where = root / ("merlion" if name == MERLION else "visual")
+            where = root / FOLDERS[name]
             summarize(run_cfg, where, force=True, encoder=encoder)  # progress bar on a terminal
             frames, document = read_summary_json(where)
-            metrics = {"encoder": encoder.name, **_metrics(table, frames, query, cfg.sampler.k)}
+            stats = document.get("params", {}).get("stats", {})
+            metrics = {"encoder": encoder.name, "frames_encoded": stats.get("frames_encoded"),
+                       "frames_seen": stats.get("frames_seen"), **_metrics(table, frames, query, cfg.sampler.k)}
             report = run_from_summary(name, document, where, {})
             if scores and name == MERLION:
                 vs = score_video(video, encoder, run_cfg.queries, run_cfg.encoder.batch)
@@ -104,9 +115,37 @@ def compare(
             report.metrics = metrics
             result["runs"][name] = metrics
             report_runs.append(report)
+    if UNGATED in result["runs"]:
+        result["gate"] = gate_effect(table, result["runs"][MERLION], result["runs"][UNGATED], query, cfg)
     if report_dir:
         write_report(report_dir, report_runs, title=f"MERLION vs visual baseline: {video.name}")
     return result
+
+
+def gate_effect(table: LabelTable, gated: dict, ungated: dict, query: str | None, cfg: Config) -> dict:
+    """What the gate cost on this video: the two summaries' SRUM against each other and their metric deltas."""
+    labels = table.labels
+    if query:  # as labels_eval does: only the query label earns credit
+        labels = {f: names & {query} for f, names in labels.items()}
+    params = SrumParams(fps=table.fps or 30.0)
+    a, b = gated["frames"], ungated["frames"]
+    both = bool(a) and bool(b)
+
+    def delta(key: str) -> float | None:
+        x, y = gated.get(key), ungated.get(key)
+        return None if x is None or y is None else round(x - y, 6)
+
+    return {"gate": cfg.gate.model_dump(),
+            "srum_gated_vs_ungated": srum_score(a, b, labels, params) if both else None,
+            "srum_ungated_vs_gated": srum_score(b, a, labels, params) if both else None,
+            "srum_oracle_delta": delta("srum_oracle"), "precision_delta": delta("precision"),
+            "coverage_delta": delta("coverage"),
+            "encoded_share": (gated["frames_encoded"] / gated["frames_seen"]
+                              if gated.get("frames_encoded") is not None and gated.get("frames_seen") else None)}
+
+
+def _num(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
 
 
 def format_compare(result: dict) -> str:
@@ -117,4 +156,12 @@ def format_compare(result: dict) -> str:
         extra = f"  AUROC {m['auroc']:.3f}" if "auroc" in m else ""
         lines.append(f"{name:<16} ({m['encoder']}): precision {prec}  coverage {m['coverage']:.3f}  "
                      f"SRUM vs oracle {m['srum_oracle']:.4f}  frames {m['frames']}{extra}")
+    g = result.get("gate")
+    if g:
+        lines.append(f"gate (difference > {g['gate']['threshold']:g}, max gap {g['gate']['max_gap_s']:g} s): "
+                     f"{_num(g['encoded_share'], '.2f')} of frames encoded; SRUM gated vs ungated "
+                     f"{_num(g['srum_gated_vs_ungated'], '.4f')}, ungated vs gated "
+                     f"{_num(g['srum_ungated_vs_gated'], '.4f')}; change vs oracle "
+                     f"{_num(g['srum_oracle_delta'], '+.4f')}, precision {_num(g['precision_delta'], '+.3f')}, "
+                     f"coverage {_num(g['coverage_delta'], '+.3f')}")
     return "\n".join(lines)

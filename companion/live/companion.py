@@ -124,6 +124,7 @@ class LiveCompanion:
             data = cfg.model_dump()
             data["enhance"]["mode"] = "none"
             data["queries"]["tau_ss"] = cfg.enhance.tau_ses
+            data["gate"]["mode"] = "none"  # candidates arrive sparse and already chosen: never skip one
             self.pipeline = Pipeline.from_config(build_config(data, origin="enhance"), self.encoder,
                                                  first_image_index=resume.next_image_index)
             self.keeper = self._make_keeper()
@@ -233,7 +234,9 @@ class LiveCompanion:
         """A MERL_* change from the surface, applied by the keeper between two batches (ValueError refuses it)."""
         if name == "MERL_ENHANCE":
             self._check_enhance(bool(value))
-        if name in ("MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_ENHANCE"):
+        if name == "MERL_GATE" and self.selective is not None:
+            self._refuse(name, "the frame gate does not run with enhance.mode selective")
+        if name in ("MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_ENHANCE", "MERL_GATE"):
             self.keeper.change(lambda: self._tune(name, value))
             log.info("parameter %s set to %g", name, value)
 
@@ -253,6 +256,9 @@ class LiveCompanion:
                 self.pipeline.tau_ss = value  # the gate on enhanced frames
         elif name == "MERL_K":
             return self.pipeline.set_k(int(value))
+        elif name == "MERL_GATE":  # 0: off; otherwise the difference threshold in grey levels
+            self.pipeline.gate.mode = "difference" if value > 0 else "none"
+            self.pipeline.gate.threshold = max(0.0, float(value))
         elif name == "MERL_ENHANCE":
             if sel is not None:
                 sel.on = bool(value)
@@ -260,6 +266,14 @@ class LiveCompanion:
             else:  # enhance.mode always: every frame enhanced, or none
                 self.pipeline.enhance_mode = "always" if value else "none"
         return []
+
+    def _refuse(self, name: str, why: str) -> None:
+        """Say on the surface why a parameter change is refused, then refuse it (the value stays as it was)."""
+        if self.surface is not None:
+            from vehicle.camera import status as st
+
+            self.surface.event(f"{name} refused: {why}"[:50], st.WARNING)
+        raise ValueError(why)
 
     def _check_enhance(self, on: bool) -> None:
         """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and

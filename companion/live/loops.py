@@ -30,6 +30,9 @@ class LiveCounters:
 
     frames_seen: int = 0
     frames_scored: int = 0
+    """Frames the encoder scored (the frame gate let them through)."""
+    frames_skipped: int = 0
+    """Frames the frame gate skipped as near-duplicates of the last encoded one (seen, never scored)."""
     frames_passed: int = 0
     frames_enhanced: int = 0
     summary_added: int = 0
@@ -121,6 +124,9 @@ class InferenceLoop(threading.Thread):
         now = time.monotonic()
         c = self.counters
         for result in outcome.results:
+            if not result.encoded:
+                c.frames_skipped += 1
+                continue
             c.frames_scored += 1
             c.frames_passed += int(result.passed)
             c.frames_enhanced += int(result.enhanced)

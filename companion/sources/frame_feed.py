@@ -4,6 +4,12 @@ OpenCV decodes and resizes with the GIL released, so on a small machine this ove
 encoder's matrix work instead of adding to it. The consumer takes batches: it waits for one frame, then takes
 whatever else is already queued, up to the batch size, so latency stays bounded and throughput grows under load.
 An error in the source (e.g. a video with nothing decodable) is raised in the consumer.
+
+With a frame gate (``companion.vision.gate.FrameGate``, the pipeline's own), the decode thread also decides which
+frames are worth encoding: a skipped frame comes out as ``(frame, None)`` and does not count toward the batch
+size, so the encoder still gets full batches when the gate skips most frames (batches of mostly skipped frames
+would leave it running at batch 1-2, far below its batched rate). The consumer hands such batches to
+``Pipeline.process(..., gated=True)``.
 """
 
 from __future__ import annotations
@@ -25,9 +31,11 @@ class FrameFeed:
     """Iterate ``batches(n)`` to get lists of (frame, prepared image) from ``source`` decoded in the background."""
 
     def __init__(self, source: FrameSource, prepare: Callable[[np.ndarray], np.ndarray] | None = None, *,
-                 depth: int = 32, limit: int | None = None) -> None:
+                 depth: int = 32, limit: int | None = None, gate=None) -> None:
         self.source = source
         self.prepare = prepare
+        self.gate = gate
+        """Only the decode thread calls it while the feed runs."""
         self.limit = limit
         self.decode_seconds = 0.0
         self.decoded = 0
@@ -50,6 +58,8 @@ class FrameFeed:
             start = time.perf_counter()
             for frame in self.source:
                 small = self.prepare(frame.image) if self.prepare is not None else frame.image
+                if self.gate is not None and not self.gate.admit(small, frame.time_s):
+                    small = None
                 self.decode_seconds += time.perf_counter() - start
                 self.decoded += 1
                 if not self._put((frame, small)) or (self.limit is not None and self.decoded >= self.limit):
@@ -59,14 +69,20 @@ class FrameFeed:
         except BaseException as err:  # handed to the consumer, which raises it
             self._put(err)
 
-    def batches(self, size: int) -> Iterator[list[tuple[Frame, np.ndarray]]]:
+    @property
+    def gated(self) -> bool:
+        return self.gate is not None
+
+    def batches(self, size: int) -> Iterator[list[tuple[Frame, np.ndarray | None]]]:
+        """Lists of (frame, prepared image), at most ``size`` of them to encode (gated-out ones ride along)."""
         if not self._started:
             self._thread.start()
             self._started = True
         done = False
         while not done:
             item = self._queue.get()
-            batch: list[tuple[Frame, np.ndarray]] = []
+            batch: list[tuple[Frame, np.ndarray | None]] = []
+            to_encode = 0
             while True:
                 if item is _END:
                     done = True
@@ -74,7 +90,8 @@ class FrameFeed:
                 if isinstance(item, BaseException):
                     raise item
                 batch.append(item)
-                if len(batch) >= size:
+                to_encode += item[1] is not None
+                if to_encode >= size or len(batch) >= size * 16:  # bounded even when the gate skips everything
                     break
                 try:
                     item = self._queue.get_nowait()

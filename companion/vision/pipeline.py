@@ -12,6 +12,10 @@ Enhancement (REFERENCE.md step 8, MERLION-E), by ``enhance.mode``:
   again; such a frame goes on only if ``ss_e > tau_ses``, and the sampler gets the enhanced embedding;
 - ``always``: every frame is enhanced before it is encoded, and ``ss_t`` of the enhanced frame is tested against
   ``tau_ss`` (the "enhance everything" baseline that selective enhancement is measured against).
+
+Before all of that, the frame gate (``companion.vision.gate``, config ``gate:``) lets through only the frames
+that differ from the last encoded one; a skipped frame gets a result with ``encoded=False`` (counted as seen,
+never scored, never offered to the sampler).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from companion.vision import distances as dist
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
+from companion.vision.gate import FrameGate
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
 from vehicle.autopilot.pose import Pose
@@ -57,6 +62,8 @@ class FrameResult:
     added: bool = False
     """It entered the summary."""
     image_index: int | None = None
+    encoded: bool = True
+    """False: the frame gate skipped it (score is NaN, it passed nothing)."""
 
 
 @dataclass
@@ -107,7 +114,7 @@ class Pipeline:
 
     def __init__(self, encoder: Encoder, presampler: PreSampler, sampler: InformativeSampler, *,
                  enhancer: Enhancer | None = None, enhance_mode: str = "none", tau_ses: float = 0.7,
-                 first_image_index: int = 0) -> None:
+                 first_image_index: int = 0, gate: FrameGate | None = None) -> None:
         if enhance_mode not in ENHANCE_MODES:
             raise UsageError(f"enhance.mode: {enhance_mode!r} is not one of {', '.join(ENHANCE_MODES)}")
         if enhance_mode != "none" and enhancer is None:
@@ -121,7 +128,8 @@ class Pipeline:
         self.next_image_index = int(first_image_index)
         self.encode_size = encoder.input_size
         self.clock = StageClock()
-        self.counts = {"frames": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0}
+        self.gate = gate if gate is not None else FrameGate("none")
+        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0}
         self._held: dict[int, SummaryFrame] = {}
 
     @classmethod
@@ -134,8 +142,9 @@ class Pipeline:
             from companion.vision.enhancers.factory import make_enhancer
 
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
+        gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
         return cls(encoder, presampler, sampler, enhancer=enhancer, enhance_mode=cfg.enhance.mode,
-                   tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index)
+                   tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate)
 
     # ----- live tuning --------------------------------------------------------------------------------------
 
@@ -193,12 +202,48 @@ class Pipeline:
         with self.clock.stage(stage, len(small)):
             return self.encoder.encode_images(list(small))
 
-    def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None = None,
-                poses: Sequence[Pose | None] | None = None) -> BatchOutcome:
-        """Run one batch through every stage; returns per-frame results and the summary events, in frame order."""
+    def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray | None] | None = None,
+                poses: Sequence[Pose | None] | None = None, *, gated: bool = False) -> BatchOutcome:
+        """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
+
+        The gate goes first: only the frames it admits are encoded; the others get ``encoded=False`` results.
+        ``gated``: the caller already ran this pipeline's gate (``FrameFeed(gate=pipeline.gate)`` in its decode
+        thread) and ``prepared[i] is None`` marks the frames it skipped.
+        """
         n = len(frames)
         if n == 0:
             return BatchOutcome([], [])
+        self.counts["frames"] += n
+        if not self.gate.on:
+            self.gate.seen += n
+            self.gate.encoded += n
+            return self._process_encoded(frames, prepared, poses)
+        if gated:
+            if prepared is None:
+                raise ValueError("gated=True needs the prepared images (None marks a skipped frame)")
+            keep = np.array([p is not None for p in prepared], dtype=bool)
+        else:
+            with self.clock.stage("gate", n):
+                views = prepared if prepared is not None else [f.image for f in frames]
+                keep = self.gate.admit_batch(list(views), [f.time_s for f in frames])
+        go = np.flatnonzero(keep)
+        self.counts["skipped"] += n - len(go)
+        if len(go) == n:
+            return self._process_encoded(frames, prepared, poses)
+        results = [FrameResult(f.index, f.time_s, float("nan"), False, encoded=False) for f in frames]
+        if len(go) == 0:
+            return BatchOutcome(results, [])
+        outcome = self._process_encoded([frames[i] for i in go],
+                                        None if prepared is None else [prepared[i] for i in go],
+                                        None if poses is None else [poses[i] for i in go])
+        for i, result in zip(go, outcome.results, strict=True):
+            results[i] = result
+        return BatchOutcome(results, outcome.events)
+
+    def _process_encoded(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None,
+                         poses: Sequence[Pose | None] | None) -> BatchOutcome:
+        """Every stage after the gate, for the frames it let through."""
+        n = len(frames)
         images = [f.image for f in frames]
         if self.enhance_mode == "always":
             with self.clock.stage("enhance", n):
@@ -213,7 +258,7 @@ class Pipeline:
             passed = self.presampler.passes(scores)
         results = [FrameResult(f.index, f.time_s, float(s), bool(p), enhanced=self.enhance_mode == "always")
                    for f, s, p in zip(frames, scores, passed, strict=True)]
-        self.counts["frames"] += n
+        self.counts["encoded"] += n
         self.counts["passed"] += int(passed.sum())
 
         go = np.flatnonzero(passed)

@@ -94,6 +94,7 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
             "fps": cfg.source.fps,
             "enhance": cfg.enhance.mode,
             "tau_ses": pipeline.tau_ses if cfg.enhance.mode == "selective" else None,
+            "gate": cfg.gate.model_dump(),
             "encoder": encoder.describe(),
             "stats": stats,
         },
@@ -170,9 +171,11 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
     pipeline = Pipeline.from_config(cfg, encoder)
     pipeline.presampler = with_marks(pipeline.presampler, like_images, unlike_images)
     seen = passed = 0
-    with FrameFeed(source, pipeline.prepare) as feed, _progress(expected_frames(source), progress) as bar:
+    gate = pipeline.gate if pipeline.gate.on else None  # gated in the decode thread: full batches to encode
+    with FrameFeed(source, pipeline.prepare, gate=gate) as feed, \
+            _progress(expected_frames(source), progress) as bar:
         for batch in feed.batches(cfg.encoder.batch):
-            out = pipeline.process([f for f, _ in batch], [s for _, s in batch])
+            out = pipeline.process([f for f, _ in batch], [s for _, s in batch], gated=feed.gated)
             seen += len(batch)
             passed += sum(r.passed for r in out.results)
             if on_results is not None:
@@ -184,7 +187,8 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
         log.warning("%s: %d frames could not be decoded and were skipped", cfg.source.uri, lost)
     frames = pipeline.summary
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
-             "frames_added": pipeline.counts["added"]}
+             "frames_added": pipeline.counts["added"], "frames_encoded": pipeline.counts["encoded"],
+             "frames_skipped": pipeline.counts["skipped"]}
     document = build_document(cfg, encoder, pipeline, frames, stats)
     if like or unlike:
         document["params"]["marks"] = {"like": [str(p) for p in like], "unlike": [str(p) for p in unlike]}

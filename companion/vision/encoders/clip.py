@@ -77,11 +77,20 @@ class OnnxImageTower:
     seconds at start-up and the session holds its own copy of the tower's weights (~350 MB for ViT-B-32).
     """
 
-    def __init__(self, visual: torch.nn.Module, size: tuple[int, int], threads: int) -> None:
+    def __init__(self, visual: torch.nn.Module, size: tuple[int, int], threads: int,
+                 providers: Sequence[str] = ()) -> None:
         import io
         import warnings
 
         import onnxruntime as ort
+
+        providers = list(providers) or ["CPUExecutionProvider"]
+        available = ort.get_available_providers()
+        missing = [p for p in providers if p not in available]
+        if missing:  # checked before the export: a vehicle without CUDA learns it in one line, at once
+            raise UsageError(f"encoder.providers: {missing[0]} is not in this onnxruntime build "
+                             f"(available: {', '.join(available)})")
+        self.providers = providers
 
         buf = io.BytesIO()
         with warnings.catch_warnings():
@@ -95,7 +104,7 @@ class OnnxImageTower:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         # idle ORT workers otherwise spin, taking the two cores from the decode thread and torch's text tower
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self._session = ort.InferenceSession(buf.getvalue(), opts, providers=["CPUExecutionProvider"])
+        self._session = ort.InferenceSession(buf.getvalue(), opts, providers=providers)
 
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
         out = self._session.run(None, {"image": batch.contiguous().numpy()})[0]
@@ -180,7 +189,10 @@ class ClipEncoder(Encoder):
             if self._device.type != "cpu" or self._dtype != torch.float32 or self._int8:
                 raise UsageError(f"encoder.runtime onnx runs fp32 on the CPU only (precision {self.precision}, "
                                  f"device {self._device}): use precision fp32 or runtime torch")
-            self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads())
+            self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads(),
+                                        cfg.providers)
+        elif cfg.providers:
+            raise UsageError("encoder.providers: set only with encoder.runtime onnx")
         self._tokenizer = open_clip.get_tokenizer(cfg.model)
         self._batch = cfg.batch
         log.info("CLIP %s loaded from %s (%s) on %s, %s", cfg.model, self._weights.path, self._weights.source,
@@ -296,4 +308,5 @@ class ClipEncoder(Encoder):
         return {"name": self.name, "model": self._cfg.model, "weights": str(self._weights.path),
                 "weights_source": self._weights.source, "precision": self.precision,
                 "runtime": "onnx" if self._onnx is not None else "torch",
+                **({"providers": self._onnx.providers} if self._onnx is not None else {}),
                 "device": str(self._device), "input_size": list(self.input_size)}

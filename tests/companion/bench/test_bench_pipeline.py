@@ -27,7 +27,7 @@ def test_bench_pipeline_json_last_line():
     assert result["speedup_vs_paper_loop"] == pytest.approx(result["end_to_end_fps"] / result["paper_loop_fps"],
                                                             rel=0.01)
     assert "x the paper's loop" in proc.stdout
-    assert set(result["cpu_ms_per_frame"]) == {"end_to_end", "encoder", "paper_loop"}
+    assert set(result["cpu_ms_per_frame"]) == {"end_to_end", "video", "encoder", "paper_loop"}
     assert all(v > 0 for v in result["cpu_ms_per_frame"].values()) and result["cpu_speedup_vs_paper_loop"] > 0
 
 
@@ -60,3 +60,23 @@ def test_bench_pipeline_bad_source_is_one_line(tmp_path):
     proc = run_merlion("bench", "pipeline", str(tmp_path / "nope.mp4"), "--encoder", "visual")
     assert proc.returncode != 0
     assert proc.stderr.strip().splitlines()[-1].startswith("merlion: error:")
+
+
+def test_bench_pipeline_reports_the_video_rate_and_the_gate():
+    """video_fps counts every source frame (skipped ones included), encoder_calls the frames encoded; gate none
+    encodes all of them; memory at load and at the end are reported."""
+    video = str(shared_file("survey/survey_480x270.mp4"))
+    results = {}
+    for gate in ("difference", "none"):
+        proc = run_merlion("bench", "pipeline", video, "--encoder", "visual", "--frames", "40", "--batch", "4",
+                           "--paper-frames", "4", "--gate", gate, "--json")
+        assert proc.returncode == 0, proc.stderr
+        results[gate] = json.loads(proc.stdout.strip().splitlines()[-1])
+    gated, ungated = results["difference"], results["none"]
+    for r in (gated, ungated):
+        assert r["frames"] == 40 and r["video_fps"] > 0 and r["end_to_end_fps"] > 0 and r["encoder_fps"] > 0
+        assert r["peak_rss_mb"] >= r["load_peak_rss_mb"] > 0 and r["steady_rss_mb"] > 0
+        assert r["video_speedup_vs_paper_loop"] == pytest.approx(r["video_fps"] / r["paper_loop_fps"], rel=0.01)
+    assert gated["gate"]["mode"] == "difference" and 0 < gated["encoder_calls"] < 40
+    assert ungated["gate"]["mode"] == "none" and ungated["encoder_calls"] == 40
+    assert ungated["video_fps"] == pytest.approx(ungated["end_to_end_fps"], rel=0.01)

@@ -17,3 +17,16 @@ def test_soak_reports_fps_drops_memory_and_latency_as_json() -> None:
     assert result["frames_seen"] >= result["frames_scored"] > 0
     assert result["captures_received"] > 0 and 0 < result["latency_p50_s"] <= result["latency_p95_s"]
     assert result["peak_rss_mb"] >= result["rss_end_mb"] > 0
+    assert result["gate"] == "difference"  # the configuration's default
+    assert result["frames_seen"] >= result["frames_scored"] + result["frames_skipped"]
+    assert result["encoder_fps"] > 0
+    assert abs(result["scored_vs_encoder"] - result["scored_fps"] / result["encoder_fps"]) < 0.01
+
+
+def test_soak_without_the_gate_scores_every_frame_it_takes() -> None:
+    done = run_merlion("bench", "soak", "--duration", "10", "--fps", "8", "--encoder", "visual", "--gate", "none",
+                       "--json", timeout=180)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["gate"] == "none" and result["frames_skipped"] == 0 and result["frames_scored"] > 0
+    assert "x that" in done.stdout

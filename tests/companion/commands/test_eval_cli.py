@@ -128,6 +128,32 @@ def test_compare_merlion_and_the_visual_baseline_on_the_survey(tmp_path):
     assert (tmp_path / "rep" / "visual_baseline_contact_sheet.png").is_file()
 
 
+@pytest.mark.slow
+def test_compare_shows_the_gated_summary_against_the_ungated_one(tmp_path):
+    """With the frame gate on, MERLION also runs ungated on the same video and the gate's cost is reported."""
+    video = shared_file("survey/survey_480x270.mp4")
+    csv = shared_file("survey/survey_480x270_labels.csv")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("source:\n  fps: 5\nencoder:\n  input_size: 224\ngate:\n  mode: difference\n"
+                   "  threshold: 6\n  max_gap_s: 1.0\n")
+    r = run_merlion("eval", "compare", str(video), "--labels", str(csv), "--encoder", "imagenet", "--config",
+                    str(cfg), "--no-scores", "--json", "--out", str(tmp_path / "runs"))
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.splitlines()[0])
+    gated, ungated = out["runs"]["MERLION"], out["runs"]["MERLION ungated"]
+    assert ungated["frames_encoded"] == ungated["frames_seen"] == gated["frames_seen"]
+    assert 0 < gated["frames_encoded"] < gated["frames_seen"]
+    g = out["gate"]
+    assert g["gate"] == {"mode": "difference", "threshold": 6.0, "max_gap_s": 1.0}
+    assert g["encoded_share"] == pytest.approx(gated["frames_encoded"] / gated["frames_seen"])
+    assert 0.0 <= g["srum_gated_vs_ungated"] <= 1.0 and 0.0 <= g["srum_ungated_vs_gated"] <= 1.0
+    assert g["precision_delta"] == pytest.approx(gated["precision"] - ungated["precision"], abs=1e-6)
+    assert (tmp_path / "runs" / "merlion-ungated" / "summary.json").is_file()
+    from companion.evaluation.compare import format_compare
+
+    assert "SRUM gated vs ungated" in format_compare(out)  # what the command prints without --json
+
+
 def test_table_reports_a_value_that_does_not_match(tmp_path):
     data = json.loads(shared_file("srum/powellscay_low.json").read_text())
     data["paper_table"]["ROST"] = 0.1111  # ours is 0.110907

@@ -166,6 +166,23 @@ def test_onnx_runtime_gives_the_fp32_embeddings(small_ckpt, small_fp32, images):
         ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="bf16", runtime="onnx"))
 
 
+def test_onnx_providers_are_chosen_and_a_missing_one_is_a_one_line_error(small_ckpt, small_fp32, images):
+    """The Orin's TensorRT/CUDA providers are named in the config; on this CPU-only build asking for CUDA must
+    fail in one line naming the key, and the CPU provider named explicitly gives the fp32 embeddings."""
+    cpu = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32",
+                                    runtime="onnx", providers=["CPUExecutionProvider"], batch=3))
+    assert cpu.describe()["providers"] == ["CPUExecutionProvider"]
+    np.testing.assert_allclose(cpu.encode_images(images[:2]), small_fp32.encode_images(images[:2]), atol=1e-4)
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" not in ort.get_available_providers():
+        with pytest.raises(MerlionError, match="encoder.providers: CUDAExecutionProvider is not in"):
+            ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32",
+                                      runtime="onnx", providers=["CUDAExecutionProvider", "CPUExecutionProvider"]))
+    with pytest.raises(MerlionError, match="only with encoder.runtime onnx"):
+        ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, providers=["CPUExecutionProvider"]))
+
+
 def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_fp32, images):
     """Trainer checkpoints ({"state_dict": ...}, "module." prefixes) and pre-zip torch files load like plain ones."""
     state = small_fp32._model.state_dict()

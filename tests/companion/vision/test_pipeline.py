@@ -24,8 +24,10 @@ def frames():
     return list(VideoSource(shared_file("survey/survey_480x270.mp4"), fps=2))  # 19 frames over both fish segments
 
 
-def make(encoder, k=3, tau=0.25, first=0, **enhance):
-    cfg = Config.model_validate({"sampler": {"k": k}, "queries": {"tau_ss": tau}, "enhance": enhance})
+def make(encoder, k=3, tau=0.25, first=0, gate="none", **enhance):
+    """Ungated by default: these tests are about the stages after the frame gate (tests/.../test_gate.py)."""
+    cfg = Config.model_validate({"sampler": {"k": k}, "queries": {"tau_ss": tau}, "enhance": enhance,
+                                 "gate": {"mode": gate}})
     return Pipeline.from_config(cfg, encoder, first_image_index=first)
 
 
@@ -149,3 +151,39 @@ def test_always_enhances_every_frame(encoder, frames):
     out = pipe.process(frames[:2])
     assert all(r.enhanced for r in out.results)
     assert pipe.clock.items["enhance"] == 2
+
+
+def test_the_default_gate_skips_frames_of_the_survey_but_keeps_both_fish_segments(encoder):
+    """At the native 10 frames/s the gate skips near-duplicates; the summary still holds frames of both fish
+    segments (frames 11-40 and 52-81) and none of the no-fish ones."""
+    frames = list(VideoSource(shared_file("survey/survey_480x270.mp4"), fps=10))
+    pipe = make(encoder, k=4, tau=0.25, gate="difference")
+    results, _ = run(pipe, frames)
+    skipped = sum(not r.encoded for r in results)
+    assert 0 < skipped < len(frames) and pipe.counts["skipped"] == skipped
+    assert pipe.counts["frames"] == len(frames) == len(results)
+    held = sorted(f.frame_index for f in pipe.summary)
+    assert any(11 <= i <= 40 for i in held) and any(52 <= i <= 81 for i in held)
+
+
+def test_gating_in_the_decode_thread_fills_batches_and_gives_the_same_summary(encoder):
+    """FrameFeed(gate=...) decides in the decode thread: skipped frames ride along as (frame, None) and only the
+    frames to encode count toward the batch; the results are those of gating inside Pipeline.process."""
+    video = shared_file("survey/survey_480x270.mp4")
+    inline = make(encoder, k=4, gate="difference")
+    expected = []
+    with FrameFeed(VideoSource(video, fps=10), inline.prepare) as feed:
+        for batch in feed.batches(4):
+            expected += inline.process([f for f, _ in batch], [s for _, s in batch]).results
+    fed = make(encoder, k=4, gate="difference")
+    got, sizes = [], []
+    with FrameFeed(VideoSource(video, fps=10), fed.prepare, gate=fed.gate) as feed:
+        assert feed.gated
+        for batch in feed.batches(4):
+            sizes.append(sum(s is not None for _, s in batch))
+            got += fed.process([f for f, _ in batch], [s for _, s in batch], gated=True).results
+    assert [r.frame_index for r in got] == [r.frame_index for r in expected]
+    assert [r.encoded for r in got] == [r.encoded for r in expected]
+    assert [r.added for r in got] == [r.added for r in expected]
+    assert max(sizes) == 4 and fed.counts == inline.counts
+    assert [f.frame_index for f in fed.summary] == [f.frame_index for f in inline.summary]

@@ -39,10 +39,11 @@ def test_list_read_set_and_restart(tmp_path):
     gcs = ground_station(port)
     try:
         gcs.mav.param_request_list_send(1, 100)
-        listed = _values(gcs, 6)
+        listed = _values(gcs, 7)
         assert set(listed) == {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B", "MERL_LINK_BPS",
-                               "MERL_ENHANCE"}
-        assert all(len(name) <= 16 and m.param_count == 6 for name, m in listed.items())
+                               "MERL_GATE", "MERL_ENHANCE"}
+        assert all(len(name) <= 16 and m.param_count == 7 for name, m in listed.items())
+        assert listed["MERL_GATE"].param_value == pytest.approx(cfg.gate.threshold)
         assert listed["MERL_K"].param_value == 6 and listed["MERL_K"].param_type == mav.MAV_PARAM_TYPE_INT32
         assert listed["MERL_TAU_SS"].param_value == pytest.approx(0.5)
 

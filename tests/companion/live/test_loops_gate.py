@@ -1,0 +1,51 @@
+"""The live inference step with the frame gate: skipped frames are counted apart from scored ones, and MERL_GATE
+maps to the gate's settings."""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+
+from companion.config import Config, EncoderConfig, StoreConfig
+from companion.live.health import Health
+from companion.live.loops import InferenceLoop, LiveCounters
+from companion.live.queues import DropOldestQueue
+from companion.live.summary_keeper import SummaryKeeper
+from companion.live.tunables import default_params, gate_param
+from companion.sources.frame import Frame
+from companion.storage.store import Store
+from companion.vision.encoders.visual import VisualEncoder
+from companion.vision.pipeline import Pipeline
+
+
+def _scene(seed: int) -> np.ndarray:
+    coarse = np.random.default_rng(seed).integers(0, 256, (9, 16, 3), dtype=np.uint8)
+    return cv2.resize(coarse, (480, 270), interpolation=cv2.INTER_CUBIC)
+
+
+def test_inference_counts_skipped_frames_apart_from_scored_ones(tmp_path):
+    cfg = Config.model_validate({"queries": {"tau_ss": 0.01},
+                                 "gate": {"mode": "difference", "threshold": 4.0, "max_gap_s": 100.0}})
+    pipeline = Pipeline.from_config(cfg, VisualEncoder(EncoderConfig(name="visual")))
+    counters = LiveCounters()
+    events: list = []
+    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=dict, publish=events.append)
+    loop = InferenceLoop(pipeline, DropOldestQueue(8), Health(10.0), counters, threading.Event(), batch=8,
+                         pose_at=None, keeper=keeper)
+    a, b = _scene(1), _scene(2)
+    frames = [Frame(img, i, i * 0.1, 1000.0 + i * 0.1) for i, img in enumerate([a, a, a, b, b])]
+    loop.step(frames)
+    assert (counters.frames_scored, counters.frames_skipped) == (2, 3)
+    assert len(counters.recent) == 2, "the frames/s figure counts scored frames only"
+    assert events and all(e.frame.frame_index in (0, 3) for e in events if e.kind == "added")
+    pipeline.gate.mode = "none"  # what MERL_GATE 0 does
+    loop.step([Frame(b, 5, 0.5, 1000.5)])
+    assert (counters.frames_scored, counters.frames_skipped) == (3, 3)
+
+
+def test_merl_gate_is_the_threshold_and_zero_means_off():
+    params = {p.name: p for p in default_params(Config())}
+    assert params["MERL_GATE"].value == Config().gate.threshold and not params["MERL_GATE"].integer
+    assert gate_param("none", 8.0) == 0.0 and gate_param("difference", 5.5) == 5.5
