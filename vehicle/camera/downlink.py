@@ -431,9 +431,13 @@ class Downlink:
         self.event(f"Queries set: {positive}"[:50])
 
     def _upload_marks(self, data: bytes) -> None:
-        like, unlike = parse_marks(data)
-        for callback in self._marks_cbs:
-            callback(like, unlike)
+        try:
+            like, unlike = parse_marks(data)
+            for callback in self._marks_cbs:
+                callback(like, unlike)
+        except ValueError as err:  # the NAK says only "refused": the operator reads why here
+            self.event(f"Marks refused: {err}"[:50], st.WARNING)
+            raise
         self._marks = (like, unlike)
         self.event(marks_text(like, unlike))
 
