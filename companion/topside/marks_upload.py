@@ -18,6 +18,8 @@ from pymavlink import mavftp, mavutil
 from companion.errors import MerlionError
 from vehicle.camera.downlink import MARKS_PATH, format_marks, parse_marks
 
+__all__ = ["MARKS_PATH", "marks_document", "upload_marks"]
+
 _FTP_SETTINGS = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5, "burst_read_size": 239,
                  "write_size": 200, "write_qsize": 5, "idle_detection_time": 1.5, "read_retry_time": 0.6,
                  "retry_time": 0.4}
