@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 
 from pymavlink import mavutil
 
@@ -50,8 +51,10 @@ def run(args: argparse.Namespace) -> int:
         if key is not None:
             conn.setup_signing(key, sign_outgoing=True)
         conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        logging.disable(logging.ERROR)  # mavftp reports every retry on the root logger: our error says it once
         upload_marks(conn, args.companion, args.like, args.unlike, timeout=args.timeout)
     finally:
+        logging.disable(logging.NOTSET)
         conn.close()
     print(f"merlion surface-mark: marks set on {args.companion[0]}:{args.companion[1]}: "
           f"like {args.like}, unlike {args.unlike}", flush=True)

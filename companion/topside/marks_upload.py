@@ -32,6 +32,11 @@ def marks_document(like: list[int], unlike: list[int]) -> bytes:
     return data
 
 
+def _wait(deadline: float) -> float:
+    """How long one mavftp exchange may take: what is left, but more than its idle detection (it asserts so)."""
+    return max(_FTP_SETTINGS["idle_detection_time"] + 0.5, min(10.0, deadline - time.monotonic()))
+
+
 def upload_marks(conn: mavutil.mavfile, target: tuple[int, int], like: list[int], unlike: list[int], *,
                  timeout: float = 15.0) -> None:
     """Upload the marks through ``conn`` to the companion ``target`` (system, component) and confirm them.
@@ -49,10 +54,10 @@ def upload_marks(conn: mavutil.mavfile, target: tuple[int, int], like: list[int]
         back = Path(tmp) / "marks.json"
         while time.monotonic() < deadline:  # a request lost on the link: the whole exchange again
             client.cmd_put(["marks.json", MARKS_PATH], fh=io.BytesIO(data))
-            client.process_ftp_reply("CreateFile", timeout=max(1.0, min(10.0, deadline - time.monotonic())))
+            client.process_ftp_reply("CreateFile", timeout=_wait(deadline))
             back.unlink(missing_ok=True)
             client.cmd_get([MARKS_PATH, str(back)])
-            got = client.process_ftp_reply("OpenFileRO", timeout=max(1.0, min(10.0, deadline - time.monotonic())))
+            got = client.process_ftp_reply("OpenFileRO", timeout=_wait(deadline))
             if got.error_code != mavftp.FtpError.Success or not back.exists():
                 continue
             try:

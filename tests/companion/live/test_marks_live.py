@@ -87,6 +87,12 @@ def test_marks_from_the_surface_steer_what_the_companion_keeps(tmp_path: Path, s
     listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Marks: 1 like, 1 unlike" in str(m.text), 10,
                       "the companion's acknowledgement")
     companion.wait_for("marks set")
+    refused = run_merlion("surface-mark", "--connect", f"udpout:{hub.host}:{hub.port}", "--like", "99999",
+                          "--timeout", "20", timeout=60)  # a frame the store never had: the marks stay
+    assert refused.returncode != 0
+    assert refused.stderr.strip().startswith("merlion: error: the companion refused the marks"), refused.stderr
+    listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Marks refused: image 99999" in str(m.text), 10,
+                      "the refusal's reason")
     boundary = max(_stored(store))  # frames stored from here on were scored with the marks
     first_after = max(f["frame_index"] for f in _stored(store).values())
 

@@ -22,7 +22,7 @@ from companion.config import MavlinkConfig, SurfaceConfig
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.companion.topside.browser import Page, chromium_or_skip
-from tests.conftest import REPO, free_udp_port
+from tests.conftest import REPO, free_udp_port, run_merlion
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
 
@@ -127,3 +127,22 @@ def test_the_cards_buttons_mark_a_frame(surface_and_companion):
         page.evaluate(button.format(i=5, kind="unlike") + ".click()")
         assert _wait(lambda: accepted[-1:] == [([6], [5])], 30), accepted
         assert page.wait_for(button.format(i=5, kind="unlike") + ".classList.contains('on')", 10)
+
+
+@pytest.mark.parametrize("args, says", [
+    ((), "give --like INDEX and/or --unlike INDEX, or --clear"),
+    (("--clear", "--like", "3"), "--clear takes no --like/--unlike"),
+    (("--like", "-3"), "image index -3 is negative"),
+    (("--like", "4", "--unlike", "4"), "image 4 is both like and unlike"),
+])
+def test_surface_mark_bad_arguments_are_one_line_errors(args, says):
+    done = run_merlion("surface-mark", "--connect", f"udpout:127.0.0.1:{free_udp_port()}", *args, timeout=60)
+    assert done.returncode != 0
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()] and says in done.stderr, done.stderr
+
+
+def test_surface_mark_with_no_companion_says_so():
+    done = run_merlion("surface-mark", "--connect", f"udpout:127.0.0.1:{free_udp_port()}", "--like", "3",
+                       "--timeout", "2", timeout=60)
+    assert done.returncode != 0
+    assert done.stderr.strip().startswith("merlion: error: no answer from the companion 1:100"), done.stderr
