@@ -87,6 +87,18 @@ def check_port_free(connect: str) -> None:
         probe.close()
 
 
+def mark_action(tool: SurfaceTool, body: dict) -> dict:
+    """POST /api/mark {"index": n, "kind": "like" | "unlike" | "none"}: the page's "more like this" / "not this"
+    button; a refusal or no answer from the companion is a ValueError (the page shows its message)."""
+    index, kind = body.get("index"), body.get("kind")
+    if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+        raise ValueError(f"mark: index {index!r} is not an image index")
+    error = tool.mark(index, str(kind))
+    if error:
+        raise ValueError(f"marks not set: {error}")
+    return {"marks": tool.snapshot()["marks"]}
+
+
 def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "127.0.0.1",
           duration: float | None = None, stop: threading.Event | None = None) -> int:
     """Run the surface tool until SIGINT/SIGTERM, ``stop``, or ``duration``; what tests and the demo call."""
@@ -96,7 +108,8 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     tool.open()
     web = None
     if web_port is not None:
-        web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame)
+        web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame,
+                        actions={"mark": lambda body: mark_action(tool, body)})
         web.start()
         # the line the demo and tests wait for (the port matters when 0 was asked)
         print(f"merlion surface: live page at {web.url}", flush=True)

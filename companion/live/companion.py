@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from companion import __version__
 from companion.config import Config, build_config
 from companion.live.health import Health
@@ -32,6 +34,7 @@ from companion.live.queues import DropOldestQueue
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
+from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent
@@ -72,6 +75,8 @@ class LiveCompanion:
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
+        self.marks = SavedMarks()
+        """The operator's marks in force (image indices), and the query they were given under."""
         self.pipeline = None
         self.encoder = None
         self.link = None
@@ -94,11 +99,13 @@ class LiveCompanion:
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
         self.store = Store(cfg.store)
+        saved_marks = self._marks_file().load()
         resume = self.store.resume_state()
         if resume.frames:
             log.info("resuming with %d summary frame(s); next image index %d", len(resume.frames),
                      resume.next_image_index)
         self._build_pipeline(resume)
+        self._restore_marks(saved_marks)
         self._start_vehicle(resume.next_image_index)
         self._start_loops()
         self._monitor = threading.Thread(target=self._monitor_loop, name="health", daemon=True)
@@ -157,6 +164,9 @@ class LiveCompanion:
     def _params_file(self) -> ParamsFile:
         return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)
 
+    def _marks_file(self) -> MarksFile:
+        return MarksFile(self.store.dir / "marks.json", version=__version__)
+
     def _start_vehicle(self, image_count: int) -> None:
         cfg = self.cfg
         if not cfg.mavlink.connection:
@@ -188,6 +198,8 @@ class LiveCompanion:
         if self.telemetry is not None and hasattr(self.telemetry, "on_notice"):
             self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
         self.surface.on_queries_changed(self._on_queries)
+        self.surface.on_marks_changed(self._on_marks)
+        self.surface.set_marks(self.marks.like, self.marks.unlike)
         self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper.document()).encode())
         self.link.on_autopilot(self._on_autopilot)
         self.link.start()
@@ -294,6 +306,73 @@ class LiveCompanion:
 
         self.keeper.change(set_queries)
         log.info("queries set: %r against %r", positive, negatives)
+        if self.marks:  # marks teach what this query should find: a new query starts untaught
+            self._on_marks([], [])
+            log.info("marks cleared with the queries")
+            if self.surface is not None:
+                self.surface.event("Marks cleared with the queries")
+
+    # ---- the operator's marks -----------------------------------------------------------------------------------
+    def _on_marks(self, like: list[int], unlike: list[int]) -> None:
+        """Marks from the surface (image indices): score by them from the next batch on, and keep them on disk.
+
+        ValueError (a frame the store no longer has) refuses the upload; the surface gets a NAK.
+        """
+        self._apply_marks(like, unlike)
+        self.marks = SavedMarks(list(like), list(unlike), self.pipeline.presampler.positive)
+        if self.surface is not None:
+            self.surface.set_marks(like, unlike)
+        try:
+            if self.marks:
+                self._marks_file().save(self.marks)
+            else:
+                self._marks_file().clear()
+        except OSError as err:  # a memory-only store: the marks hold for this run
+            log.warning("marks not saved: %s", err)
+        log.info("marks set: like %s, unlike %s", like, unlike)
+
+    def _restore_marks(self, saved: SavedMarks) -> None:
+        """Re-apply the marks an earlier run saved, if they were given under the query in force now."""
+        if not saved:
+            return
+        if saved.query != self.pipeline.presampler.positive:
+            log.info("saved marks were given for %r, not %r: not applied", saved.query,
+                     self.pipeline.presampler.positive)
+            return
+        try:
+            self._apply_marks(saved.like, saved.unlike)
+        except ValueError as err:
+            log.warning("saved marks not applied: %s", err)
+            return
+        self.marks = saved
+        log.info("restored marks: %d like, %d unlike", len(saved.like), len(saved.unlike))
+
+    def _apply_marks(self, like: list[int], unlike: list[int]) -> None:
+        """Embed the marked frames' stored images and switch the pre-sampler(s) to the combined score.
+
+        Runs inside the keeper: the encoder is the inference loop's, and the next batch sees the new score.
+        """
+        from companion.vision.feedback import Marks
+
+        def images(indices: list[int]) -> list:
+            found = []
+            for index in indices:
+                frame = self.store.frame(index)
+                if frame is None or frame.image is None:
+                    raise ValueError(f"image {index} is not in the store")
+                found.append(self.pipeline.prepare(frame.image))
+            return found
+
+        def apply() -> None:
+            if like or unlike:
+                marks = Marks.from_images(self.encoder, images(like), images(unlike))
+            else:
+                marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))
+            self.pipeline.presampler = _marked(self.pipeline.presampler, marks)
+            if self.selective is not None:
+                self.selective.raw = _marked(self.selective.raw, marks)
+
+        self.keeper.change(apply)
 
     def _on_autopilot(self, alive: bool) -> None:
         if alive:
@@ -428,6 +507,16 @@ class LiveCompanion:
         if self.link is not None:
             self.link.stop()
         self.notifier.close()
+
+
+def _marked(presampler, marks):
+    """``presampler`` scoring with ``marks`` (wrapped once; later marks, or none, replace the examples)."""
+    from companion.vision.feedback import MarkedPreSampler
+
+    if isinstance(presampler, MarkedPreSampler):
+        presampler.set_marks(marks)
+        return presampler
+    return MarkedPreSampler(presampler, marks) if len(marks) else presampler
 
 
 def _make_telemetry(link, cfg: Config):

@@ -1,4 +1,5 @@
-"""A small MAVLink FTP (FILE_TRANSFER_PROTOCOL, 110) client that reads files, fed by someone else's receive loop.
+"""A small MAVLink FTP (FILE_TRANSFER_PROTOCOL, 110) client that reads (and uploads small) files, fed by someone
+else's receive loop.
 
 pymavlink's ``mavftp`` reads the connection itself (``recv_match`` in its own loops), which would steal the
 captures and thumbnails the surface tool's one receive loop must see; so this client is a message-driven state
@@ -45,6 +46,9 @@ class _Job:
     have: bytearray = field(default_factory=bytearray)
     """One byte per file byte: 1 where ``buf`` holds data received."""
     error: str = ""
+    upload: bytes | None = None
+    """Write this file (CreateFile, WriteFile, TerminateSession) instead of reading it; ``done`` gets it back."""
+    written: int = 0
 
     def start(self, size: int | None) -> None:
         self.size = size
@@ -139,6 +143,13 @@ class FtpClient:
         if self._job is None:
             self._next_job()
 
+    def upload(self, path: str, data: bytes, done: DoneFn) -> None:
+        """Queue an upload of ``data`` to ``path`` (e.g. ``/config/marks.json``); ``done(path, data or None,
+        error)``: a server that refuses the file (it answers the closing request with a NAK) is an error."""
+        self._queue.append(_Job(path, done, upload=bytes(data)))
+        if self._job is None:
+            self._next_job()
+
     def pending(self) -> list[str]:
         paths = [j.path for j in self._queue]
         return paths if self._job is None else [self._job.path, *paths]
@@ -182,10 +193,11 @@ class FtpClient:
         self.retransmissions += 1
         if self._tries >= self._max_tries:
             self._request = None
-            if opcode == Op.TERMINATE_SESSION:
+            if opcode == Op.TERMINATE_SESSION and self._job.upload is None:
                 self._complete()  # every byte is in; the server ends an idle session on its own
                 return
-            what = {Op.OPEN_FILE_RO: "open", Op.TERMINATE_SESSION: "close", Op.CALC_FILE_CRC32: "CRC request"}.get(opcode, "read")
+            what = {Op.OPEN_FILE_RO: "open", Op.TERMINATE_SESSION: "close", Op.CALC_FILE_CRC32: "CRC request",
+                    Op.CREATE_FILE: "create", Op.WRITE_FILE: "write"}.get(opcode, "read")
             self._finish(None, f"no answer to {what} after {self._tries} tries")
             return
         if opcode == Op.BURST_READ_FILE:
@@ -236,6 +248,8 @@ class FtpClient:
             self._finish(None, "path too long")
             return
         opcode = Op.CALC_FILE_CRC32 if self._job.crc_only else Op.OPEN_FILE_RO
+        if self._job.upload is not None:
+            opcode = Op.CREATE_FILE
         self._request_op(opcode, data=path + b"\0", size=len(path))
 
     def _on_reply(self, opcode: int, offset: int, reply: FtpPacket) -> None:
@@ -247,7 +261,19 @@ class FtpClient:
             else:
                 self._finish(reply.data[:4].ljust(4, b"\0"), "", terminate=False)
             return
-        if opcode == Op.OPEN_FILE_RO:
+        if opcode == Op.CREATE_FILE:
+            if reply.opcode == Op.NAK:
+                self._finish(None, f"create failed: {reply.error_text()}", terminate=False)
+                return
+            job.session = reply.session
+            self._write_next()
+        elif opcode == Op.WRITE_FILE:
+            if reply.opcode == Op.NAK:
+                self._finish(None, f"write failed at {offset}: {reply.error_text()}")
+                return
+            job.written = max(job.written, offset + min(MAX_DATA, len(job.upload or b"") - offset))
+            self._write_next()
+        elif opcode == Op.OPEN_FILE_RO:
             if reply.opcode == Op.NAK:
                 self._finish(None, f"open failed: {reply.error_text()}", terminate=False)
                 return
@@ -269,7 +295,19 @@ class FtpClient:
             self._store(offset, reply.data)
             self._continue()
         elif opcode == Op.TERMINATE_SESSION:
+            if job.upload is not None and reply.opcode == Op.NAK and not job.error:
+                job.error = f"refused: {reply.error_text()}"
             self._complete()
+
+    def _write_next(self) -> None:
+        """The next piece of an upload, or the closing request (the server takes the file then) after the last."""
+        job = self._job
+        assert job is not None and job.upload is not None and job.session is not None
+        if job.written >= len(job.upload):
+            self._terminate()
+            return
+        chunk = job.upload[job.written : job.written + MAX_DATA]
+        self._request_op(Op.WRITE_FILE, session=job.session, offset=job.written, data=chunk)
 
     def _on_burst(self, reply: FtpPacket) -> None:
         job = self._job
@@ -319,6 +357,9 @@ class FtpClient:
         assert job is not None
         if job.error:
             self._finish(None, job.error, terminate=False)
+            return
+        if job.upload is not None:
+            self._finish(job.upload, "", terminate=False)
             return
         data = bytes(job.buf)
         if job.size is not None and len(data) != job.size:

@@ -50,6 +50,8 @@ PUSH_MARKER = "MRL_PUSH"
 DEPTH_VALUE = "MRL_DEPTH"
 SEVERITY_WARNING = 4
 FULL_FRAME_TIMEOUT_S = 120.0
+MARKS_TIMEOUT_S = 30.0
+"""A marks upload is a few hundred bytes: a page's request waits this long for the companion's answer."""
 """A full frame (tens of kB) at a 2,000 B/s budget, sent after everything else: give it time."""
 OFFLINE_EVERY_S = 2.0
 
@@ -139,6 +141,8 @@ class SurfaceTool:
         self._unverified: dict[int, bytes] = {}  # pushed thumbnails waiting for an index.json with their CRC
         self._index_due: float | None = None
         self._index_pulled_at = -1e9
+        self.marks: dict[str, list[int]] = {"like": [], "unlike": []}
+        """The marks this tool last had accepted by the companion (the page shows them on the cards)."""
         self._requests: queue.Queue = queue.Queue()  # work handed to the receive loop by other threads (web)
         self._offline_at = -1e9
 
@@ -642,6 +646,50 @@ class SurfaceTool:
         done.wait(timeout)
         return result[0]
 
+    # --- the operator's marks --------------------------------------------------------------------------------
+
+    def mark(self, index: int, kind: str, timeout: float = MARKS_TIMEOUT_S) -> str:
+        """The page's button: mark frame ``index`` "like", "unlike" or "none" (unmark), on top of the marks this
+        tool sent before, and send the whole set; returns "" once the companion took it, else why not."""
+        if kind not in ("like", "unlike", "none"):
+            raise ValueError(f"mark {kind!r}: expected like, unlike or none")
+        with self.lock:
+            like = [i for i in self.marks["like"] if i != index] + ([index] if kind == "like" else [])
+            unlike = [i for i in self.marks["unlike"] if i != index] + ([index] if kind == "unlike" else [])
+        error = self.send_marks(like, unlike, timeout)
+        if not error:
+            with self.lock:
+                self.marks = {"like": like, "unlike": unlike}
+        return error
+
+    def send_marks(self, like: list[int], unlike: list[int], timeout: float = MARKS_TIMEOUT_S) -> str:
+        """Upload ``/config/marks.json`` (image indices "more like this" / "not this") to the companion; returns
+        "" once it accepted them, else why not. Called from the web server's threads; the upload runs on the
+        receive loop, which owns the FTP client."""
+        from companion.topside.marks_upload import MARKS_PATH, marks_document
+
+        data = marks_document(like, unlike)  # ValueError: malformed, as the companion would refuse it
+        done = threading.Event()
+        result = ["no answer from the companion"]
+
+        def start() -> None:
+            if self._ftp is None:
+                result[0] = "no companion yet (or --no-ftp)"
+                done.set()
+                return
+
+            def sent(_path: str, got: bytes | None, error: str) -> None:
+                result[0] = "" if got is not None else (error or "not sent")
+                done.set()
+
+            self._ftp.upload(MARKS_PATH, data, sent)
+
+        self._requests.put(start)
+        done.wait(timeout)
+        if not result[0]:
+            log.info("marks sent: like %s, unlike %s", like, unlike)
+        return result[0]
+
     # --- for the web page ----------------------------------------------------------------------------------
 
     def write_offline_page(self) -> None:
@@ -676,9 +724,10 @@ class SurfaceTool:
                 "warnings": list(s.warnings)[::-1],
                 "depth_track": list(s.depth_track),
             }
+            marks = {k: list(v) for k, v in self.marks.items()}
         summary = [_capture_view(c) for c in self.gallery.summary()]
         return {"time": now, "link": link, "companion": companion, "dive": self.gallery.dive, "summary": summary,
-                "thumbnails_waiting": self.gallery.missing_thumbnails()}
+                "thumbnails_waiting": self.gallery.missing_thumbnails(), "marks": marks}
 
 
 def _age(now: float, then: float | None) -> float | None:

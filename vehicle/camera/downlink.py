@@ -42,6 +42,11 @@ from vehicle.settings import SurfaceConfig
 log = logging.getLogger(__name__)
 
 QUERIES_PATH = "/config/queries.txt"
+MARKS_PATH = "/config/marks.json"
+MARKS_MAX_BYTES = 2048
+"""A marks file names a few summary frames; anything larger is not a marks file."""
+MARKS_MAX = 32
+"""Marks per kind ("like" or "unlike"): a handful teaches the scorer; more only slows the re-encoding."""
 INDEX_PATH = "/summary/index.json"
 FULL_QUALITY = 90
 _FTP_BULK_OPS = frozenset({Op.READ_FILE, Op.BURST_READ_FILE, Op.LIST_DIRECTORY})
@@ -63,6 +68,46 @@ def parse_queries(text: str) -> tuple[str, list[str]]:
 def format_queries(positive: str, negatives: list[str]) -> str:
     return "# first line: positive query; following lines: negative queries\n" + "\n".join(
         [positive, *negatives]) + "\n"
+
+
+def parse_marks(data: bytes) -> tuple[list[int], list[int]]:
+    """A marks file: JSON ``{"like": [image_index...], "unlike": [image_index...]}``; ValueError says what is wrong.
+
+    Both lists may be empty (that clears the marks); an index may not be on both sides.
+    """
+    if len(data) > MARKS_MAX_BYTES:
+        raise ValueError(f"marks file is {len(data)} bytes, more than {MARKS_MAX_BYTES}")
+    try:
+        doc = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as err:
+        raise ValueError(f"marks file is not JSON ({err})") from None
+    if not isinstance(doc, dict):
+        raise ValueError('marks file must be an object {"like": [...], "unlike": [...]}')
+    extra = sorted(set(doc) - {"like", "unlike"})
+    if extra:
+        raise ValueError(f"marks file: unknown key {extra[0]!r} (expected like, unlike)")
+    sides: list[list[int]] = []
+    for key in ("like", "unlike"):
+        value = doc.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(i, int) and not isinstance(i, bool) and i >= 0
+                                                  for i in value):
+            raise ValueError(f"marks file: {key} must be a list of image indices (integers >= 0)")
+        if len(value) > MARKS_MAX:
+            raise ValueError(f"marks file: {len(value)} {key} marks, more than {MARKS_MAX}")
+        sides.append(list(dict.fromkeys(value)))
+    both = sorted(set(sides[0]) & set(sides[1]))
+    if both:
+        raise ValueError(f"marks file: image {both[0]} is both like and unlike")
+    return sides[0], sides[1]
+
+
+def format_marks(like: list[int], unlike: list[int]) -> bytes:
+    return json.dumps({"like": list(like), "unlike": list(unlike)}).encode()
+
+
+def marks_text(like: list[int], unlike: list[int]) -> str:
+    """The STATUSTEXT that confirms marks in force."""
+    return f"Marks: {len(like)} like, {len(unlike)} unlike"
 
 
 @dataclass
@@ -134,6 +179,8 @@ class Downlink:
         self._lock = threading.Lock()
         self._queries = queries or ("", [])
         self._query_cbs: list[Callable[[str, list[str]], None]] = []
+        self._marks: tuple[list[int], list[int]] = ([], [])
+        self._marks_cbs: list[Callable[[list[int], list[int]], None]] = []
         self._unsubscribe: Callable[[], None] | None = None
         self._stop = threading.Event()
         self._status_thread: threading.Thread | None = None
@@ -143,6 +190,8 @@ class Downlink:
         queries_text = lambda: format_queries(*self._queries).encode()  # noqa: E731
         self.tree.put(QUERIES_PATH, queries_text, size=lambda: len(queries_text()))
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
+        self.tree.put(MARKS_PATH, lambda: format_marks(*self._marks), size=lambda: len(format_marks(*self._marks)))
+        self.tree.uploadable(MARKS_PATH, self._upload_marks)
         self.budget.add_source(Priority.BULK, self._next_burst)
         for name, value in self.params.restored.items():
             self._own_param(name, value)
@@ -184,6 +233,15 @@ class Downlink:
     def on_queries_changed(self, callback: Callable[[str, list[str]], None]) -> None:
         """``callback(positive, negatives)`` after a client uploaded a valid queries file (raise ValueError to refuse)."""
         self._query_cbs.append(callback)
+
+    def on_marks_changed(self, callback: Callable[[list[int], list[int]], None]) -> None:
+        """``callback(like, unlike)`` (image indices) after a client uploaded a valid marks file; the callback
+        raises ValueError to refuse it (e.g. a frame it does not hold), which the client gets as a NAK."""
+        self._marks_cbs.append(callback)
+
+    def set_marks(self, like: list[int], unlike: list[int]) -> None:
+        """The marks in force, as /config/marks.json shows them (restored at start, cleared with the queries)."""
+        self._marks = (list(like), list(unlike))
 
     def on_param_changed(self, callback: Callable[[str, float], None], *, replay: bool = True) -> None:
         """``callback(name, value)`` on every accepted PARAM_SET; ``replay`` first hands it the values restored
@@ -371,6 +429,17 @@ class Downlink:
             callback(positive, negatives)
         self._queries = (positive, negatives)
         self.event(f"Queries set: {positive}"[:50])
+
+    def _upload_marks(self, data: bytes) -> None:
+        try:
+            like, unlike = parse_marks(data)
+            for callback in self._marks_cbs:
+                callback(like, unlike)
+        except ValueError as err:  # the NAK says only "refused": the operator reads why here
+            self.event(f"Marks refused: {err}"[:50], st.WARNING)
+            raise
+        self._marks = (like, unlike)
+        self.event(marks_text(like, unlike))
 
     def _own_param(self, name: str, value: float) -> None:
         if name == "MERL_THUMB_B":

@@ -99,7 +99,41 @@ function closeViewer() {
 
 // --- cards ---------------------------------------------------------------------------------------------------
 
-function card(frame) {
+// "more like this" / "not this": POST api/mark with the run's token; the tool sends the marks to the companion
+async function sendMark(index, kind, status) {
+  status.textContent = "sending\u2026";
+  try {
+    const response = await fetch("api/mark", {
+      method: "POST", cache: "no-store",
+      headers: { "Content-Type": "application/json", "X-Merlion-Token": TOKEN },
+      body: JSON.stringify({ index: index, kind: kind }),
+    });
+    const answer = await response.json();
+    status.textContent = response.ok ? "" : (answer.error || "refused");
+  } catch (err) {
+    status.textContent = "surface tool not answering";
+  }
+}
+
+function markButtons(frame, marks) {
+  const row = el("div", "marks");
+  const state = marks.like.includes(frame.image_index) ? "like"
+    : marks.unlike.includes(frame.image_index) ? "unlike" : "none";
+  const status = el("span", "mark-status");
+  for (const [kind, label, title] of [["like", "more like this", "keep frames like this one"],
+                                      ["unlike", "not this", "keep fewer frames like this one"]]) {
+    const button = el("button", "mark " + kind + (state === kind ? " on" : ""), label);
+    button.type = "button";
+    button.title = state === kind ? "marked: click to unmark" : title;
+    button.dataset.kind = kind;
+    button.addEventListener("click", () => sendMark(frame.image_index, state === kind ? "none" : kind, status));
+    row.appendChild(button);
+  }
+  row.appendChild(status);
+  return row;
+}
+
+function card(frame, marks) {
   const fig = el("figure", "frame");
   fig.dataset.index = frame.image_index;
   if (frame.thumbnail) {
@@ -128,6 +162,7 @@ function card(frame) {
     cap.appendChild(el("br"));
   }
   fig.appendChild(cap);
+  if (LIVE && marks) fig.appendChild(markButtons(frame, marks));
   return fig;
 }
 
@@ -231,14 +266,15 @@ function render(state) {
   lines("status", all.filter((l) => !SUMMARY_LINE.test(l.text) && l.severity > 4), 8);
   const frames = state.summary.slice().sort((a, b) => b.image_index - a.image_index);
   drawDepth(comp.depth_track || [], frames);
-  const key = JSON.stringify(state.summary);
+  const marks = state.marks || { like: [], unlike: [] };
+  const key = JSON.stringify([state.summary, marks]);
   if (key !== lastGallery) {
     lastGallery = key;
     const gallery = document.getElementById("gallery");
     if (frames.length === 0) {
       gallery.replaceChildren(el("p", "muted", "No summary frames yet."));
     } else {
-      gallery.replaceChildren(...frames.map(card));
+      gallery.replaceChildren(...frames.map((frame) => card(frame, marks)));
     }
   }
 }

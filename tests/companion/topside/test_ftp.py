@@ -117,3 +117,29 @@ def test_crc_of_a_served_file_matches_ours():
         c.close()
     assert results["/summary/12.jpg"] == (crc32_mavftp(sent), "")
     assert results["/summary/13.jpg"][0] is None and "not found" in results["/summary/13.jpg"][1]
+
+
+def test_an_upload_arrives_whole_through_loss_and_a_refusal_is_an_error():
+    c = _Client()
+    try:
+        got: list[bytes] = []
+
+        def take(data: bytes) -> None:
+            if data.startswith(b"no"):
+                raise ValueError("refused")
+            got.append(data)
+
+        c.peer.ftp.writable = True
+        c.peer.tree.uploadable("/config/marks.json", take)
+        c.peer.drop_ftp_reply = lambda n: n % 3 == 0
+        data = bytes(range(256)) * 3  # several WriteFile pieces
+        c.ftp.upload("/config/marks.json", data, lambda path, d, err: c.results.__setitem__("up", (d, err)))
+        c.pump(lambda: "up" in c.results)
+        assert c.results["up"] == (data, "")
+        assert got == [data]
+        c.ftp.upload("/config/marks.json", b"no thanks", lambda path, d, err: c.results.__setitem__("no", (d, err)))
+        c.pump(lambda: "no" in c.results)
+        assert c.results["no"][0] is None and c.results["no"][1].startswith("refused")
+        assert got == [data]
+    finally:
+        c.close()

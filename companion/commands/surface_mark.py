@@ -1,0 +1,61 @@
+"""``merlion surface-mark``: tell the companion "more like this" / "not this" about summary frames, from a shell."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from pymavlink import mavutil
+
+from companion.commands.surface import _ids
+from companion.errors import UsageError
+from companion.topside.marks_upload import upload_marks
+from vehicle.link.signing import load_key
+
+
+def register(add_command) -> None:
+    p = add_command("surface-mark", "send the operator's marks (image indices of summary frames) to the companion: "
+                    "later frames are kept by the query and the marked examples together")
+    p.add_argument("--connect", default="udpout:127.0.0.1:14550",
+                   help="pymavlink connection string to the vehicle's MAVLink router (default udpout:127.0.0.1:14550)")
+    p.add_argument("--like", type=int, action="append", default=[], metavar="INDEX",
+                   help="image index of a frame to find more of (repeatable)")
+    p.add_argument("--unlike", type=int, action="append", default=[], metavar="INDEX",
+                   help="image index of a frame not wanted (repeatable)")
+    p.add_argument("--clear", action="store_true", help="remove every mark (score by the query alone)")
+    p.add_argument("--companion", type=_ids, default=(1, 100), metavar="SYS:COMP",
+                   help="the companion's ids (default 1:100)")
+    p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254)")
+    p.add_argument("--component-id", type=int, default=191, help="this tool's MAVLink component id (default 191)")
+    p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="give up after S seconds (default 15)")
+    p.add_argument("--signing-key", metavar="FILE", help="MAVLink 2 signing key, as for merlion surface")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.like and not args.unlike and not args.clear:
+        raise UsageError("surface-mark: give --like INDEX and/or --unlike INDEX, or --clear")
+    if args.clear and (args.like or args.unlike):
+        raise UsageError("surface-mark: --clear takes no --like/--unlike")
+    bad = [i for i in args.like + args.unlike if i < 0]
+    if bad:
+        raise UsageError(f"surface-mark: image index {bad[0]} is negative")
+    if not 1 <= args.system_id <= 254:
+        raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the pilot's ground station)")
+    if args.timeout <= 0:
+        raise UsageError(f"--timeout {args.timeout}: must be positive")
+    key = load_key(args.signing_key) if args.signing_key else None
+    conn = mavutil.mavlink_connection(args.connect, source_system=args.system_id,
+                                      source_component=args.component_id, dialect="ardupilotmega")
+    try:
+        if key is not None:
+            conn.setup_signing(key, sign_outgoing=True)
+        conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        logging.disable(logging.ERROR)  # mavftp reports every retry on the root logger: our error says it once
+        upload_marks(conn, args.companion, args.like, args.unlike, timeout=args.timeout)
+    finally:
+        logging.disable(logging.NOTSET)
+        conn.close()
+    print(f"merlion surface-mark: marks set on {args.companion[0]}:{args.companion[1]}: "
+          f"like {args.like}, unlike {args.unlike}", flush=True)
+    return 0
