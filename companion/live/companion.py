@@ -184,7 +184,7 @@ class LiveCompanion:
         self.surface = Downlink(
             self.link, cfg.surface, params=default_params(cfg), saved_params=self.saved_params,
             persist_params=params_file.save,
-            loader=self.store.frame, image_count=image_count,
+            loader=self.store.frame, image_count=image_count, stored_jpeg=self.store.frame_jpeg,
             queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
             dive=self.store.dive,
         )

@@ -310,6 +310,17 @@ class Store:
         held = self._read_frame(index) if not self.memory_only else None
         return held.frame if held else None
 
+    def frame_jpeg(self, index: int, raw: bool = False) -> bytes | None:
+        """The stored JPEG of a frame as written (None: not on disk), so what the surface downloads over FTP is
+        byte for byte what the vehicle keeps."""
+        if self.memory_only:
+            return None
+        path = self.frames_dir / (f"{_name(index)}.raw.jpg" if raw else f"{_name(index)}.jpg")
+        try:
+            return path.read_bytes()
+        except OSError:
+            return None
+
     def sidecar(self, index: int) -> dict[str, Any] | None:
         with self._lock:
             held = self._held.get(index)

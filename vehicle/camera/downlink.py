@@ -153,6 +153,7 @@ class Downlink:
                  persist_params: Callable[[dict[str, float]], None] | None = None, loader: Callable[[int], CaptureFrame | None] | None = None,
                  image_count: int = 0, queries: tuple[str, list[str]] | None = None,
                  identity: CameraIdentity | None = None, version: str = "", dive: str = "",
+                 stored_jpeg: Callable[[int, bool], bytes | None] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.link = link
         self.cfg = cfg
@@ -165,6 +166,8 @@ class Downlink:
         """The store's dive id (``Store.dive``): in every file_url and in index.json, so the surface never files a
         new dive's frames under an old dive's image indices."""
         self.captures = CaptureLog(clock=clock, initial_count=image_count, loader=loader, ext=self.ext, dive=dive)
+        self._stored_jpeg = stored_jpeg
+        """(image index, raw) -> the frame's JPEG as the app stored it; served as is, so downloads equal the store."""
         self._earlier_runs = image_count
         self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
                                       component_id=link.component_id, identity=identity)
@@ -337,8 +340,12 @@ class Downlink:
             return b""
         key = "raw" if raw else "full"
         if key not in held.encoded:
-            ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
-            held.encoded[key] = buf.tobytes() if ok else b""
+            stored = self._stored_jpeg(idx, raw) if self._stored_jpeg is not None else None
+            if stored:
+                held.encoded[key] = stored
+            else:  # no store (memory only) or not written yet: encode it here
+                ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, FULL_QUALITY])
+                held.encoded[key] = buf.tobytes() if ok else b""
         return held.encoded[key]
 
     def _full_size(self, idx: int, raw: bool = False) -> int:

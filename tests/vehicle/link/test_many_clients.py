@@ -129,6 +129,18 @@ def test_companion_serves_many_ground_stations_at_once(tmp_path: Path) -> None:
             assert all(c[1] == r["server_crc"][path] for c in copies), (path, copies)
         assert r["refused_upload"] and all(a.startswith("nak") for a in r["refused_upload"]), r["refused_upload"]
         assert r["params_set"] and r["param_echoes"] == r["params_set"], r
+    # a full frame downloaded is byte for byte the on-board store's file (for the frames the store still holds)
+    from vehicle.protocol.ftp import crc32_ardupilot
+
+    compared = 0
+    for r in got:
+        for path, copies in r["downloads"].items():
+            if path.startswith("/summary/full/"):
+                stored = tmp_path / "store" / "frames" / f"{int(Path(path).stem):06d}.jpg"
+                if stored.is_file():
+                    compared += 1
+                    assert all(c == [stored.stat().st_size, crc32_ardupilot(stored.read_bytes())] for c in copies), path
+    assert compared > 0, "no full frame was compared with the store"
     # the two stations saw the same bytes for the same file
     first, second = (r["downloads"] for r in got)
     for path in set(first) & set(second):
