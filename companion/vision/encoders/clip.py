@@ -9,6 +9,7 @@ it runs in torch on uint8 frames (faster than PIL), and a test holds it to open_
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -114,7 +115,7 @@ class OnnxImageTower:
     """
 
     def __init__(self, visual: torch.nn.Module, size: tuple[int, int], threads: int,
-                 providers: Sequence[str] = ()) -> None:
+                 providers: Sequence[str] = (), cache: Path | None = None) -> None:
         import tempfile
         import warnings
 
@@ -134,9 +135,15 @@ class OnnxImageTower:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         # idle ORT workers otherwise spin, taking the two cores from the decode thread and torch's text tower
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        # through a temporary file, not bytes in memory: a BytesIO and its getvalue() copy held two more copies
-        # of the tower's weights at the peak (~700 MB for ViT-B-32)
-        with tempfile.TemporaryDirectory(prefix="merlion-onnx-") as tmp:
+        self.cached = cache is not None and cache.is_file()
+        if self.cached:  # exported by an earlier start: torch's tower is never read (no exporter peak)
+            self._session = ort.InferenceSession(str(cache), opts, providers=providers)
+            return
+        # through a file, not bytes in memory: a BytesIO and its getvalue() copy held two more copies of the
+        # tower's weights at the peak (~700 MB for ViT-B-32)
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix="merlion-onnx-", dir=cache.parent if cache else None) as tmp:
             path = Path(tmp) / "image_tower.onnx"
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
@@ -146,10 +153,31 @@ class OnnxImageTower:
                                   opset_version=17, dynamo=False)
             release_freed_memory()
             self._session = ort.InferenceSession(str(path), opts, providers=providers)
+            if cache is not None:
+                os.replace(path, cache)  # whole or absent: a start cut short leaves no half file
 
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
         out = self._session.run(None, {"image": batch.contiguous().numpy()})[0]
         return torch.from_numpy(out)
+
+
+def onnx_cache_path(weights: Path, model: str, size: tuple[int, int]) -> Path | None:
+    """Where the exported image tower of these weights is kept between starts, or None (a folder of weights).
+
+    Keyed by the weights file's path, size and mtime, the architecture, input size and torch/open_clip versions,
+    so replaced weights or an upgraded exporter export afresh. ``$MERLION_CACHE_DIR`` (default
+    ``$XDG_CACHE_HOME/merlion`` or ``~/.cache/merlion``) / onnx.
+    """
+    import hashlib
+
+    if not weights.is_file():
+        return None
+    st = weights.stat()
+    key = "|".join(map(str, (weights.resolve(), st.st_size, st.st_mtime_ns, model, size, torch.__version__,
+                             open_clip.__version__)))
+    root = os.environ.get("MERLION_CACHE_DIR") or Path(
+        os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "merlion"
+    return Path(root) / "onnx" / f"{model}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.onnx"
 
 
 def _as_pair(size: int | Sequence[int]) -> tuple[int, int]:
@@ -233,7 +261,8 @@ class ClipEncoder(Encoder):
                 raise UsageError(f"encoder.runtime onnx runs fp32 on the CPU only (precision {self.precision}, "
                                  f"device {self._device}): use precision fp32 or runtime torch")
             self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads(),
-                                        cfg.providers)
+                                        cfg.providers, cache=onnx_cache_path(self._weights.path, cfg.model,
+                                                                             self.preprocess.size))
             del self._model.visual  # the session holds its own copy: never keep both
             detach_from_file(self._model)
             release_freed_memory()

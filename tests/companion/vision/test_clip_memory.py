@@ -6,6 +6,8 @@ Real open_clip architectures with random weights saved to a checkpoint, loaded t
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import open_clip
 import pytest
@@ -16,6 +18,12 @@ from companion.vision.encoders.clip import TEXT_TOWER, ClipEncoder
 
 SMALL = "ViT-S-32-alt"
 QUERIES = ["a coral reef", "sand", "open water"]
+
+
+@pytest.fixture(autouse=True)
+def _onnx_cache_in_tmp(tmp_path, monkeypatch):
+    """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
+    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path / "merlion-cache"))
 
 
 @pytest.fixture(scope="module")
@@ -77,3 +85,18 @@ def test_onnx_encoder_holds_no_torch_image_tower_and_gives_the_torch_embeddings(
     np.testing.assert_allclose(onnx.encode_images(frames), torch_emb, atol=1e-4)
     np.testing.assert_allclose(onnx.encode_images_reference(frames[:1]), torch_emb[:1], atol=1e-3)
     assert onnx.encode_texts(QUERIES).shape == (3, torch_emb.shape[1])
+
+
+def test_the_exported_tower_is_cached_so_a_second_start_never_reads_torch_s_tower(ckpt, tmp_path, monkeypatch):
+    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path))
+    path, _ = ckpt
+    first = _encoder(path, runtime="onnx")
+    assert not first._onnx.cached
+    assert [p.suffix for p in (tmp_path / "onnx").iterdir()] == [".onnx"]  # no temporary left behind
+    second = _encoder(path, runtime="onnx")
+    assert second._onnx.cached
+    frames = [np.random.default_rng(1).integers(0, 255, (96, 128, 3), dtype=np.uint8) for _ in range(2)]
+    np.testing.assert_array_equal(second.encode_images(frames), first.encode_images(frames))
+    other = tmp_path / "other.pt"  # other weights (here: the same bytes, another file) export afresh
+    other.write_bytes(Path(path).read_bytes())
+    assert not _encoder(str(other), runtime="onnx")._onnx.cached

@@ -30,6 +30,12 @@ from tests.conftest import free_tcp_port, run_merlion, shared_file
 SMALL = "ViT-S-32-alt"
 
 
+@pytest.fixture(autouse=True)
+def _onnx_cache_in_tmp(tmp_path, monkeypatch):
+    """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
+    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path / "merlion-cache"))
+
+
 def _save_random(model: str, path) -> tuple[str, torch.nn.Module]:
     torch.manual_seed(0)
     net = open_clip.create_model(model, pretrained=None)
