@@ -9,6 +9,7 @@ it runs in torch on uint8 frames (faster than PIL), and a test holds it to open_
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,7 +23,13 @@ from PIL import Image
 from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
-from companion.vision.encoders.torch_runtime import configure_threads, dtype_name, pick_device, pick_dtype
+from companion.vision.encoders.torch_runtime import (
+    configure_threads,
+    dtype_name,
+    pick_device,
+    pick_dtype,
+    release_freed_memory,
+)
 from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
 log = logging.getLogger(__name__)
@@ -69,17 +76,47 @@ def quantize_image_tower(visual: torch.nn.Module) -> torch.nn.Module:
         return quantize_dynamic(visual, {torch.nn.Linear}, dtype=torch.qint8, inplace=True)
 
 
+TEXT_TOWER = ("transformer", "token_embedding", "positional_embedding", "ln_final", "text_projection", "attn_mask",
+              "text")
+"""The attributes of an open_clip model that make up its text tower (``text`` in CustomTextCLIP)."""
+
+
+def drop_text_tower(model: torch.nn.Module) -> None:
+    """Free the text tower: it runs once per query change and would otherwise hold ~254 MB (ViT-B-32 fp32)."""
+    for name in TEXT_TOWER:
+        if hasattr(model, name):
+            delattr(model, name)
+
+
+def detach_from_file(model: torch.nn.Module) -> None:
+    """Copy what is left of a memory-mapped model into ordinary memory.
+
+    All tensors of a memory-mapped checkpoint share one mapping: while one small tensor (logit_scale) lives, the
+    pages the dropped towers once touched stay mapped and counted in RSS.
+    """
+    for module in model.modules():
+        for _key, tensor in list(module._parameters.items()) + list(module._buffers.items()):
+            if tensor is not None:
+                tensor.data = tensor.data.clone()
+
+
+def _causal_mask(n: int) -> torch.Tensor:
+    """open_clip's text attention mask (a non-persistent buffer, so not in the checkpoint)."""
+    return torch.empty(n, n).fill_(float("-inf")).triu_(1)
+
+
 class OnnxImageTower:
     """The image tower exported to ONNX (in memory, no file) and run by ONNX Runtime on the CPU, in fp32.
 
     Measured on the 2-core AVX2 build machine, same run: 1.4x (batch 8) to 2.7x (batch 1) the frames/s of torch's
     fp32 tower with the same embeddings (cosine 1.000000), where torch's int8 gave 1.1-1.4x. Export costs some
-    seconds at start-up and the session holds its own copy of the tower's weights (~350 MB for ViT-B-32).
+    seconds at start-up and the session holds its own copy of the tower's weights (~350 MB for ViT-B-32), so the
+    encoder drops torch's tower once the session is built.
     """
 
     def __init__(self, visual: torch.nn.Module, size: tuple[int, int], threads: int,
-                 providers: Sequence[str] = ()) -> None:
-        import io
+                 providers: Sequence[str] = (), cache: Path | None = None) -> None:
+        import tempfile
         import warnings
 
         import onnxruntime as ort
@@ -92,23 +129,55 @@ class OnnxImageTower:
                              f"(available: {', '.join(available)})")
         self.providers = providers
 
-        buf = io.BytesIO()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
-            torch.onnx.export(visual, (torch.zeros(1, 3, *size),), buf, input_names=["image"],
-                              output_names=["embedding"], dynamic_axes={"image": {0: "n"}, "embedding": {0: "n"}},
-                              opset_version=17, dynamo=False)
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = threads
         opts.inter_op_num_threads = 1
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         # idle ORT workers otherwise spin, taking the two cores from the decode thread and torch's text tower
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self._session = ort.InferenceSession(buf.getvalue(), opts, providers=providers)
+        self.cached = cache is not None and cache.is_file()
+        if self.cached:  # exported by an earlier start: torch's tower is never read (no exporter peak)
+            self._session = ort.InferenceSession(str(cache), opts, providers=providers)
+            return
+        # through a file, not bytes in memory: a BytesIO and its getvalue() copy held two more copies of the
+        # tower's weights at the peak (~700 MB for ViT-B-32)
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix="merlion-onnx-", dir=cache.parent if cache else None) as tmp:
+            path = Path(tmp) / "image_tower.onnx"
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
+                torch.onnx.export(visual, (torch.zeros(1, 3, *size),), str(path), input_names=["image"],
+                                  output_names=["embedding"],
+                                  dynamic_axes={"image": {0: "n"}, "embedding": {0: "n"}},
+                                  opset_version=17, dynamo=False)
+            release_freed_memory()
+            self._session = ort.InferenceSession(str(path), opts, providers=providers)
+            if cache is not None:
+                os.replace(path, cache)  # whole or absent: a start cut short leaves no half file
 
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
         out = self._session.run(None, {"image": batch.contiguous().numpy()})[0]
         return torch.from_numpy(out)
+
+
+def onnx_cache_path(weights: Path, model: str, size: tuple[int, int]) -> Path | None:
+    """Where the exported image tower of these weights is kept between starts, or None (a folder of weights).
+
+    Keyed by the weights file's path, size and mtime, the architecture, input size and torch/open_clip versions,
+    so replaced weights or an upgraded exporter export afresh. ``$MERLION_CACHE_DIR`` (default
+    ``$XDG_CACHE_HOME/merlion`` or ``~/.cache/merlion``) / onnx.
+    """
+    import hashlib
+
+    if not weights.is_file():
+        return None
+    st = weights.stat()
+    key = "|".join(map(str, (weights.resolve(), st.st_size, st.st_mtime_ns, model, size, torch.__version__,
+                             open_clip.__version__)))
+    root = os.environ.get("MERLION_CACHE_DIR") or Path(
+        os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "merlion"
+    return Path(root) / "onnx" / f"{model}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.onnx"
 
 
 def _as_pair(size: int | Sequence[int]) -> tuple[int, int]:
@@ -181,8 +250,10 @@ class ClipEncoder(Encoder):
         if self._int8 and self._device.type != "cpu":
             raise UsageError("encoder.precision: int8 runs on the CPU only (use fp16 on CUDA)")
         self._dtype = torch.float32 if self._int8 else pick_dtype(cfg.precision, self._device)
-        self._model = self._load()
+        self._text_cache: dict[str, np.ndarray] = {}
+        self._model = self._load("image")
         pcfg = open_clip.get_model_preprocess_cfg(self._model)
+        self._dim = int(getattr(self._model.visual, "output_dim", 0)) or None
         self.preprocess = ClipPreprocess(pcfg)
         self._onnx: OnnxImageTower | None = None
         if cfg.runtime == "onnx":
@@ -190,7 +261,11 @@ class ClipEncoder(Encoder):
                 raise UsageError(f"encoder.runtime onnx runs fp32 on the CPU only (precision {self.precision}, "
                                  f"device {self._device}): use precision fp32 or runtime torch")
             self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads(),
-                                        cfg.providers)
+                                        cfg.providers, cache=onnx_cache_path(self._weights.path, cfg.model,
+                                                                             self.preprocess.size))
+            del self._model.visual  # the session holds its own copy: never keep both
+            detach_from_file(self._model)
+            release_freed_memory()
         elif cfg.providers:
             raise UsageError("encoder.providers: set only with encoder.runtime onnx")
         self._tokenizer = open_clip.get_tokenizer(cfg.model)
@@ -198,7 +273,13 @@ class ClipEncoder(Encoder):
         log.info("CLIP %s loaded from %s (%s) on %s, %s", cfg.model, self._weights.path, self._weights.source,
                  self._device, self.precision)
 
-    def _load(self) -> torch.nn.Module:
+    def _load(self, tower: str) -> torch.nn.Module:
+        """The model with one tower only ("image" or "text"): the other is dropped before it is ever read.
+
+        The image model lives as long as the encoder; a text model is loaded only to encode queries missing from
+        the cache and freed at once (with its file mapping), so the text tower's ~254 MB (ViT-B-32 fp32) is
+        never resident beside the running image tower for long.
+        """
         path = self._weights.path
         try:
             if path.is_dir() or path.suffix in (".npz", ".npy", ".safetensors"):
@@ -208,9 +289,15 @@ class ClipEncoder(Encoder):
         except Exception as err:  # torch/open_clip raise many kinds for a bad or mismatched file
             reason = " ".join(str(err).split())[:160]
             raise MerlionError(f"CLIP weights {path} do not load into {self._cfg.model}: {reason}") from None
+        if tower == "image":
+            drop_text_tower(model)
+        else:
+            del model.visual
         model = model.eval().to(device=self._device, dtype=self._dtype)
-        if self._int8:
+        if self._int8 and tower == "image":
             model.visual = quantize_image_tower(model.visual)
+            detach_from_file(model)  # the fp32 tower's mapped pages go with the mapping
+            release_freed_memory()
         return model
 
     def _load_via_open_clip(self, path: Path) -> torch.nn.Module:
@@ -230,13 +317,14 @@ class ClipEncoder(Encoder):
         ViT-B-32 fp32 peaked at ~1.9 GB. Here the file's pages are mapped (read on first use, shared with the
         page cache) and ``assign=True`` hands them to the model, freeing the random initial weights.
         """
-        kwargs: dict = {"device": "cpu", "precision": "fp32"}
+        kwargs: dict = {"device": "meta", "precision": "fp32"}
         if self._weights.preprocess:
             kwargs["force_preprocess_cfg"] = self._weights.preprocess
         quiet = _DropRandomInitWarning()
         logging.getLogger().addFilter(quiet)  # open_clip warns "initialized randomly": the weights come next
-        try:
-            model = open_clip.create_model(self._cfg.model, pretrained=None, pretrained_text=False, **kwargs)
+        try:  # on the meta device: no random initial weights are ever allocated (~600 MB for ViT-B-32)
+            with torch.device("meta"):
+                model = open_clip.create_model(self._cfg.model, pretrained=None, pretrained_text=False, **kwargs)
         finally:
             logging.getLogger().removeFilter(quiet)
         state = read_state_dict(path)
@@ -253,6 +341,12 @@ class ClipEncoder(Encoder):
         open_clip_factory.resize_pos_embed(state, model)
         open_clip_factory.resize_text_pos_embed(state, model)
         model.load_state_dict(state, strict=True, assign=True)
+        for module in model.modules():  # non-persistent buffers are not in the file: build them for real
+            for key, buf in list(module._buffers.items()):
+                if buf is not None and buf.is_meta:
+                    if key != "attn_mask":
+                        raise ValueError(f"buffer {key} is not in the checkpoint")
+                    module._buffers[key] = _causal_mask(buf.shape[0])
         return model
 
     @property
@@ -264,7 +358,10 @@ class ClipEncoder(Encoder):
         """The paper's path: open_clip's own PIL transform on each full frame, then the model, no batching tricks
         (the baseline ``merlion bench pipeline`` compares against)."""
         batch = torch.stack([self.preprocess.reference(img) for img in images])
-        emb = self._model.encode_image(batch.to(self._device, self._dtype))
+        if self._onnx is not None:  # the torch image tower is not kept beside the session
+            emb = self._onnx(batch)
+        else:
+            emb = self._model.encode_image(batch.to(self._device, self._dtype))
         return F.normalize(emb.float(), dim=-1).cpu().numpy().astype(np.float32, copy=False)
 
     @property
@@ -287,13 +384,31 @@ class ClipEncoder(Encoder):
         return np.concatenate(out).astype(np.float32, copy=False)
 
     def _embed_dim(self) -> int:
-        return int(self.encode_texts(["x"]).shape[1])
+        return self._dim or int(self.encode_texts(["x"]).shape[1])
+
+    @property
+    def holds_text_tower(self) -> bool:
+        """False once loaded: the text tower lives only while queries missing from the cache are encoded."""
+        return any(hasattr(self._model, name) for name in TEXT_TOWER)
 
     @torch.inference_mode()
     def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
-        tokens = self._tokenizer(list(texts)).to(self._device)
-        emb = self._model.encode_text(tokens)
-        return F.normalize(emb.float(), dim=-1).cpu().numpy().astype(np.float32, copy=False)
+        """Embeddings from the cache (keyed by query text); missing ones load the text tower, encode, free it."""
+        missing = [t for t in dict.fromkeys(texts) if t not in self._text_cache]
+        if missing:
+            model = self._load("text")
+            try:
+                tokens = self._tokenizer(missing).to(self._device)
+                emb = F.normalize(model.encode_text(tokens).float(), dim=-1).cpu().numpy()
+            finally:
+                del model
+                release_freed_memory()
+            self._text_cache.update(zip(missing, emb.astype(np.float32), strict=True))
+            log.debug("encoded %d queries with a text tower loaded from %s and freed again", len(missing),
+                      self._weights.path)
+        if not texts:
+            return np.zeros((0, self._embed_dim()), dtype=np.float32)
+        return np.stack([self._text_cache[t] for t in texts]).astype(np.float32, copy=False)
 
     def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         logits = SCALE * (image_embeddings.astype(np.float64) @ text_embeddings.astype(np.float64).T)

@@ -30,6 +30,12 @@ from tests.conftest import free_tcp_port, run_merlion, shared_file
 SMALL = "ViT-S-32-alt"
 
 
+@pytest.fixture(autouse=True)
+def _onnx_cache_in_tmp(tmp_path, monkeypatch):
+    """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
+    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path / "merlion-cache"))
+
+
 def _save_random(model: str, path) -> tuple[str, torch.nn.Module]:
     torch.manual_seed(0)
     net = open_clip.create_model(model, pretrained=None)
@@ -183,9 +189,9 @@ def test_onnx_providers_are_chosen_and_a_missing_one_is_a_one_line_error(small_c
         ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, providers=["CPUExecutionProvider"]))
 
 
-def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_fp32, images):
+def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_ckpt, small_fp32, images):
     """Trainer checkpoints ({"state_dict": ...}, "module." prefixes) and pre-zip torch files load like plain ones."""
-    state = small_fp32._model.state_dict()
+    state = torch.load(small_ckpt, weights_only=True)  # the encoder itself no longer holds the text tower
     wrapped = tmp_path / "wrapped.pt"
     torch.save({"state_dict": {f"module.{k}": v for k, v in state.items()}, "epoch": 3}, wrapped)
     legacy = tmp_path / "legacy.pt"
@@ -203,7 +209,8 @@ def test_a_checkpoint_of_another_architecture_is_a_one_line_error(small_ckpt):
 
 @pytest.mark.slow
 def test_loading_holds_one_copy_of_the_weights(tmp_path):
-    """open_clip's loader held checkpoint and model at once (~2x the file); the mmap'd load stays near 1x."""
+    """open_clip's loader held checkpoint and model at once (~2x the file); the mmap'd load of the image tower
+    alone (the text tower is never read at load) stays well under the file's size (image tower ~58% of it)."""
     torch.manual_seed(0)
     ckpt = tmp_path / "b32_fp32.pt"
     torch.save(open_clip.create_model("ViT-B-32", pretrained=None).state_dict(), ckpt)
@@ -221,7 +228,7 @@ def test_loading_holds_one_copy_of_the_weights(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=repo)
     assert proc.returncode == 0, proc.stderr
     before, after = map(float, proc.stdout.split()[-2:])
-    assert after - before < 1.3 * size_mb, (before, after, size_mb)
+    assert after - before < 0.85 * size_mb, (before, after, size_mb)
 
 
 def test_batches_give_the_same_embeddings_as_single_frames(small_fp32, images):
