@@ -67,6 +67,9 @@ class EncoderConfig(_Section):
     """Largest batch taken from the queue at once; smaller batches go as soon as they are there."""
     input_size: int | None = Field(None, gt=0)
     """Frames are downscaled to this side before encoding (None: what the model wants)."""
+    cache_dir: str | None = None
+    """Where exported ONNX image towers are kept between starts, so a later start never exports again
+    (None: ~/.cache/merlion)."""
 
 
 class QueryConfig(_Section):

@@ -176,8 +176,10 @@ def _looped(cfg: Config) -> Config:
 
 
 def _fp32_twin(cfg: Config, encoder: Encoder) -> Encoder:
-    """The encoder itself when it runs in fp32 (or has no precision), else a fresh fp32 one of the same model."""
-    if encoder.describe().get("precision", "fp32") == "fp32":
+    """The encoder itself when it runs torch in fp32 (or has no precision), else a fresh torch fp32 one of the same
+    model: the paper's loop is the baseline, so it never runs through ONNX Runtime or a reduced precision."""
+    described = encoder.describe()
+    if described.get("precision", "fp32") == "fp32" and described.get("runtime", "torch") == "torch":
         return encoder
     from companion.vision.encoders.factory import make_encoder
 

@@ -161,12 +161,12 @@ class OnnxImageTower:
         return torch.from_numpy(out)
 
 
-def onnx_cache_path(weights: Path, model: str, size: tuple[int, int]) -> Path | None:
+def onnx_cache_path(weights: Path, model: str, size: tuple[int, int], root: str | Path | None = None) -> Path | None:
     """Where the exported image tower of these weights is kept between starts, or None (a folder of weights).
 
     Keyed by the weights file's path, size and mtime, the architecture, input size and torch/open_clip versions,
-    so replaced weights or an upgraded exporter export afresh. ``$MERLION_CACHE_DIR`` (default
-    ``$XDG_CACHE_HOME/merlion`` or ``~/.cache/merlion``) / onnx.
+    so replaced weights or an upgraded exporter export afresh. ``root`` is ``encoder.cache_dir`` (None:
+    ``~/.cache/merlion``); the towers go in its ``onnx`` folder.
     """
     import hashlib
 
@@ -175,8 +175,7 @@ def onnx_cache_path(weights: Path, model: str, size: tuple[int, int]) -> Path | 
     st = weights.stat()
     key = "|".join(map(str, (weights.resolve(), st.st_size, st.st_mtime_ns, model, size, torch.__version__,
                              open_clip.__version__)))
-    root = os.environ.get("MERLION_CACHE_DIR") or Path(
-        os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "merlion"
+    root = Path(root).expanduser() if root else Path.home() / ".cache" / "merlion"
     return Path(root) / "onnx" / f"{model}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.onnx"
 
 
@@ -262,7 +261,7 @@ class ClipEncoder(Encoder):
                                  f"device {self._device}): use precision fp32 or runtime torch")
             self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads(),
                                         cfg.providers, cache=onnx_cache_path(self._weights.path, cfg.model,
-                                                                             self.preprocess.size))
+                                                                             self.preprocess.size, cfg.cache_dir))
             del self._model.visual  # the session holds its own copy: never keep both
             detach_from_file(self._model)
             release_freed_memory()

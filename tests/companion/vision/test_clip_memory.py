@@ -23,7 +23,7 @@ QUERIES = ["a coral reef", "sand", "open water"]
 @pytest.fixture(autouse=True)
 def _onnx_cache_in_tmp(tmp_path, monkeypatch):
     """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
-    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path / "merlion-cache"))
+    monkeypatch.setenv("HOME", str(tmp_path))  # the default encoder.cache_dir is ~/.cache/merlion
 
 
 @pytest.fixture(scope="module")
@@ -88,11 +88,11 @@ def test_onnx_encoder_holds_no_torch_image_tower_and_gives_the_torch_embeddings(
 
 
 def test_the_exported_tower_is_cached_so_a_second_start_never_reads_torch_s_tower(ckpt, tmp_path, monkeypatch):
-    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("HOME", str(tmp_path))
     path, _ = ckpt
     first = _encoder(path, runtime="onnx")
     assert not first._onnx.cached
-    assert [p.suffix for p in (tmp_path / "onnx").iterdir()] == [".onnx"]  # no temporary left behind
+    assert [p.suffix for p in (tmp_path / ".cache" / "merlion" / "onnx").iterdir()] == [".onnx"]  # no temporary left behind
     second = _encoder(path, runtime="onnx")
     assert second._onnx.cached
     frames = [np.random.default_rng(1).integers(0, 255, (96, 128, 3), dtype=np.uint8) for _ in range(2)]

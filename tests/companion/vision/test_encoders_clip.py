@@ -33,7 +33,7 @@ SMALL = "ViT-S-32-alt"
 @pytest.fixture(autouse=True)
 def _onnx_cache_in_tmp(tmp_path, monkeypatch):
     """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
-    monkeypatch.setenv("MERLION_CACHE_DIR", str(tmp_path / "merlion-cache"))
+    monkeypatch.setenv("HOME", str(tmp_path))  # the default encoder.cache_dir is ~/.cache/merlion
 
 
 def _save_random(model: str, path) -> tuple[str, torch.nn.Module]:
