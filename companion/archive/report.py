@@ -15,6 +15,7 @@ import json
 from datetime import datetime, timezone
 from pathlib import Path
 
+from companion.evaluation.plots import plot_depth, plot_scores
 from companion.storage.atomic_write import atomic_write
 
 INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
@@ -34,58 +35,21 @@ def _load(out_dir: Path, name: str) -> tuple[dict, dict, list[tuple[float, float
     return summary, tags, scores
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _plot_depth(name: str, tags: dict, path: Path) -> bool:
     track = tags.get("depth_track") or []
     marked = [(f["time_s"], f["pose"]["depth_m"]) for f in tags.get("frames", [])
               if f.get("pose") and f["pose"].get("depth_m") is not None]
     if not track and not marked:
         return False
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 3))
-    if track:
-        ax.plot(*zip(*track, strict=True), lw=1, color="tab:blue", label="depth (log)")
-    if marked:
-        ax.scatter(*zip(*marked, strict=True), color="tab:orange", zorder=3, label="summary frames")
-    ax.invert_yaxis()
-    ax.set_xlabel("time in video (s)")
-    ax.set_ylabel("depth (m)")
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title(f"{name}: depth profile")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    plot_depth(path, name, [tuple(p) for p in track], marked, xlabel="time in video (s)", track_label="depth (log)")
     return True
 
 
 def _plot_scores(name: str, summary: dict, scores: list[tuple[float, float]], path: Path) -> bool:
     if not scores:
         return False
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 3))
-    ax.plot(*zip(*scores, strict=True), lw=1, color="tab:blue", label="semantic score")
-    tau = summary["params"].get("tau_ss")
-    if tau is not None:
-        ax.axhline(tau, color="tab:red", ls="--", lw=1, label=f"tau_ss = {tau:g}")
-    frames = summary.get("frames", [])
-    if frames:
-        ax.scatter([f["time_s"] for f in frames], [f["score"] for f in frames], color="tab:orange", zorder=3,
-                   label="summary frames")
-    ax.set_xlabel("time in video (s)")
-    ax.set_ylabel("score")
-    ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(f"{name}: score over time")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    marked = [(f["time_s"], f["score"]) for f in summary.get("frames", [])]
+    plot_scores(path, name, scores, marked, tau=summary["params"].get("tau_ss"), xlabel="time in video (s)")
     return True
 
 

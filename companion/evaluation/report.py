@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from companion.errors import MerlionError
+from companion.evaluation.plots import plot_depth, plot_scores
 
 
 @dataclass
@@ -59,48 +60,15 @@ def contact_sheet(images: Sequence[np.ndarray], captions: Sequence[str], tile_w:
 
 
 def _plot_scores(run: ReportRun, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 3))
-    ax.plot(run.score_times, run.scores, lw=1, color="tab:blue", label="semantic score")
-    if run.tau is not None:
-        ax.axhline(run.tau, color="tab:red", ls="--", lw=1, label=f"tau_ss = {run.tau:g}")
-    if run.frame_times:
-        at = np.interp(run.frame_times, run.score_times, run.scores)
-        ax.scatter(run.frame_times, at, color="tab:orange", zorder=3, label="summary frames")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("score")
-    ax.set_ylim(-0.02, 1.02)
-    ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(f"{run.name}: score over time")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    marked = list(zip(run.frame_times, np.interp(run.frame_times, run.score_times, run.scores), strict=True)) \
+        if run.frame_times else []
+    plot_scores(path, run.name, list(zip(run.score_times, run.scores, strict=True)), marked, tau=run.tau,
+                ylim=(-0.02, 1.02))
 
 
 def _plot_depth(run: ReportRun, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 3))
-    if run.depth_times:
-        ax.plot(run.depth_times, run.depths, lw=1, color="tab:blue", label="depth")
     tagged = [(t, d) for t, d in zip(run.frame_times, run.frame_depths, strict=False) if d is not None]
-    if tagged:
-        ax.scatter(*zip(*tagged, strict=True), color="tab:orange", zorder=3, label="summary frames")
-    ax.invert_yaxis()
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("depth (m)")
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title(f"{run.name}: depth profile")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    plot_depth(path, run.name, list(zip(run.depth_times, run.depths, strict=True)), tagged)
 
 
 def _slug(name: str) -> str:
