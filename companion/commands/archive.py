@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from companion.commands.overrides import Overrides, put, put_queries_and_encoder
+from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
 from companion.config import load_config
 from companion.errors import UsageError
 
@@ -22,16 +22,7 @@ def register(add_command) -> None:
     p.add_argument("--workers", type=int, help="local Ray: CPUs to use (default: all of this machine)")
     p.add_argument("--cpus-per-task", type=float, default=1.0, help="CPUs per dive task (default 1)")
     p.add_argument("--gpus-per-task", type=float, default=0.0, help="GPUs per dive task where GPUs exist")
-    p.add_argument("-k", "--k", type=int, help="summary size (default 6)")
-    p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
-    p.add_argument("--negative", metavar="TEXT", action="append", help="negative query, repeatable")
-    p.add_argument("--threshold", type=float, metavar="TAU", help="pre-sampling threshold tau_ss")
-    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
-    p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
-    p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file (on every worker)")
-    p.add_argument("--fps", type=float, help="frames per second kept from each source (default 5)")
-    p.add_argument("--enhance", choices=["none", "always", "selective"], help="MERLION-E enhancement mode")
-    p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
+    add_summary_options(p, weights_help="local CLIP checkpoint file (on every worker)")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report and frame index")
     p.set_defaults(func=run)
@@ -39,11 +30,7 @@ def register(add_command) -> None:
 
 def overrides_from(args: argparse.Namespace) -> Overrides:
     over: Overrides = {}
-    put(over, "source", "fps", args.fps)
-    put(over, "sampler", "k", args.k)
-    put(over, "queries", "tau_ss", args.threshold)
-    put(over, "enhance", "mode", args.enhance)
-    put_queries_and_encoder(over, args)
+    put_summary_options(over, args)
     return over
 
 

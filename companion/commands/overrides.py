@@ -30,3 +30,29 @@ def put_queries_and_encoder(over: Overrides, args: argparse.Namespace) -> None:
     put(over, "encoder", "name", args.encoder)
     for key in ENCODER_OPTIONS:
         put(over, "encoder", key, getattr(args, key, None))
+
+
+def add_summary_options(p: argparse.ArgumentParser, *, weights_help: str = "local CLIP checkpoint file") -> None:
+    """The options of a summary run (K, queries, threshold, encoder, fps, enhancement, batch), for every command
+    that summarizes a source (``summarize`` one, ``archive`` many): same names, same meaning."""
+    p.add_argument("-k", "--k", type=int, help="summary size (default 6)")
+    p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
+    p.add_argument("--negative", metavar="TEXT", action="append",
+                   help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    p.add_argument("--threshold", type=float, metavar="TAU",
+                   help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50); 0: no semantic gate")
+    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
+    p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
+    p.add_argument("--weights", metavar="PATH", help=weights_help)
+    p.add_argument("--fps", type=float, help="frames per second kept from each source (default 5)")
+    p.add_argument("--enhance", choices=["none", "always", "selective"], help="MERLION-E enhancement mode")
+    p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
+
+
+def put_summary_options(over: Overrides, args: argparse.Namespace) -> None:
+    """The options ``add_summary_options`` defines, those given, into ``over``."""
+    put(over, "source", "fps", args.fps)
+    put(over, "sampler", "k", args.k)
+    put(over, "queries", "tau_ss", args.threshold)
+    put(over, "enhance", "mode", args.enhance)
+    put_queries_and_encoder(over, args)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from companion.commands.overrides import Overrides, put, put_queries_and_encoder
+from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
 from companion.config import load_config
 
 
@@ -13,18 +13,7 @@ def register(add_command) -> None:
     p = add_command("summarize", "summarize a video file or image folder into DIR (summary.json, frames/, contact sheet)")
     p.add_argument("source", metavar="SOURCE", help="video file (H.264, HEVC, MJPEG, ...) or folder of images")
     p.add_argument("--out", "-o", required=True, metavar="DIR", help="output directory (must not exist unless --force)")
-    p.add_argument("-k", "--k", type=int, help="summary size (default 6)")
-    p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
-    p.add_argument("--negative", metavar="TEXT", action="append",
-                   help="negative query, repeatable (with --query and no --negative: a generic negative)")
-    p.add_argument("--threshold", type=float, metavar="TAU",
-                   help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50); 0: no semantic gate")
-    p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
-    p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
-    p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
-    p.add_argument("--fps", type=float, help="frames per second kept from the source (default 5)")
-    p.add_argument("--enhance", choices=["none", "always", "selective"], help="MERLION-E enhancement mode")
-    p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
+    add_summary_options(p)
     p.add_argument("--like", metavar="FILE", action="append", default=[],
                    help="an example of what is wanted (image or folder of images), repeatable")
     p.add_argument("--unlike", metavar="FILE", action="append", default=[],
@@ -37,11 +26,7 @@ def register(add_command) -> None:
 def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
     """Command-line options as a nested configuration override (only the ones given)."""
     over: Overrides = {"source": {"uri": args.source}}
-    put(over, "source", "fps", args.fps)
-    put(over, "sampler", "k", args.k)
-    put(over, "queries", "tau_ss", args.threshold)
-    put(over, "enhance", "mode", args.enhance)
-    put_queries_and_encoder(over, args)
+    put_summary_options(over, args)
     return over
 
 
