@@ -8,10 +8,7 @@ import struct
 import pytest
 from pymavlink import mavftp
 
-from companion.config import SurfaceConfig
-from tests.conftest import free_udp_port
-from tests.vehicle.surface_env import LossyRelay, added, companion_link, ground_station
-from vehicle.camera.downlink import Downlink
+from tests.vehicle.surface_env import LossyRelay, ground_station
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, clean_path, crc32_ardupilot
 from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op
 
@@ -204,19 +201,6 @@ def _settings(**over) -> mavftp.MAVFTPSettings:
               "retry_time": 0.4}
     values.update(over)
     return mavftp.MAVFTPSettings([(k, type(v), v) for k, v in values.items()])
-
-
-@pytest.fixture
-def companion(tmp_path):
-    port = free_udp_port()
-    link = companion_link(port)
-    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=60000, push=False, ftp_writable=True))
-    surface.start()
-    for i in (3, 4, 5):
-        surface.publish(added(i, [3, 4, 5][: i - 2]))
-    yield port, surface
-    surface.stop()
-    link.stop()
 
 
 def _get(client: mavftp.MAVFTP, remote: str, local) -> bool:

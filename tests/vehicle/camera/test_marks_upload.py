@@ -9,7 +9,7 @@ from pymavlink import mavftp
 
 from companion.config import SurfaceConfig
 from tests.conftest import free_udp_port
-from tests.vehicle.surface_env import added, companion_link, ground_station
+from tests.vehicle.surface_env import companion_link, ground_station
 from vehicle.camera.downlink import MARKS_MAX, Downlink, parse_marks
 
 
@@ -40,19 +40,6 @@ def test_parse_marks_accepts_the_format_and_drops_repeats():
 def test_parse_marks_refuses_bad_files_naming_the_problem(data, says):
     with pytest.raises(ValueError, match=says):
         parse_marks(data)
-
-
-@pytest.fixture
-def companion():
-    port = free_udp_port()
-    link = companion_link(port)
-    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=60000, push=False, ftp_writable=True))
-    surface.start()
-    for i in (3, 4, 5):
-        surface.publish(added(i, [3, 4, 5][: i - 2]))
-    yield port, surface
-    surface.stop()
-    link.stop()
 
 
 def test_uploading_marks_reaches_the_app_and_a_refusal_is_a_nak(companion, tmp_path):
