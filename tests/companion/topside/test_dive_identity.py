@@ -16,17 +16,9 @@ from companion.topside.tool import SurfaceOptions
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.conftest import free_udp_port
+from tests.waiting import wait_until
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
-
-
-def _wait(predicate, timeout: float = 30.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return predicate()
 
 
 def test_the_store_keeps_its_dive_id_until_it_is_reset(tmp_path):
@@ -78,7 +70,7 @@ def test_gallery_identity_across_a_store_reset(tmp_path):
                 c.thumbnail and c.dive == dive and (out / c.thumbnail).read_bytes() == thumbs[i]
                 for i, c in caps.items())
 
-        assert _wait(lambda: shows(first, first_thumbs)), Gallery(out).captures()
+        assert wait_until(lambda: shows(first, first_thumbs), 30), Gallery(out).captures()
         surface, link = running.pop()
         surface.stop()
         link.stop()
@@ -86,7 +78,7 @@ def test_gallery_identity_across_a_store_reset(tmp_path):
         second, second_thumbs, parts = _dive(port, tmp_path / "store", [40.0, 41.0], invert=True)
         running.append(parts)
         assert second != first and second_thumbs[0] != first_thumbs[0]
-        assert _wait(lambda: shows(second, second_thumbs)), Gallery(out).captures()
+        assert wait_until(lambda: shows(second, second_thumbs), 30), Gallery(out).captures()
         gallery = Gallery(out)
         assert {c.depth_m for c in gallery.summary()} == {40.0, 41.0}  # no tag of the first dive leaks in
         old = {c.image_index: c for c in gallery.archived()}

@@ -12,7 +12,6 @@ import os
 import re
 import subprocess
 import sys
-import time
 import urllib.error
 import urllib.request
 
@@ -23,6 +22,7 @@ from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.companion.topside.browser import Page, chromium_or_skip
 from tests.conftest import REPO, free_udp_port, run_merlion
+from tests.waiting import wait_until
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
 
@@ -42,15 +42,6 @@ def _post(url: str, body: dict, token: str | None) -> tuple[int, dict]:
 def _state(port: int) -> dict:
     with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as r:
         return json.load(r)
-
-
-def _wait(predicate, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 @pytest.fixture
@@ -81,10 +72,10 @@ def surface_and_companion(tmp_path):
         surface.on_marks_changed(on_marks)
         surface.start()
         web = int(match.group(2))
-        assert _wait(lambda: _state(web)["companion"]["id"] == [1, 100], 15)
+        assert wait_until(lambda: _state(web)["companion"]["id"] == [1, 100], 15)
         surface.publish(SummaryEvent("added", summary_frame(5), summary=[5]))
         surface.publish(SummaryEvent("added", summary_frame(6), summary=[5, 6]))
-        assert _wait(lambda: [f["image_index"] for f in _state(web)["summary"]] == [6, 5], 30)
+        assert wait_until(lambda: [f["image_index"] for f in _state(web)["summary"]] == [6, 5], 30)
         yield match.group(1), web, match.group(3), accepted
     finally:
         if surface is not None:
@@ -122,10 +113,10 @@ def test_the_cards_buttons_mark_a_frame(surface_and_companion):
         button = "document.querySelector('#gallery figure.frame[data-index=\"{i}\"] button.mark.{kind}')"
         assert page.wait_for(button.format(i=6, kind="like") + " !== null")
         page.evaluate(button.format(i=6, kind="like") + ".click()")
-        assert _wait(lambda: accepted == [([6], [])], 30), accepted
+        assert wait_until(lambda: accepted == [([6], [])], 30), accepted
         assert page.wait_for(button.format(i=6, kind="like") + ".classList.contains('on')", 10)
         page.evaluate(button.format(i=5, kind="unlike") + ".click()")
-        assert _wait(lambda: accepted[-1:] == [([6], [5])], 30), accepted
+        assert wait_until(lambda: accepted[-1:] == [([6], [5])], 30), accepted
         assert page.wait_for(button.format(i=5, kind="unlike") + ".classList.contains('on')", 10)
 
 

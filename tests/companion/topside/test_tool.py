@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import random
 import threading
-import time
 
 import pytest
 
@@ -13,16 +12,8 @@ from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions
 from tests.companion.surface_peer import CompanionPeer, summary_frame
 from tests.conftest import free_udp_port
+from tests.waiting import wait_until
 from vehicle.camera.thumbnails import make_thumbnail
-
-
-def _wait(predicate, timeout: float = 20.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return predicate()
 
 
 def test_gallery_mirrors_the_companion_summary_with_push_and_ftp_fallback(tmp_path):
@@ -35,7 +26,7 @@ def test_gallery_mirrors_the_companion_summary_with_push_and_ftp_fallback(tmp_pa
     try:
         gallery = Gallery(tmp_path)  # a second reader of the same folder: what the tool wrote is on disk
         # until the tool answers (its heartbeat), it may not be listening yet
-        assert _wait(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
+        assert wait_until(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
         sent = {}
         sent[1] = peer.add(summary_frame(1, depth=10.0, yaw_deg=30, score=0.91))
         sent[2] = peer.add(summary_frame(2, depth=11.0, yaw_deg=60, score=0.82), drop_chunks={2})  # stalls
@@ -53,7 +44,7 @@ def test_gallery_mirrors_the_companion_summary_with_push_and_ftp_fallback(tmp_pa
             return set(held) == {1, 2, 4, 5, 6, 7} and all(c.thumbnail and c.score is not None and c.depth_m
                                                         for c in held.values())
 
-        assert _wait(settled, 30), Gallery(tmp_path).captures()
+        assert wait_until(settled, 30), Gallery(tmp_path).captures()
         gallery = Gallery(tmp_path)
         held = {c.image_index: c for c in gallery.summary()}
         for i in (1, 2, 4, 5, 6, 7):
@@ -112,7 +103,7 @@ def test_every_thumbnail_arrives_intact_through_a_lossy_link_from_the_real_surfa
                 and (tmp_path / c.thumbnail).read_bytes() == surface.tree.read(f"/summary/{i}.jpg")
                 for i, c in caps.items())
 
-        assert _wait(settled, 60), Gallery(tmp_path).captures()
+        assert wait_until(settled, 60), Gallery(tmp_path).captures()
         gallery = Gallery(tmp_path)
         for cap in gallery.summary():
             assert (tmp_path / cap.thumbnail).read_bytes() == surface.tree.read(f"/summary/{cap.image_index}.jpg")
@@ -142,7 +133,7 @@ def test_a_tool_started_mid_dive_learns_the_summary_from_the_index(tmp_path):
             held = {c.image_index: c for c in Gallery(tmp_path).summary()}
             return set(held) == {1, 3} and all(c.thumbnail for c in held.values())
 
-        assert _wait(learnt, 20), Gallery(tmp_path).captures()
+        assert wait_until(learnt, 20), Gallery(tmp_path).captures()
         held = {c.image_index: c for c in Gallery(tmp_path).summary()}
         for i in (1, 3):
             assert (tmp_path / held[i].thumbnail).read_bytes() == sent[i] and held[i].thumbnail_via == "ftp"
@@ -164,7 +155,7 @@ def test_pushes_pair_by_their_mrl_push_marker_and_are_checked_against_index_crcs
     thread.start()
     peer = CompanionPeer(port, markers=True, index_crc=True)
     try:
-        assert _wait(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
+        assert wait_until(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
         frames = {i: summary_frame(i, depth=20.0 + i, score=0.5 + i / 10) for i in (1, 2, 3, 4, 5)}
         sent = {i: peer.add(frames[i], push=False, announce=i != 4) for i in (1, 2, 3, 4, 5)}  # 4's capture lost
         thumbs = {i: make_thumbnail(frames[i].image) for i in sent}
@@ -181,7 +172,7 @@ def test_pushes_pair_by_their_mrl_push_marker_and_are_checked_against_index_crcs
             return set(held) == {1, 2, 3, 4} and held[3].thumbnail_via == "ftp" and held[4].depth_m and all(
                 c.thumbnail for c in held.values())
 
-        assert _wait(settled, 30), Gallery(tmp_path).captures()
+        assert wait_until(settled, 30), Gallery(tmp_path).captures()
         gallery = Gallery(tmp_path)
         for i in (1, 2, 3, 4):
             cap = gallery.get(i)

@@ -10,7 +10,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 import urllib.error
 import urllib.request
 
@@ -21,6 +20,7 @@ from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.companion.topside.browser import Page, chromium_or_skip
 from tests.conftest import REPO, free_udp_port, run_merlion
+from tests.waiting import wait_until
 from vehicle.camera import status as st
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
@@ -31,15 +31,6 @@ DIVE = "5e1f0c2a"
 def _state(port: int) -> dict:
     with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as r:
         return json.load(r)
-
-
-def _wait(predicate, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
@@ -68,7 +59,7 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
                   8: summary_frame(8, depth=24.2, yaw_deg=45, score=0.71)}
         frames[8] = dataclasses.replace(frames[8], pose=dataclasses.replace(frames[8].pose, lat=1.26440,
                                                                              lon=103.82220))
-        assert _wait(lambda: _state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
+        assert wait_until(lambda: _state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
         surface.publish(SummaryEvent("added", frames[5], summary=[5]))
         surface.publish(SummaryEvent("added", frames[6], summary=[5, 6]))
         surface.publish(SummaryEvent("added", frames[7], summary=[5, 6, 7]))
@@ -81,9 +72,9 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             return [f["image_index"] for f in s["summary"]] == [6, 5] and all(
                 f["thumbnail"] and f["score"] is not None for f in s["summary"])
 
-        assert _wait(ready, 30), _state(web)
+        assert wait_until(ready, 30), _state(web)
         # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
-        assert _wait(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
+        assert wait_until(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
         assert _state(web)["link"]["mismatched"] == 0
         with Page(page_url) as page:
             # thumbnails really decode in the browser, newest first, each with its depth tag and dive
