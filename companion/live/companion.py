@@ -279,24 +279,21 @@ class LiveCompanion:
                 self.pipeline.enhance_mode = "always" if value else "none"
         return []
 
-    def _refuse(self, name: str, why: str) -> None:
-        """Say on the surface why a parameter change is refused, then refuse it (the value stays as it was)."""
+    def _refuse(self, name: str, why: str, detail: str = "") -> None:
+        """Say on the surface why a parameter change is refused (``why``, short), then refuse it with ``detail``
+        for the log (the value stays as it was)."""
         if self.surface is not None:
             from vehicle.camera import status as st
 
             self.surface.event(f"{name} refused: {why}"[:50], st.WARNING)
-        raise ValueError(why)
+        raise ValueError(detail or why)
 
     def _check_enhance(self, on: bool) -> None:
         """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and
         say why on the surface, rather than accept a value that changes nothing."""
         if on and self.cfg.enhance.mode == "none":
-            if self.surface is not None:
-                from vehicle.camera import status as st
-
-                self.surface.event("MERL_ENHANCE refused: enhance.mode is none", st.WARNING)
-            raise ValueError("enhance.mode is none (no enhancer loaded); set enhance.mode: selective or always "
-                             "and restart")
+            self._refuse("MERL_ENHANCE", "enhance.mode is none", "enhance.mode is none (no enhancer loaded); set "
+                         "enhance.mode: selective or always and restart")
 
     def _on_queries(self, positive: str, negatives: list[str]) -> None:
         def set_queries() -> None:
