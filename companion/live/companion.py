@@ -180,9 +180,10 @@ class LiveCompanion:
         self.link.healthy = self.health.healthy
         self.telemetry = _make_telemetry(self.link, cfg)
         params_file = self._params_file()
-        defaults = {spec.name: spec.value for spec in default_params(cfg)}
+        specs = default_params(cfg)
+        defaults = {spec.name: spec.value for spec in specs}  # before the saved values are applied to the specs
         self.surface = Downlink(
-            self.link, cfg.surface, params=default_params(cfg), saved_params=self.saved_params,
+            self.link, cfg.surface, params=specs, saved_params=self.saved_params,
             persist_params=params_file.save,
             loader=self.store.frame, image_count=image_count, stored_jpeg=self.store.frame_jpeg,
             queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
