@@ -207,3 +207,19 @@ class Listener:
         self._stop.set()
         self._thread.join(timeout=2)
         self.sock.close()
+
+
+def write_clip(path: Path, frames: int = 20) -> Path:
+    """A short MJPEG clip of the generated dive, for a live companion run on a file."""
+    import cv2
+
+    from companion.sources.synthetic import SyntheticSource
+
+    source = SyntheticSource("synthetic://dive?seconds=1&width=160&height=96", fps=10, realtime=False)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (160, 96))
+    for i, frame in enumerate(source):
+        if i >= frames:
+            break
+        writer.write(frame.image)
+    writer.release()
+    return path

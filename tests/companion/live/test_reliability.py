@@ -19,9 +19,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import StoreConfig
 from companion.live.udp_hub import UdpHub
-from companion.sources.synthetic import SyntheticSource
 from companion.storage.store import TMP_PREFIX, Store
-from tests.companion.live_harness import Companion, Listener, store_summary, wait_until, write_config
+from tests.companion.live_harness import (
+    Companion,
+    Listener,
+    store_summary,
+    wait_until,
+    write_clip,
+    write_config,
+)
 from tests.conftest import free_udp_port
 from vehicle.sim.vehicle import SimVehicle
 
@@ -63,17 +69,6 @@ def test_autopilot_silent_then_back_then_rebooted(tmp_path: Path, vehicle) -> No
                "depth after the autopilot rebooted")
     assert companion.alive()
     assert companion.terminate() == 0, companion.output
-
-
-def write_clip(path: Path, frames: int = 20) -> Path:
-    source = SyntheticSource("synthetic://dive?seconds=1&width=160&height=96", fps=10, realtime=False)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (160, 96))
-    for i, frame in enumerate(source):
-        if i >= frames:
-            break
-        writer.write(frame.image)
-    writer.release()
-    return path
 
 
 def test_source_missing_then_returning_then_ending_keeps_the_process_up(tmp_path: Path, vehicle) -> None:

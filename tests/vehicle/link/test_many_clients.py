@@ -22,8 +22,7 @@ from pathlib import Path
 import pytest
 
 from companion.live.udp_hub import UdpHub
-from tests.companion.live.test_reliability import write_clip  # the live tests' short video
-from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
+from tests.companion.live_harness import Companion, store_summary, wait_until, write_clip, write_config
 from vehicle.sim.gcs_load import run_client
 
 DURATION_S = float(os.environ.get("MERLION_STRESS_S", "20"))
