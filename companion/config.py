@@ -72,17 +72,57 @@ class EncoderConfig(_Section):
     (None: ~/.cache/merlion)."""
 
 
+TOPIC_NAME = r"^[a-z0-9][a-z0-9_-]{0,23}$"
+"""A topic's name: it is in file names, FTP paths and 50-character STATUSTEXT lines, so short and plain."""
+
+
+class TopicConfig(_Section):
+    name: str = Field(pattern=TOPIC_NAME)
+    """Short name (lower-case letters, digits, - and _; at most 24), carried by every capture of the topic."""
+    positive: str = Field(min_length=1, max_length=300)
+    negatives: list[str] = Field(default_factory=list)
+    """With none, a generic negative ("an underwater image"), as for --query alone."""
+    tau_ss: float | None = None
+    """This topic's threshold; None: queries.tau_ss."""
+
+    @field_validator("tau_ss")
+    @classmethod
+    def _fraction(cls, value: float | None) -> float | None:
+        return None if value is None else as_fraction(value, allow_zero=True)
+
+
 class QueryConfig(_Section):
+    name: str = Field("main", pattern=TOPIC_NAME)
+    """The name of the one topic that positive/negatives define (captures and the gallery carry it)."""
     positive: str = "underwater image with fish"
     negatives: list[str] = Field(default_factory=lambda: ["underwater image without fish"])
     tau_ss: float = 0.5
     """Semantic pre-sampling threshold, a fraction in [0, 1); a value above 1 is read as a percentage; 0 means no
     semantic gate (every frame goes on to the sampler)."""
+    topics: list[TopicConfig] = Field(default_factory=list, max_length=8)
+    """Several named topics followed at once, each with its own summary of K frames, e.g. [{name: fish, positive:
+    ..., negatives: [...]}, {name: coral, ...}]; one encoder pass serves them all. Empty: the one topic above;
+    given: these topics replace it (name/positive/negatives above are then not used)."""
 
     @field_validator("tau_ss")
     @classmethod
     def _fraction(cls, value: float) -> float:
         return as_fraction(value, allow_zero=True)
+
+    @field_validator("topics")
+    @classmethod
+    def _unique(cls, value: list[TopicConfig]) -> list[TopicConfig]:
+        names = [t.name for t in value]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"topic name {twice[0]!r} is used twice")
+        return value
+
+    def topic_list(self) -> list[TopicConfig]:
+        """The topics to follow, first one first (the single default topic when none are listed)."""
+        if self.topics:
+            return list(self.topics)
+        return [TopicConfig(name=self.name, positive=self.positive, negatives=list(self.negatives))]
 
 
 class SamplerConfig(_Section):

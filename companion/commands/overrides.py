@@ -32,6 +32,15 @@ def put_queries_and_encoder(over: Overrides, args: argparse.Namespace) -> None:
         put(over, "encoder", key, getattr(args, key, None))
 
 
+def topic_option(text: str) -> dict[str, Any]:
+    """``NAME=POSITIVE[;NEGATIVE...]`` as a ``queries.topics`` entry (argparse turns ValueError into a usage error)."""
+    name, sep, queries = text.partition("=")
+    parts = [q.strip() for q in queries.split(";") if q.strip()]
+    if not sep or not name.strip() or not parts:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected NAME=POSITIVE[;NEGATIVE...]")
+    return {"name": name.strip(), "positive": parts[0], "negatives": parts[1:]}
+
+
 def add_summary_options(p: argparse.ArgumentParser, *, weights_help: str = "local CLIP checkpoint file") -> None:
     """The options of a summary run (K, queries, threshold, encoder, fps, enhancement, batch), for every command
     that summarizes a source (``summarize`` one, ``archive`` many): same names, same meaning."""
@@ -39,6 +48,9 @@ def add_summary_options(p: argparse.ArgumentParser, *, weights_help: str = "loca
     p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
     p.add_argument("--negative", metavar="TEXT", action="append",
                    help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    p.add_argument("--topic", metavar="NAME=POSITIVE[;NEGATIVE...]", action="append", type=topic_option,
+                   help="follow several topics at once, each with its own summary (repeatable; replaces --query), "
+                        "e.g. --topic 'fish=underwater image with fish;underwater image without fish'")
     p.add_argument("--threshold", type=float, metavar="TAU",
                    help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50); 0: no semantic gate")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
@@ -56,3 +68,5 @@ def put_summary_options(over: Overrides, args: argparse.Namespace) -> None:
     put(over, "queries", "tau_ss", args.threshold)
     put(over, "enhance", "mode", args.enhance)
     put_queries_and_encoder(over, args)
+    if getattr(args, "topic", None):
+        put(over, "queries", "topics", list(args.topic))

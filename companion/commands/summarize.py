@@ -36,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, overrides=overrides_from(args))
     result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
+    sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
     print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
-          f"({result.frames_passed} passed the query{lost}); see summary.json and contact_sheet.jpg")
+          f"({result.frames_passed} passed the query{lost}); see summary.json and {sheets}")
     return 0

@@ -37,7 +37,7 @@ from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
 from companion.storage.store import Store
-from companion.vision.events import SummaryEvent
+from companion.vision.events import SummaryEvent, SummaryFrame
 
 log = logging.getLogger(__name__)
 
@@ -151,8 +151,10 @@ class LiveCompanion:
         self.keeper.change(restore)
 
     def _make_keeper(self) -> SummaryKeeper:
-        def tags() -> dict[str, Any]:
-            return {"query": self.pipeline.presampler.positive,  # the live query, which the surface may change
+        def tags(frame: SummaryFrame) -> dict[str, Any]:
+            topic = next((t for t in self.pipeline.topics if t.name == frame.topic), self.pipeline.topics[0])
+            presampler = topic.presampler
+            return {"query": presampler.positive,  # the topic's live query, which the surface may change
                     "encoder": getattr(self.encoder, "name", ""), "source": self.cfg.source.uri}
 
         return SummaryKeeper(self.pipeline, self.store, tags=tags, publish=self._publish)

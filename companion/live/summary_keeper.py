@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from companion.storage.store import Store
-from companion.vision.events import SummaryEvent
+from companion.vision.events import SummaryEvent, SummaryFrame
 
 log = logging.getLogger(__name__)
 
@@ -35,12 +35,12 @@ HISTORY = 128
 class SummaryKeeper:
     """Owns ``pipeline``'s summary and ``store``; ``change(fn)`` is the only way to alter either."""
 
-    def __init__(self, pipeline: Any, store: Store, *, tags: Callable[[], dict[str, Any]],
+    def __init__(self, pipeline: Any, store: Store, *, tags: Callable[[SummaryFrame], dict[str, Any]],
                  publish: Callable[[SummaryEvent], None] | None = None) -> None:
         self.pipeline = pipeline
         self.store = store
         self.tags = tags
-        """Tags of a new frame at the moment it is stored (the live query, the encoder, the source)."""
+        """Tags of a new frame at the moment it is stored (its topic's live query, the encoder, the source)."""
         self.publish = publish
         """Announces an event to the surface; never allowed to stop the summary being kept."""
         self.lock = threading.RLock()
@@ -64,9 +64,8 @@ class SummaryKeeper:
 
     def _apply(self, events: list[SummaryEvent]) -> None:
         """Store first (the source of truth), then the surface: a crash in between loses no saved frame."""
-        tags = self.tags()
         for event in events:
-            self.store.apply(event, tags=tags)
+            self.store.apply(event, tags=self.tags(event.frame) if event.kind == "added" else None)
             self.applied += 1
             if self.publish is not None:
                 try:

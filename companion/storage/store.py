@@ -90,6 +90,7 @@ def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> d
         "raw_file": None,
         "feature_file": f"frames/{_name(frame.image_index)}.npy",
         "pose": frame.pose.to_dict() if frame.pose is not None else None,
+        "topic": frame.topic,
         "tags": dict(tags or {}),
     }
 
@@ -282,6 +283,7 @@ class Store:
             pose=pose_from_dict(sidecar.get("pose")),
             raw_image=raw,
             enhanced=bool(sidecar.get("enhanced", False)),
+            topic=str(sidecar.get("topic") or ""),
         )
         return _Held(frame=frame, sidecar=sidecar, on_disk=True)
 

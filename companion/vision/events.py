@@ -32,6 +32,8 @@ class SummaryFrame:
     raw_image: np.ndarray | None = None
     """The frame before enhancement, when enhancement ran."""
     enhanced: bool = False
+    topic: str = ""
+    """The name of the topic whose summary it entered (``queries.topics``; the default topic's name with one)."""
 
 
 @dataclass

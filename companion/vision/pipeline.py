@@ -13,6 +13,10 @@ Enhancement (REFERENCE.md step 8, MERLION-E), by ``enhance.mode``:
 - ``always``: every frame is enhanced before it is encoded, and ``ss_t`` of the enhanced frame is tested against
   ``tau_ss`` (the "enhance everything" baseline that selective enhancement is measured against).
 
+Several named topics (``companion.vision.topics``, config ``queries.topics``) share one encoder pass: each
+scores the same embeddings with its own queries and keeps its own summary; a frame may enter several of them
+(each entry is its own summary frame with its own image index).
+
 Before all of that, the frame gate (``companion.vision.gate``, config ``gate:``) lets through only the frames
 that differ from the last encoded one; a skipped frame gets a result with ``encoded=False`` (counted as seen,
 never scored, never offered to the sampler).
@@ -38,6 +42,7 @@ from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.gate import FrameGate
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
+from companion.vision.topics import Topic, TopicSpec, check_names, score_matrix
 from vehicle.autopilot.pose import Pose
 
 ENHANCE_MODES = ("none", "always", "selective")
@@ -50,9 +55,10 @@ class FrameResult:
     frame_index: int
     time_s: float
     score: float
-    """ss_t of the frame the encoder saw first (the enhanced one in mode ``always``)."""
+    """ss_t of the frame the encoder saw first (the enhanced one in mode ``always``); with several topics the
+    highest of their scores (``topic_scores`` has each)."""
     passed: bool
-    """ss_t > tau_ss."""
+    """ss_t > tau_ss (for at least one topic)."""
     enhanced: bool = False
     """An enhanced version was made and scored."""
     enhanced_score: float | None = None
@@ -64,6 +70,10 @@ class FrameResult:
     image_index: int | None = None
     encoded: bool = True
     """False: the frame gate skipped it (score is NaN, it passed nothing)."""
+    topic_scores: dict[str, float] = field(default_factory=dict)
+    """ss_t per topic, by name (empty when the gate skipped the frame)."""
+    added_to: list[str] = field(default_factory=list)
+    """The topics whose summary it entered."""
 
 
 @dataclass
@@ -110,18 +120,20 @@ def downscale_for(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 class Pipeline:
-    """Encoder + pre-sampler + optional enhancer + informative sampler, with running image indices."""
+    """Encoder + pre-sampler + optional enhancer + informative sampler per topic, with running image indices."""
 
-    def __init__(self, encoder: Encoder, presampler: PreSampler, sampler: InformativeSampler, *,
+    def __init__(self, encoder: Encoder, topics: Sequence[Topic], *,
                  enhancer: Enhancer | None = None, enhance_mode: str = "none", tau_ses: float = 0.7,
                  first_image_index: int = 0, gate: FrameGate | None = None) -> None:
+        check_names([t.name for t in topics])
         if enhance_mode not in ENHANCE_MODES:
             raise UsageError(f"enhance.mode: {enhance_mode!r} is not one of {', '.join(ENHANCE_MODES)}")
         if enhance_mode != "none" and enhancer is None:
             raise UsageError(f"enhance.mode {enhance_mode}: no enhancer given")
         self.encoder = encoder
-        self.presampler = presampler
-        self.sampler = sampler
+        self.topics: list[Topic] = list(topics)
+        """The topics followed, the default (first) one first."""
+        self._sampler_args = (topics[0].sampler.k, topics[0].sampler.distance, topics[0].sampler.threshold)
         self.enhancer = enhancer
         self.enhance_mode = enhance_mode
         self.tau_ses = tau_ses
@@ -130,21 +142,74 @@ class Pipeline:
         self.clock = StageClock()
         self.gate = gate if gate is not None else FrameGate("none")
         self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0}
-        self._held: dict[int, SummaryFrame] = {}
 
     @classmethod
     def from_config(cls, cfg: Config, encoder: Encoder, *, first_image_index: int = 0) -> Pipeline:
         """Everything but the encoder from the configuration; the enhancer is imported only when it is used."""
-        presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
-        sampler = InformativeSampler(cfg.sampler.k, cfg.sampler.distance, cfg.sampler.threshold)
+        s = cfg.sampler
+        topics = [Topic(t.name, PreSampler(encoder, t.positive, t.negatives,
+                                           cfg.queries.tau_ss if t.tau_ss is None else t.tau_ss),
+                        InformativeSampler(s.k, s.distance, s.threshold))
+                  for t in cfg.queries.topic_list()]
         enhancer = None
         if cfg.enhance.mode != "none":
             from companion.vision.enhancers.factory import make_enhancer
 
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
         gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
-        return cls(encoder, presampler, sampler, enhancer=enhancer, enhance_mode=cfg.enhance.mode,
+        return cls(encoder, topics, enhancer=enhancer, enhance_mode=cfg.enhance.mode,
                    tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate)
+
+    # ----- topics -------------------------------------------------------------------------------------------
+
+    @property
+    def presampler(self) -> PreSampler:
+        """The default (first) topic's pre-sampler: all there is with one topic."""
+        return self.topics[0].presampler
+
+    @presampler.setter
+    def presampler(self, value: PreSampler) -> None:
+        self.topics[0].presampler = value
+
+    @property
+    def sampler(self) -> InformativeSampler:
+        """The default (first) topic's sampler (K, distance and threshold are the same for every topic)."""
+        return self.topics[0].sampler
+
+    def topic(self, name: str) -> Topic:
+        for topic in self.topics:
+            if topic.name == name:
+                return topic
+        raise KeyError(name)
+
+    def topic_of(self, image_index: int) -> Topic | None:
+        """The topic whose summary holds that image, if any."""
+        for topic in self.topics:
+            if image_index in topic.held:
+                return topic
+        return None
+
+    def set_topics(self, specs: Sequence[TopicSpec]) -> list[SummaryEvent]:
+        """Follow these topics from now on: a kept name keeps its summary (its queries and threshold may change),
+        a new name starts empty, and the frames of a topic no longer listed leave the summary (the events say so).
+        """
+        check_names([s.name for s in specs])
+        old = {t.name: t for t in self.topics}
+        topics = []
+        for spec in specs:
+            topic = old.pop(spec.name, None)
+            if topic is None:
+                topic = Topic(spec.name, PreSampler(self.encoder, spec.positive, spec.negatives, self.tau_ss),
+                              InformativeSampler(*self._sampler_args))
+            else:
+                topic.presampler.set_queries(spec.positive, spec.negatives)
+            if spec.tau_ss is not None:
+                topic.presampler.tau_ss = spec.tau_ss
+            topics.append(topic)
+        self.topics = topics
+        gone = [frame for topic in old.values() for frame in topic.summary]
+        keys = self._all_keys()
+        return [SummaryEvent("removed", frame, list(keys)) for frame in gone]
 
     # ----- live tuning --------------------------------------------------------------------------------------
 
@@ -154,7 +219,9 @@ class Pipeline:
 
     @tau_ss.setter
     def tau_ss(self, value: float) -> None:
-        self.presampler.tau_ss = value
+        """Every topic's threshold (live MERL_TAU_SS)."""
+        for topic in self.topics:
+            topic.presampler.tau_ss = value
 
     @property
     def tau_ses(self) -> float:
@@ -168,29 +235,53 @@ class Pipeline:
             raise UsageError(f"tau_ses: {err}") from None
 
     def set_k(self, k: int) -> list[SummaryEvent]:
-        """Change the summary size now; a smaller K trims at once and reports the removals."""
-        removed = self.sampler.set_k(k)
+        """Change every topic's summary size now; a smaller K trims at once and reports the removals."""
+        removed = [(topic, topic.sampler.set_k(k)) for topic in self.topics]
+        self._sampler_args = (int(k), *self._sampler_args[1:])
         return self._removal_events(removed)
 
     # ----- the summary --------------------------------------------------------------------------------------
 
     @property
     def summary(self) -> list[SummaryFrame]:
-        """The frames held now, in the order they entered."""
-        return [self._held[key] for key in self.sampler.keys]
+        """The frames held now: topic by topic, each in the order they entered."""
+        return [frame for topic in self.topics for frame in topic.summary]
+
+    def _all_keys(self) -> list[int]:
+        return [key for topic in self.topics for key in topic.sampler.keys]
 
     def restore(self, frames: Iterable[SummaryFrame]) -> list[SummaryEvent]:
-        """Resume with stored summary frames (their features and image indices); new indices continue above them."""
+        """Resume with stored summary frames (their features and image indices); new indices continue above them.
+
+        Each frame goes back to its topic's summary; a frame with no topic (stored by an earlier version) belongs
+        to the default (first) topic, and a frame of a topic no longer followed is reported removed.
+        """
         frames = sorted(frames, key=lambda f: f.image_index)
-        removed = self.sampler.restore((f.image_index, f.feature) for f in frames)
-        self._held = {f.image_index: f for f in frames}
+        names = {t.name for t in self.topics}
+        dropped = []
+        by_topic: dict[str, list[SummaryFrame]] = {t.name: [] for t in self.topics}
+        for frame in frames:
+            name = frame.topic or self.topics[0].name
+            if name in names:
+                frame.topic = name
+                by_topic[name].append(frame)
+            else:
+                dropped.append(frame)
+        removed = []
+        for topic in self.topics:
+            mine = by_topic[topic.name]
+            removed.append((topic, topic.sampler.restore((f.image_index, f.feature) for f in mine)))
+            topic.held = {f.image_index: f for f in mine}
         if frames:
             self.next_image_index = max(self.next_image_index, frames[-1].image_index + 1)
-        return self._removal_events(removed)
+        events = self._removal_events(removed)
+        keys = self._all_keys()
+        return events + [SummaryEvent("removed", frame, list(keys)) for frame in dropped]
 
-    def _removal_events(self, removed: Sequence[int]) -> list[SummaryEvent]:
-        keys = self.sampler.keys
-        return [SummaryEvent("removed", self._held.pop(key), list(keys)) for key in removed]
+    def _removal_events(self, removed: Sequence[tuple[Topic, Sequence[int]]]) -> list[SummaryEvent]:
+        gone = [topic.held.pop(key) for topic, keys in removed for key in keys]
+        keys = self._all_keys()
+        return [SummaryEvent("removed", frame, list(keys)) for frame in gone]
 
     # ----- one batch ----------------------------------------------------------------------------------------
 
@@ -253,69 +344,80 @@ class Pipeline:
             with self.clock.stage("prepare", n):
                 prepared = [self.prepare(img) for img in images]
         emb = self._encode(prepared, "encode")
+        names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
-            scores = self.presampler.scores(emb)
-            passed = self.presampler.passes(scores)
-        results = [FrameResult(f.index, f.time_s, float(s), bool(p), enhanced=self.enhance_mode == "always")
-                   for f, s, p in zip(frames, scores, passed, strict=True)]
+            scores, passed = score_matrix(self.topics, emb)
+        results = [FrameResult(f.index, f.time_s, float(row.max()), bool(ok.any()),
+                               enhanced=self.enhance_mode == "always",
+                               topic_scores={name: float(v) for name, v in zip(names, row, strict=True)})
+                   for f, row, ok in zip(frames, scores, passed, strict=True)]
         self.counts["encoded"] += n
-        self.counts["passed"] += int(passed.sum())
+        self.counts["passed"] += int(passed.any(axis=1).sum())
 
-        go = np.flatnonzero(passed)
         final_images = list(images)
         final_scores = scores.astype(np.float64)
-        if self.enhance_mode == "selective" and len(go):
-            go, emb, final_images, final_scores = self._enhance_selected(frames, go, emb, results, final_images,
-                                                                         final_scores)
+        if self.enhance_mode == "selective" and passed.any():
+            passed, emb, final_images, final_scores = self._enhance_selected(frames, passed, emb, results,
+                                                                             final_images, final_scores)
         events: list[SummaryEvent] = []
+        go = np.flatnonzero(passed.any(axis=1))
         if len(go) == 0:
             return BatchOutcome(results, events)
         with self.clock.stage("sample", len(go)):
             feats = dist.prepare_features(self.encoder.sampler_features(emb[go]))
             for row, i in enumerate(go):
-                events.extend(self._offer(frames[i], results[i], feats[row], final_images[i], final_scores[i],
-                                          poses[i] if poses is not None else None))
+                results[i].offered = True
+                self.counts["offered"] += 1
+                for t in np.flatnonzero(passed[i]):
+                    events.extend(self._offer(self.topics[t], frames[i], results[i], feats[row], final_images[i],
+                                              final_scores[i, t], poses[i] if poses is not None else None))
         return BatchOutcome(results, events)
 
-    def _enhance_selected(self, frames, go, emb, results, images, scores):
-        """MERLION-E: enhance the frames that passed, re-encode them, keep those with ss_e > tau_ses."""
+    def _enhance_selected(self, frames, passed, emb, results, images, scores):
+        """MERLION-E: enhance the frames that passed (for any topic), re-encode them once, and keep, per topic,
+        those whose ss_e passes tau_ses."""
+        go = np.flatnonzero(passed.any(axis=1))
         with self.clock.stage("enhance", len(go)):
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
-        ss_e = self.presampler.scores(emb_e)
-        ok = self.presampler.passes(ss_e, self._tau_ses)
+        ss_e = np.stack([t.presampler.scores(emb_e) for t in self.topics], axis=1)
+        ok = np.stack([t.presampler.passes(ss_e[:, j], self._tau_ses) for j, t in enumerate(self.topics)], axis=1)
+        ok &= passed[go]
         self.counts["enhanced"] += len(go)
-        self.counts["enhanced_passed"] += int(ok.sum())
+        self.counts["enhanced_passed"] += int(ok.any(axis=1).sum())
+        passed = np.zeros_like(passed)
+        scores = scores.copy()
         for row, i in enumerate(go):
             results[i].enhanced = True
-            results[i].enhanced_score = float(ss_e[row])
+            results[i].enhanced_score = float(ss_e[row].max())
             images[i] = enhanced[row]
-            scores[i] = float(ss_e[row])
+            scores[i] = ss_e[row]
+            passed[i] = ok[row]
         # the sampler compares enhanced embeddings: rows of frames that go on are replaced by theirs
         emb = emb.copy()
         emb[go] = emb_e
-        return go[ok], emb, images, scores
+        return passed, emb, images, scores
 
-    def _offer(self, frame: Frame, result: FrameResult, feature: np.ndarray, image: np.ndarray, score: float,
-               pose: Pose | None) -> list[SummaryEvent]:
-        result.offered = True
-        self.counts["offered"] += 1
+    def _offer(self, topic: Topic, frame: Frame, result: FrameResult, feature: np.ndarray, image: np.ndarray,
+               score: float, pose: Pose | None) -> list[SummaryEvent]:
         key = self.next_image_index
-        decision = self.sampler.offer(key, feature, prepared=True)
+        decision = topic.sampler.offer(key, feature, prepared=True)
         if not decision.added:
             return []
         self.next_image_index += 1
         self.counts["added"] += 1
-        result.added, result.image_index = True, key
+        if not result.added:
+            result.added, result.image_index = True, key
+        result.added_to.append(topic.name)
         enhanced = image is not frame.image
         held = SummaryFrame(
             image_index=key, frame_index=frame.index, time_s=frame.time_s, capture_time=frame.capture_time,
             score=float(score), image=image, feature=feature.copy(), pose=pose,
-            raw_image=frame.image if enhanced else None, enhanced=enhanced,
+            raw_image=frame.image if enhanced else None, enhanced=enhanced, topic=topic.name,
         )
-        self._held[key] = held
-        keys = self.sampler.keys
+        topic.held[key] = held
+        keys = self._all_keys()
         events = [SummaryEvent("added", held, list(keys))]
-        events.extend(SummaryEvent("removed", self._held.pop(k), list(keys)) for k in decision.removed)
+        events.extend(SummaryEvent("removed", topic.held.pop(k), list(keys)) for k in decision.removed)
         return events

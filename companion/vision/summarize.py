@@ -1,7 +1,9 @@
 """``merlion summarize``: run a whole video or folder through the pipeline and write the summary to a directory.
 
 The output directory holds ``summary.json`` (source, encoder, parameters, and the summary frames in time order),
-the frames at full resolution under ``frames/`` and ``contact_sheet.jpg``. It is built in a temporary sibling
+the frames at full resolution under ``frames/`` and ``contact_sheet.jpg``. With several topics
+(``queries.topics``) each topic's frames go under ``frames/<topic>/`` with a ``contact_sheet_<topic>.jpg`` each,
+and every frame entry names its topic. It is built in a temporary sibling
 directory and moved into place at the end, so a failure never leaves a half-written summary, and an existing
 directory is replaced only when the caller says ``force``.
 """
@@ -61,6 +63,17 @@ def frame_file_name(frame: SummaryFrame) -> str:
     return f"frame_{frame.frame_index:06d}.jpg"
 
 
+def frame_file(frame: SummaryFrame, several_topics: bool) -> str:
+    """Where a summary frame is written, relative to the output directory (a frame may be in two topics)."""
+    if several_topics:
+        return f"frames/{frame.topic}/{frame_file_name(frame)}"
+    return f"frames/{frame_file_name(frame)}"
+
+
+def sheet_name(topic: str, several_topics: bool) -> str:
+    return f"contact_sheet_{topic}.jpg" if several_topics else "contact_sheet.jpg"
+
+
 def _check_out_dir(out_dir: Path, force: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise MerlionError(f"{out_dir}: exists and is not a directory")
@@ -80,7 +93,12 @@ def _progress(total: int | None, enabled: bool | None):
 
 def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: list[SummaryFrame],
                    stats: dict) -> dict:
-    """summary.json: the issue's schema, frames in time order."""
+    """summary.json: the issue's schema, frames in time order (with several topics, the topics' frames together,
+    each naming its topic; ``params.topics`` describes every topic)."""
+    several = len(pipeline.topics) > 1
+    topics = [{"name": t.name, "query": t.presampler.positive, "negatives": t.presampler.negatives,
+               "tau_ss": t.presampler.tau_ss, "frames": sum(f.topic == t.name for f in frames),
+               "contact_sheet": sheet_name(t.name, several)} for t in pipeline.topics]
     return {
         "source": cfg.source.uri,
         "encoder": encoder.name,
@@ -97,26 +115,32 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
             "gate": cfg.gate.model_dump(),
             "encoder": encoder.describe(),
             "stats": stats,
+            "topics": topics,
         },
         "frames": [
             {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
-             "file": f"frames/{frame_file_name(f)}"}
-            for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index))
+             "file": frame_file(f, several), "topic": f.topic}
+            for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index, f.topic))
         ],
     }
 
 
 def _write(out_tmp: Path, document: dict, frames: list[SummaryFrame]) -> None:
+    topics = document["params"]["topics"]
+    several = len(topics) > 1
     (out_tmp / "frames").mkdir()
     for f in frames:
-        path = out_tmp / "frames" / frame_file_name(f)
+        path = out_tmp / frame_file(f, several)
+        path.parent.mkdir(exist_ok=True)
         if not cv2.imwrite(str(path), f.image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
             raise MerlionError(f"{path}: could not write the frame")
-    ordered = sorted(frames, key=lambda f: (f.time_s, f.frame_index))
-    sheet = contact_sheet([Tile(f.image, f.time_s, f.score) for f in ordered],
-                          title=f"{document['source']}  |  {document['params']['query']}")
-    if not cv2.imwrite(str(out_tmp / "contact_sheet.jpg"), sheet, [cv2.IMWRITE_JPEG_QUALITY, 90]):
-        raise MerlionError(f"{out_tmp / 'contact_sheet.jpg'}: could not write the contact sheet")
+    for topic in topics:
+        ordered = sorted((f for f in frames if f.topic == topic["name"]), key=lambda f: (f.time_s, f.frame_index))
+        title = f"{document['source']}  |  {topic['name'] + ': ' if several else ''}{topic['query']}"
+        sheet = contact_sheet([Tile(f.image, f.time_s, f.score) for f in ordered], title=title)
+        path = out_tmp / topic["contact_sheet"]
+        if not cv2.imwrite(str(path), sheet, [cv2.IMWRITE_JPEG_QUALITY, 90]):
+            raise MerlionError(f"{path}: could not write the contact sheet")
     (out_tmp / "summary.json").write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
 
 
@@ -169,6 +193,7 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
 
         encoder = make_encoder(cfg.encoder)
     pipeline = Pipeline.from_config(cfg, encoder)
+    # marks teach the default (first) topic: examples of one thing cannot stand for several
     pipeline.presampler = with_marks(pipeline.presampler, like_images, unlike_images)
     seen = passed = 0
     gate = pipeline.gate if pipeline.gate.on else None  # gated in the decode thread: full batches to encode
@@ -181,14 +206,15 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
             if on_results is not None:
                 on_results(out.results)
             bar.update(len(batch))
-            bar.set_postfix(passed=passed, held=len(pipeline.sampler))
+            bar.set_postfix(passed=passed, held=len(pipeline.summary))
     lost = int(getattr(source, "lost", 0))
     if lost:
         log.warning("%s: %d frames could not be decoded and were skipped", cfg.source.uri, lost)
     frames = pipeline.summary
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
              "frames_added": pipeline.counts["added"], "frames_encoded": pipeline.counts["encoded"],
-             "frames_skipped": pipeline.counts["skipped"]}
+             "frames_skipped": pipeline.counts["skipped"],
+             "encoder_images": pipeline.clock.items.get("encode", 0) + pipeline.clock.items.get("reencode", 0)}
     document = build_document(cfg, encoder, pipeline, frames, stats)
     if like or unlike:
         document["params"]["marks"] = {"like": [str(p) for p in like], "unlike": [str(p) for p in unlike]}

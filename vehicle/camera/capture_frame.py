@@ -25,6 +25,8 @@ class CaptureFrame(Protocol):
     pose: Pose | None
     raw_image: np.ndarray | None
     enhanced: bool
+    topic: str
+    """The topic whose summary holds it (several may be followed at once; one name with one topic)."""
 
 
 class CaptureEvent(Protocol):

@@ -44,6 +44,8 @@ def test_summary_json_schema_and_frames(summary_dir):
     assert params["k"] == 3 and params["tau_ss"] == pytest.approx(0.45) and params["fps"] == 1
     assert params["query"] == "underwater image with fish"
     assert params["negatives"] == ["underwater image without fish"]
+    assert [(t["name"], t["query"], t["frames"], t["contact_sheet"]) for t in params["topics"]] == [
+        ("main", "underwater image with fish", len(doc["frames"]), "contact_sheet.jpg")]
     frames = doc["frames"]
     assert 1 <= len(frames) <= 3
     assert [f["time_s"] for f in frames] == sorted(f["time_s"] for f in frames)
@@ -52,7 +54,8 @@ def test_summary_json_schema_and_frames(summary_dir):
         cells = line.split(",")
         labels[int(cells[0])] = cells[-1].strip() == "1"
     for f in frames:
-        assert set(f) == {"index", "time_s", "score", "file"}
+        assert set(f) == {"index", "time_s", "score", "file", "topic"}
+        assert f["topic"] == "main"  # the one default topic
         assert f["index"] % 10 == 0  # 10 fps source at --fps 1
         assert f["time_s"] == pytest.approx(f["index"] / 10.0)
         assert 0.45 < f["score"] <= 1.0

@@ -31,7 +31,7 @@ def test_inference_counts_skipped_frames_apart_from_scored_ones(tmp_path):
     pipeline = Pipeline.from_config(cfg, VisualEncoder(EncoderConfig(name="visual")))
     counters = LiveCounters()
     events: list = []
-    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=dict, publish=events.append)
+    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=lambda frame: {}, publish=events.append)
     loop = InferenceLoop(pipeline, DropOldestQueue(8), Health(10.0), counters, threading.Event(), batch=8,
                          pose_at=None, keeper=keeper)
     a, b = _scene(1), _scene(2)

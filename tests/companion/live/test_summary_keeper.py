@@ -24,7 +24,7 @@ def test_concurrent_changes_keep_the_store_equal_to_the_summary(tmp_path: Path) 
     cfg = Config.model_validate({"encoder": {"name": "visual"}, "sampler": {"k": 6}, "queries": {"tau_ss": 0}})
     pipeline = Pipeline.from_config(cfg, make_encoder(cfg.encoder))
     store = Store(StoreConfig(dir=str(tmp_path)))
-    keeper = SummaryKeeper(pipeline, store, tags=lambda: {"query": pipeline.presampler.positive})
+    keeper = SummaryKeeper(pipeline, store, tags=lambda frame: {"query": pipeline.presampler.positive})
     frames = list(islice(SyntheticSource("synthetic://dive?seconds=2&width=96&height=64", fps=10, realtime=False),
                          80))  # an endless dive: 80 frames of it, four scenes
     done = threading.Event()

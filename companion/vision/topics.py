@@ -1,0 +1,69 @@
+"""Several named topics followed at once: each with its own queries, threshold and summary of K frames.
+
+An operator on a survey may want the fish, the corals and any debris, each as its own handful of frames. The
+encoder is the expensive part and its image embedding does not depend on the query, so one encoder pass per
+frame serves every topic: each topic scores the same embeddings with its own pre-sampler and offers the frames
+that pass to its own informative sampler. With one topic (the default) this is exactly the paper's pipeline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.errors import UsageError
+from companion.vision.events import SummaryFrame
+from companion.vision.presampler import PreSampler
+from companion.vision.sampler import InformativeSampler
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """What defines a topic: its name, queries and (optionally) its own tau_ss."""
+
+    name: str
+    positive: str
+    negatives: tuple[str, ...] = ()
+    tau_ss: float | None = None
+
+    @classmethod
+    def from_config(cls, topic) -> TopicSpec:
+        return cls(topic.name, topic.positive, tuple(topic.negatives), topic.tau_ss)
+
+
+@dataclass
+class Topic:
+    """One followed topic: its pre-sampler (queries, threshold, marks) and its own summary."""
+
+    name: str
+    presampler: PreSampler
+    sampler: InformativeSampler
+    held: dict[int, SummaryFrame] = field(default_factory=dict)
+    """The summary frames by image index (the sampler's keys)."""
+
+    @property
+    def summary(self) -> list[SummaryFrame]:
+        """The frames held now, in the order they entered."""
+        return [self.held[key] for key in self.sampler.keys]
+
+
+def check_names(names: Sequence[str]) -> None:
+    """Topics are told apart by name everywhere (captures, store, gallery): refuse none, or one used twice."""
+    if not names:
+        raise UsageError("queries: at least one topic is needed")
+    twice = sorted({n for n in names if list(names).count(n) > 1})
+    if twice:
+        raise UsageError(f"queries: topic name {twice[0]!r} is used twice")
+
+
+def score_matrix(topics: Sequence[Topic], embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, T) scores and (N, T) pass masks of every topic on one batch of embeddings."""
+    n = len(embeddings)
+    scores = np.zeros((n, len(topics)), dtype=np.float32)
+    passed = np.zeros((n, len(topics)), dtype=bool)
+    for t, topic in enumerate(topics):
+        scores[:, t] = topic.presampler.scores(embeddings)
+        passed[:, t] = topic.presampler.passes(scores[:, t])
+    return scores, passed
