@@ -188,7 +188,7 @@ class LiveCompanion:
             self.link, cfg.surface, params=specs, saved_params=self.saved_params,
             persist_params=params_file.save,
             loader=self.store.frame, image_count=image_count, stored_jpeg=self.store.frame_jpeg,
-            queries=(cfg.queries.positive, list(cfg.queries.negatives)), version=__version__,
+            queries=self._query_topics(), default_topic=cfg.queries.name, version=__version__,
             dive=self.store.dive,
         )
         self.surface.on_param_changed(self._on_param, replay=False)
@@ -298,14 +298,31 @@ class LiveCompanion:
             self._refuse("MERL_ENHANCE", "enhance.mode is none", "enhance.mode is none (no enhancer loaded); set "
                          "enhance.mode: selective or always and restart")
 
-    def _on_queries(self, positive: str, negatives: list[str]) -> None:
-        def set_queries() -> None:
-            self.pipeline.presampler.set_queries(positive, negatives)
-            if self.selective is not None:
-                self.selective.raw.set_queries(positive, negatives)
+    def _query_topics(self) -> list:
+        """The topics in force as the queries file states them."""
+        from vehicle.protocol.queries import QueryTopic
 
-        self.keeper.change(set_queries)
-        log.info("queries set: %r against %r", positive, negatives)
+        return [QueryTopic(t.name, t.presampler.positive, tuple(t.presampler.negatives))
+                for t in self.pipeline.topics]
+
+    def _on_queries(self, topics: list) -> None:
+        """A queries file from the surface: the topics to follow from the next batch on (a topic no longer listed
+        leaves the summary; a kept one keeps its frames under its new queries)."""
+        from companion.vision.topics import TopicSpec
+
+        specs = [TopicSpec(t.name, t.positive, tuple(t.negatives)) for t in topics]
+
+        def set_topics() -> list[SummaryEvent]:
+            events = self.pipeline.set_topics(specs)
+            if self.selective is not None:
+                self.selective.raw.set_queries(specs[0].positive, specs[0].negatives)
+            return events
+
+        self.keeper.change(set_topics)
+        if len(specs) == 1:
+            log.info("queries set: %r against %r", specs[0].positive, list(specs[0].negatives))
+        else:
+            log.info("topics set: %s", ", ".join(f"{s.name}={s.positive!r}" for s in specs))
         if self.marks:  # marks teach what this query should find: a new query starts untaught
             self._on_marks([], [])
             log.info("marks cleared with the queries")

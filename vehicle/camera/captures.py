@@ -72,10 +72,12 @@ def trimmed_text(frame: CaptureFrame, held: int) -> str:
     return f"Summary -#{frame.image_index} ({held} held)"[:50]
 
 
-def added_text(frame: CaptureFrame, held: int) -> str:
+def added_text(frame: CaptureFrame, held: int, *, topic: bool = False) -> str:
+    """``topic``: name the frame's topic (when several are followed, the operator needs to know which)."""
     depth = frame.pose.depth_m if frame.pose is not None and not frame.pose.stale else None
     where = f" {depth:.1f}m" if _finite(depth) else ""
-    return f"Summary +#{frame.image_index} ss={frame.score:.2f}{where} ({held} held)"[:50]
+    which = f" {frame.topic}" if topic and getattr(frame, "topic", "") else ""
+    return f"Summary +#{frame.image_index}{which} ss={frame.score:.2f}{where} ({held} held)"[:50]
 
 
 class CaptureLog:

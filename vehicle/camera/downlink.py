@@ -37,6 +37,7 @@ from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
 from vehicle.protocol.ftp import Op
 from vehicle.protocol.image_push import push_messages
+from vehicle.protocol.queries import QueryTopic, format_queries, parse_queries
 from vehicle.settings import SurfaceConfig
 
 log = logging.getLogger(__name__)
@@ -52,22 +53,6 @@ FULL_QUALITY = 90
 _FTP_BULK_OPS = frozenset({Op.READ_FILE, Op.BURST_READ_FILE, Op.LIST_DIRECTORY})
 _REQUEST_TYPES = ("COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET",
                   "FILE_TRANSFER_PROTOCOL")
-
-
-def parse_queries(text: str) -> tuple[str, list[str]]:
-    """A queries file: the first non-empty, non-# line is the positive query, the others the negatives."""
-    lines = [ln.strip() for ln in text.replace("\r", "").split("\n")]
-    lines = [ln for ln in lines if ln and not ln.startswith("#")]
-    if len(lines) < 2:
-        raise ValueError("a queries file needs a positive line and at least one negative line")
-    if any(len(ln) > 300 for ln in lines):
-        raise ValueError("a query line is longer than 300 characters")
-    return lines[0], lines[1:]
-
-
-def format_queries(positive: str, negatives: list[str]) -> str:
-    return "# first line: positive query; following lines: negative queries\n" + "\n".join(
-        [positive, *negatives]) + "\n"
 
 
 def parse_marks(data: bytes) -> tuple[list[int], list[int]]:
@@ -120,7 +105,8 @@ class _Held:
 def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
     pose = frame.pose
     tags: dict[str, Any] = {
-        "image_index": frame.image_index, "frame_index": frame.frame_index, "time_s": round(frame.time_s, 3),
+        "image_index": frame.image_index, "topic": getattr(frame, "topic", ""), "frame_index": frame.frame_index,
+        "time_s": round(frame.time_s, 3),
         "capture_time": frame.capture_time,
         "utc": datetime.fromtimestamp(frame.capture_time, timezone.utc).isoformat(timespec="milliseconds"),
         "score": _json_safe(round(float(frame.score), 4)), "enhanced": bool(frame.enhanced),
@@ -145,13 +131,14 @@ class Downlink:
     ``params`` is the tunable set; ``saved_params`` what an earlier run persisted and ``persist_params`` how to
     save a change (both from the app: this side touches no files);
     ``loader`` fetches an old capture's frame from the store by image index; ``image_count`` is how many summary
-    frames earlier runs took; ``queries`` the text queries in force (positive, negatives).
+    frames earlier runs took; ``queries`` the topics in force (one, named ``default_topic``, unless several are
+    followed).
     """
 
     def __init__(self, link: Any, cfg: SurfaceConfig, *, params: list[ParamSpec] | None = None,
                  saved_params: dict[str, float] | None = None,
                  persist_params: Callable[[dict[str, float]], None] | None = None, loader: Callable[[int], CaptureFrame | None] | None = None,
-                 image_count: int = 0, queries: tuple[str, list[str]] | None = None,
+                 image_count: int = 0, queries: list[QueryTopic] | None = None, default_topic: str = "main",
                  identity: CameraIdentity | None = None, version: str = "", dive: str = "",
                  stored_jpeg: Callable[[int, bool], bytes | None] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
@@ -180,8 +167,9 @@ class Downlink:
         self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable)
         self._held: dict[int, _Held] = {}
         self._lock = threading.Lock()
-        self._queries = queries or ("", [])
-        self._query_cbs: list[Callable[[str, list[str]], None]] = []
+        self.default_topic = default_topic
+        self._queries: list[QueryTopic] = list(queries or [])
+        self._query_cbs: list[Callable[[list[QueryTopic]], None]] = []
         self._marks: tuple[list[int], list[int]] = ([], [])
         self._marks_cbs: list[Callable[[list[int], list[int]], None]] = []
         self._unsubscribe: Callable[[], None] | None = None
@@ -190,7 +178,7 @@ class Downlink:
         self.ftp_worker = RequestWorker("surface-ftp")
         self.control_worker = RequestWorker("surface-control")
         self.tree.put(INDEX_PATH, self.index_json, size=lambda: len(self.index_json()))
-        queries_text = lambda: format_queries(*self._queries).encode()  # noqa: E731
+        queries_text = lambda: format_queries(self._queries, self.default_topic).encode()  # noqa: E731
         self.tree.put(QUERIES_PATH, queries_text, size=lambda: len(queries_text()))
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
         self.tree.put(MARKS_PATH, lambda: format_marks(*self._marks), size=lambda: len(format_marks(*self._marks)))
@@ -233,8 +221,8 @@ class Downlink:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    def on_queries_changed(self, callback: Callable[[str, list[str]], None]) -> None:
-        """``callback(positive, negatives)`` after a client uploaded a valid queries file (raise ValueError to refuse)."""
+    def on_queries_changed(self, callback: Callable[[list[QueryTopic]], None]) -> None:
+        """``callback(topics)`` after a client uploaded a valid queries file (raise ValueError to refuse)."""
         self._query_cbs.append(callback)
 
     def on_marks_changed(self, callback: Callable[[list[int], list[int]], None]) -> None:
@@ -254,9 +242,9 @@ class Downlink:
             for name, value in self.params.restored.items():
                 callback(name, value)
 
-    def set_queries(self, positive: str, negatives: list[str]) -> None:
-        """The queries in force, as /config/queries.txt shows them."""
-        self._queries = (positive, list(negatives))
+    def set_queries(self, topics: list[QueryTopic]) -> None:
+        """The topics in force, as /config/queries.txt and index.json show them."""
+        self._queries = list(topics)
 
     # ---- outgoing -------------------------------------------------------------------------------------------
 
@@ -293,7 +281,8 @@ class Downlink:
                 self.status.update(summary=len(self._held))
                 return
             self.budget.submit(capture, Priority.STATUS)
-            self.event(added_text(frame, len(event.summary) or len(self._held)))
+            several = len(self._queries) > 1
+            self.event(added_text(frame, len(event.summary) or len(self._held), topic=several))
             if self.cfg.push:
                 push = thumb if thumb.format == "jpeg" else make_thumbnail(
                     frame.image, self.thumbnail_bytes, max_side=self.cfg.thumbnail_max_side)
@@ -368,7 +357,9 @@ class Downlink:
             if h.frame.raw_image is not None:
                 tags["raw"] = f"/summary/raw/{idx}.jpg"
             items.append(tags)
-        body = {"image_count": self.captures.image_count, "dive": self.dive, "summary": items}
+        topics = [{"name": t.name, "positive": t.positive, "negatives": list(t.negatives),
+                   "held": sum(item["topic"] == t.name for item in items)} for t in self._queries]
+        body = {"image_count": self.captures.image_count, "dive": self.dive, "topics": topics, "summary": items}
         return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
 
     def event(self, text: str, severity: int = st.INFO) -> None:
@@ -428,14 +419,17 @@ class Downlink:
 
     def _upload_queries(self, data: bytes) -> None:
         try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError:
-            raise ValueError("queries file is not UTF-8 text") from None
-        positive, negatives = parse_queries(text)
+            topics = parse_queries(data, self.default_topic)
+        except ValueError as err:  # the NAK says only "refused": the operator reads why here
+            self.event(f"Queries refused: {err}"[:50], st.WARNING)
+            raise
         for callback in self._query_cbs:
-            callback(positive, negatives)
-        self._queries = (positive, negatives)
-        self.event(f"Queries set: {positive}"[:50])
+            callback(topics)
+        self._queries = topics
+        if len(topics) == 1 and topics[0].name == self.default_topic:
+            self.event(f"Queries set: {topics[0].positive}"[:50])
+        else:
+            self.event(f"Topics set: {', '.join(t.name for t in topics)}"[:50])
 
     def _upload_marks(self, data: bytes) -> None:
         try:

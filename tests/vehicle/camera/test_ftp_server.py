@@ -240,7 +240,7 @@ def test_mavftp_lists_and_downloads(companion, tmp_path):
 def test_uploading_queries_changes_them_live(companion, tmp_path):
     port, surface = companion
     changed = []
-    surface.on_queries_changed(lambda pos, neg: changed.append((pos, neg)))
+    surface.on_queries_changed(lambda topics: changed.append([(t.name, t.positive, list(t.negatives)) for t in topics]))
     local = tmp_path / "queries.txt"
     local.write_text("underwater image with a crab\nunderwater image of sand\nunderwater image of rocks\n")
     gcs = ground_station(port)
@@ -248,14 +248,29 @@ def test_uploading_queries_changes_them_live(companion, tmp_path):
         client = mavftp.MAVFTP(gcs, 1, 100, settings=_settings())
         client.cmd_put([str(local), "/config/queries.txt"])
         assert client.process_ftp_reply("put", timeout=10).error_code == mavftp.FtpError.Success
-        assert changed == [("underwater image with a crab", ["underwater image of sand", "underwater image of rocks"])]
+        assert changed == [[("main", "underwater image with a crab",
+                             ["underwater image of sand", "underwater image of rocks"])]]
         assert _get(client, "/config/queries.txt", tmp_path / "back.txt")
         assert "with a crab" in (tmp_path / "back.txt").read_text()
-        local.write_text("only a positive query\n")  # a query file needs a negative too: refused, nothing changes
-        client.cmd_put([str(local), "/config/queries.txt"])
-        client.process_ftp_reply("put", timeout=10)
+        assert "[" not in (tmp_path / "back.txt").read_text()  # one default topic: the simple form
+        for bad in ("only a positive query\n",  # a topic needs a negative too: refused, nothing changes
+                    "[Big Fish]\nfish\nno fish\n",  # not a topic name
+                    "[a]\nfish\nno fish\n[a]\ncoral\nsand\n"):  # a name used twice
+            local.write_text(bad)
+            client.cmd_put([str(local), "/config/queries.txt"])
+            client.process_ftp_reply("put", timeout=10)
         assert len(changed) == 1
         assert b"with a crab" in surface.tree.read("/config/queries.txt")
+        local.write_text("[fish]\nunderwater image with fish\nunderwater image without fish\n"
+                         "[coral]\nunderwater image of a coral reef\nunderwater image of sand\n")
+        client.cmd_put([str(local), "/config/queries.txt"])
+        assert client.process_ftp_reply("put", timeout=10).error_code == mavftp.FtpError.Success
+        assert [t[0] for t in changed[-1]] == ["fish", "coral"]
+        assert changed[-1][1] == ("coral", "underwater image of a coral reef", ["underwater image of sand"])
+        back = surface.tree.read("/config/queries.txt").decode()
+        assert "[fish]" in back and "[coral]" in back
+        index = json.loads(surface.tree.read("/summary/index.json"))
+        assert [t["name"] for t in index["topics"]] == ["fish", "coral"]
     finally:
         gcs.close()
 
