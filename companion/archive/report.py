@@ -18,8 +18,8 @@ from pathlib import Path
 from companion.evaluation.plots import plot_depth, plot_scores
 from companion.storage.atomic_write import atomic_write
 
-INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
-                "file")
+INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "query",
+                "score", "file")
 
 
 def _load(out_dir: Path, name: str) -> tuple[dict, dict, list[tuple[float, float]]]:
@@ -53,6 +53,12 @@ def _plot_scores(name: str, summary: dict, scores: list[tuple[float, float]], pa
     return True
 
 
+def _topics(summary: dict) -> list[dict]:
+    """The topics a summary.json followed (one, from its query, when written before topics existed)."""
+    params = summary["params"]
+    return params.get("topics") or [{"name": "", "query": params["query"], "contact_sheet": "contact_sheet.jpg"}]
+
+
 def _utc(t: float | None) -> str:
     return "" if t is None else datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")
 
@@ -63,12 +69,14 @@ def index_rows(out_dir: Path, names: list[str]) -> list[dict]:
     for name in names:
         summary, tags, _ = _load(out_dir, name)
         poses = {f["index"]: f for f in tags.get("frames", [])}
+        queries = {t["name"]: t["query"] for t in _topics(summary)}
         for f in summary["frames"]:
             tag = poses.get(f["index"], {})
             pose = tag.get("pose") or {}
             rows.append({"dive": name, "time_s": f["time_s"], "wall_time_utc": _utc(tag.get("wall_time")),
                          "depth_m": pose.get("depth_m"), "heading_deg": pose.get("heading_deg"),
-                         "lat": pose.get("lat"), "lon": pose.get("lon"), "topic": summary["params"]["query"],
+                         "lat": pose.get("lat"), "lon": pose.get("lon"), "topic": f.get("topic", ""),
+                         "query": queries.get(f.get("topic", ""), summary["params"]["query"]),
                          "score": f["score"], "file": f"{name}/{f['file']}"})
     return rows
 
@@ -91,10 +99,15 @@ def write_campaign_report(out_dir: Path, names: list[str]) -> Path:
     for name in names:
         summary, tags, scores = _load(out_dir, name)
         esc = html.escape(name)
-        parts.append(f"<h2>{esc}</h2><p>{html.escape(summary['source'])} | query "
-                     f"&ldquo;{html.escape(summary['params']['query'])}&rdquo; | {len(summary['frames'])} frames"
-                     f" | log: {html.escape(str(tags.get('tlog') or 'none matched'))}</p>")
-        parts.append(f"<img src='{esc}/contact_sheet.jpg' alt='contact sheet' style='max-width:100%'><br>")
+        topics = _topics(summary)
+        asked = "; ".join(f"{html.escape(t['name'] + ': ') if len(topics) > 1 else ''}"
+                          f"&ldquo;{html.escape(t['query'])}&rdquo;" for t in topics)
+        parts.append(f"<h2>{esc}</h2><p>{html.escape(summary['source'])} | query {asked} | "
+                     f"{len(summary['frames'])} frames | log: {html.escape(str(tags.get('tlog') or 'none matched'))}</p>")
+        for t in topics:
+            sheet = html.escape(t["contact_sheet"])
+            parts.append(f"<img src='{esc}/{sheet}' alt='contact sheet {html.escape(t['name'])}' "
+                         f"style='max-width:100%'><br>")
         if _plot_depth(name, tags, plots / f"{name}_depth.png"):
             parts.append(f"<img src='report/{esc}_depth.png' alt='depth profile'>")
         else:

@@ -21,7 +21,7 @@ def put(over: Overrides, section: str, key: str, value: Any) -> None:
 
 
 def put_queries_and_encoder(over: Overrides, args: argparse.Namespace) -> None:
-    """--query/--negative and --encoder with its options (those the command defines)."""
+    """--query/--negative (or --topic) and --encoder with its options (those the command defines)."""
     put(over, "queries", "positive", args.query)
     if args.negative is not None:
         put(over, "queries", "negatives", args.negative)
@@ -30,6 +30,8 @@ def put_queries_and_encoder(over: Overrides, args: argparse.Namespace) -> None:
     put(over, "encoder", "name", args.encoder)
     for key in ENCODER_OPTIONS:
         put(over, "encoder", key, getattr(args, key, None))
+    if getattr(args, "topic", None):
+        put(over, "queries", "topics", list(args.topic))
 
 
 def topic_option(text: str) -> dict[str, Any]:
@@ -41,6 +43,12 @@ def topic_option(text: str) -> dict[str, Any]:
     return {"name": name.strip(), "positive": parts[0], "negatives": parts[1:]}
 
 
+def add_topic_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--topic", metavar="NAME=POSITIVE[;NEGATIVE...]", action="append", type=topic_option,
+                   help="follow several topics at once, each with its own summary (repeatable; replaces --query), "
+                        "e.g. --topic 'fish=underwater image with fish;underwater image without fish'")
+
+
 def add_summary_options(p: argparse.ArgumentParser, *, weights_help: str = "local CLIP checkpoint file") -> None:
     """The options of a summary run (K, queries, threshold, encoder, fps, enhancement, batch), for every command
     that summarizes a source (``summarize`` one, ``archive`` many): same names, same meaning."""
@@ -48,9 +56,7 @@ def add_summary_options(p: argparse.ArgumentParser, *, weights_help: str = "loca
     p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
     p.add_argument("--negative", metavar="TEXT", action="append",
                    help="negative query, repeatable (with --query and no --negative: a generic negative)")
-    p.add_argument("--topic", metavar="NAME=POSITIVE[;NEGATIVE...]", action="append", type=topic_option,
-                   help="follow several topics at once, each with its own summary (repeatable; replaces --query), "
-                        "e.g. --topic 'fish=underwater image with fish;underwater image without fish'")
+    add_topic_option(p)
     p.add_argument("--threshold", type=float, metavar="TAU",
                    help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50); 0: no semantic gate")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores frames")
@@ -68,5 +74,3 @@ def put_summary_options(over: Overrides, args: argparse.Namespace) -> None:
     put(over, "queries", "tau_ss", args.threshold)
     put(over, "enhance", "mode", args.enhance)
     put_queries_and_encoder(over, args)
-    if getattr(args, "topic", None):
-        put(over, "queries", "topics", list(args.topic))

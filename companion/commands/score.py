@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any
 
-from companion.commands.overrides import Overrides, put_queries_and_encoder
+from companion.commands.overrides import Overrides, add_topic_option, put_queries_and_encoder
 from companion.config import load_config
 
 
@@ -17,6 +17,7 @@ def register(add_command) -> None:
     p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
     p.add_argument("--negative", metavar="TEXT", action="append",
                    help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    add_topic_option(p)
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores images")
     p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file (or open_clip model folder)")
@@ -49,8 +50,15 @@ def run(args: argparse.Namespace) -> int:
             failed += 1
             print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)
             continue
+        several = len(item.topics) > 1
         if args.json:
-            print(json.dumps({"file": str(item.file), "score": round(item.score, 6)}), flush=True)
+            row: dict[str, Any] = {"file": str(item.file), "score": round(item.score, 6)}
+            if several:
+                row["topics"] = {name: round(v, 6) for name, v in item.topics.items()}
+            print(json.dumps(row), flush=True)
+        elif several:  # the highest first, then each topic's
+            each = "\t".join(f"{name}={v:.4f}" for name, v in item.topics.items())
+            print(f"{item.file}\t{item.score:.4f}\t{each}", flush=True)
         else:
             print(f"{item.file}\t{item.score:.4f}", flush=True)
     return 1 if failed else 0

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -28,8 +28,10 @@ log = logging.getLogger(__name__)
 class ImageScore:
     file: Path
     score: float | None
-    """None when the file could not be decoded (``error`` says why)."""
+    """None when the file could not be decoded (``error`` says why); with several topics the highest."""
     error: str = ""
+    topics: dict[str, float] = field(default_factory=dict)
+    """Each topic's score, by name (one entry with one topic)."""
 
 
 def collect_images(paths: Sequence[str | Path]) -> list[Path]:
@@ -62,8 +64,9 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
         from companion.vision.encoders.factory import make_encoder
 
         encoder = make_encoder(cfg.encoder)
-    presampler = with_marks(PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss),
-                            like_images, unlike_images)
+    topics = cfg.queries.topic_list()
+    presamplers = [PreSampler(encoder, t.positive, t.negatives, cfg.queries.tau_ss) for t in topics]
+    presamplers[0] = with_marks(presamplers[0], like_images, unlike_images)  # marks teach the first topic
     batch = cfg.encoder.batch
     for start in range(0, len(files), batch):
         chunk = files[start:start + batch]
@@ -77,10 +80,12 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
             else:
                 images.append(img)
                 readable.append(f)
-        scores = presampler.scores(encoder.encode_images(images)) if images else np.zeros(0)
+        emb = encoder.encode_images(images) if images else None  # one pass serves every topic
+        scores = np.stack([p.scores(emb) for p in presamplers], axis=1) if images else np.zeros((0, len(topics)))
         by_file = dict(zip(readable, scores, strict=True))
         for f in chunk:
             if f in errors:
                 yield ImageScore(f, None, errors[f])
             else:
-                yield ImageScore(f, float(by_file[f]))
+                row = by_file[f]
+                yield ImageScore(f, float(row.max()), topics={t.name: float(v) for t, v in zip(topics, row, strict=True)})

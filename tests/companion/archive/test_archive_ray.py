@@ -130,7 +130,8 @@ def test_killed_campaign_resumes_and_matches_summarize(cluster, campaign):
     rows = list(csv.DictReader((out / "index.csv").read_text().splitlines()))
     assert len(rows) == sum(len(json.loads((out / c.stem / "summary.json").read_text())["frames"]) for c in clips)
     for row in rows:
-        assert (out / row["file"]).is_file() and row["topic"] == "underwater image with fish"
+        assert (out / row["file"]).is_file() and row["topic"] == "main"
+        assert row["query"] == "underwater image with fish"
         t = starts[int(row["dive"][-2:]) - 1] + float(row["time_s"])
         assert float(row["depth_m"]) == pytest.approx(depth_at(t, T0), abs=0.1)
     index = json.loads((out / "index.json").read_text())

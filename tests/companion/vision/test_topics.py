@@ -194,3 +194,20 @@ def test_summarize_command_writes_a_summary_per_topic(tmp_path):
     assert named.stderr.strip().splitlines() == [named.stderr.strip()]
     assert "queries.topics.0.name" in named.stderr and "Big Fish" in named.stderr
     assert not (tmp_path / "bad").exists()
+
+
+def test_score_command_gives_each_topic_from_one_pass(tmp_path):
+    images = shared_file("suim/images")
+    files = sorted(images.iterdir())[:4]
+    single = run_merlion("score", *map(str, files), "--encoder", "imagenet", "--json")
+    both = run_merlion("score", *map(str, files), "--encoder", "imagenet", "--json",
+                       "--topic", "fish=underwater image with fish;underwater image without fish",
+                       "--topic", "coral=underwater image of a coral reef")
+    assert single.returncode == 0 and both.returncode == 0, both.stderr
+    alone = [json.loads(line) for line in single.stdout.splitlines()]
+    rows = [json.loads(line) for line in both.stdout.splitlines()]
+    assert [r["file"] for r in rows] == [str(f) for f in files]
+    for one, row in zip(alone, rows, strict=True):
+        assert set(row["topics"]) == {"fish", "coral"}
+        assert row["topics"]["fish"] == pytest.approx(one["score"], abs=1e-6)  # the default query is fish's
+        assert row["score"] == pytest.approx(max(row["topics"].values()), abs=1e-6)
