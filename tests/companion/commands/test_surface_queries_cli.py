@@ -112,6 +112,28 @@ def test_a_refusal_by_the_companion_app_is_an_error_too(companion):
     assert changed == [] and b"busy" not in surface.tree.read(QUERIES_PATH)
 
 
+def test_a_signed_companion_takes_the_queries_only_when_signed(tmp_path):
+    key = tmp_path / "key.txt"
+    key.write_text("a passphrase shared by autopilot, companion and surface\n")
+    port = free_udp_port()
+    link = companion_link(port, signing_key_file=str(key), signing_timestamp_file=str(tmp_path / "companion.stamp"))
+    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=20000, push=False, ftp_writable=True),
+                       queries=[QueryTopic("main", "fish", ("no fish",))])
+    changed: list[list[QueryTopic]] = []
+    surface.on_queries_changed(changed.append)
+    surface.start()
+    try:
+        unsigned = _upload(port, "--query", "a crab", "--negative", "sand", "--timeout", "3")
+        assert unsigned.returncode == 1 and "no answer from the companion 1:100" in unsigned.stderr
+        assert changed == []  # an unsigned FTP write is ignored
+        signed = _upload(port, "--query", "a crab", "--negative", "sand", "--signing-key", str(key))
+        assert signed.returncode == 0, signed.stderr
+        assert "says: Queries set: a crab" in signed.stdout and changed[-1][0].positive == "a crab"
+    finally:
+        surface.stop()
+        link.stop()
+
+
 def test_no_companion_is_a_one_line_error():
     done = run_merlion("surface-queries", "--connect", f"udpout:127.0.0.1:{free_udp_port()}", "--query", "fish",
                        "--negative", "no fish", "--timeout", "2", timeout=60)
