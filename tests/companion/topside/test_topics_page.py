@@ -92,18 +92,22 @@ def test_two_topics_show_as_two_sections_and_a_new_capture_lands_in_its_own(tmp_
                                  " !== null", 30), _state(web)
             assert _cards(page, "coral") == ["8", "6"] and _cards(page, "fish") == ["7", "5"]
             surface.publish(SummaryEvent("added", _frame(9, "fish", 14.0), summary=[5, 6, 7, 8, 9]))
-            assert page.wait_for(f"{SECTION.format('fish')}.querySelector('figure.frame[data-index=\"9\"]')"
+            assert page.wait_for(f"{SECTION.format('fish')}.querySelector('figure.frame[data-index=\"9\"] img')"
                                  " !== null", 30), _state(web)
             assert page.evaluate("window.notReloaded === true")
             # the marks buttons are still on every card (they teach the marked frame's topic on board)
             assert page.evaluate("document.querySelectorAll('#gallery figure.frame button.mark.like').length") == 5
+        proc.terminate()
+        stdout, _ = proc.communicate(timeout=30)
     finally:
         if surface is not None:
             surface.stop()
         if link is not None:
             link.stop()
-        proc.terminate()
-        proc.wait(30)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert "5 frames in the summary (fish 3, coral 2), 5 with thumbnails" in stdout, stdout
     doc = json.loads((out / "gallery.json").read_text())
     assert [t["name"] for t in doc["topics"]] == ["fish", "coral"]
     assert {c["image_index"]: c["topic"] for c in doc["captures"]} == {5: "fish", 6: "coral", 7: "fish", 8: "coral",
