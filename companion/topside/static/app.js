@@ -241,8 +241,10 @@ function lines(id, items, limit) {
 
 // null when one topic (or none) is followed: the gallery then looks as it always did
 function topicGroups(topics, frames) {
+  // the companion's order; topics its index.json has not listed yet (named by a status line) after, by name
   const names = topics.map((t) => t.name);
-  for (const f of frames) if (f.topic && !names.includes(f.topic)) names.push(f.topic);
+  const more = [...new Set(frames.map((f) => f.topic).filter((n) => n && !names.includes(n)))].sort();
+  names.push(...more);
   if (names.length <= 1) return null;
   const byName = Object.fromEntries(topics.map((t) => [t.name, t]));
   const groups = names.map((name) => ({

@@ -149,3 +149,15 @@ def test_a_frame_whose_topic_is_not_known_yet_waits_in_its_own_section(tmp_path)
         assert _cards(page, "fish") == ["2"] and _cards(page, "coral") == [] and _cards(page, "") == ["3"]
         assert "No summary frames yet" in page.evaluate(f"{SECTION.format('coral')}.innerText")
         assert "topic not known yet" in page.evaluate(f"{SECTION.format('')}.innerText")
+
+
+def test_topics_no_index_has_listed_yet_show_under_their_names_in_a_steady_order(tmp_path):
+    chromium_or_skip()
+    frames = [_saved_frame(4, "fish"), _saved_frame(3, "coral"), _saved_frame(2, "fish")]  # from status lines only
+    page_file = write_offline_page(tmp_path, _saved_state([], frames))
+    with Page(page_file.as_uri()) as page:
+        assert page.wait_for("document.querySelectorAll('#gallery section.topic').length == 2")
+        assert page.evaluate("[...document.querySelectorAll('#gallery section.topic')].map(s => s.dataset.topic)"
+                             ) == ["coral", "fish"]
+        assert _cards(page, "fish") == ["4", "2"]
+        assert page.evaluate(f"{SECTION.format('coral')}.querySelector('h2').innerText").startswith("coral")
