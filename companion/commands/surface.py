@@ -126,6 +126,10 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
         if web is not None:
             web.close()
     held = gallery.summary()
-    print(f"merlion surface: {len(held)} frames in the summary, "
+    names = [t.name for t in gallery.topics()]
+    names += sorted({c.topic for c in held if c.topic and c.topic not in names})
+    by_topic = (" (" + ", ".join(f"{name} {sum(c.topic == name for c in held)}" for name in names) + ")"
+                if len(names) > 1 else "")  # several topics: how many frames each
+    print(f"merlion surface: {len(held)} frames in the summary{by_topic}, "
           f"{sum(1 for c in held if c.thumbnail)} with thumbnails, in {gallery.root}", flush=True)
     return 0

@@ -11,6 +11,7 @@ Protocol: mavlink.io/en/services/ftp.html.
 from __future__ import annotations
 
 import logging
+import secrets
 import struct
 import time
 from collections import deque
@@ -106,7 +107,10 @@ class FtpClient:
         self._burst = burst
         self._queue: deque[_Job] = deque()
         self._job: _Job | None = None
-        self._seq = 0
+        self._seq = secrets.randbelow(0x10000)
+        """Starts anywhere: a server answers a request it has seen from our ids lately (same sequence number, same
+        bytes) from its retransmission cache, so a client restarted within that window must not repeat its old
+        sequence (a second ``surface-queries`` got the first one's closed session back)."""
         self._request: tuple[int, bytes, int] | None = None  # (opcode, payload, offset) awaiting its reply
         self._sent_at = 0.0
         self._tries = 0

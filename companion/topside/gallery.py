@@ -3,7 +3,8 @@
 Layout of DIR:
 - ``summary/<n>.<ext>``: the thumbnails of the frames now in the companion's summary (exactly those);
 - ``removed/<n>.<ext>``: thumbnails of frames trimmed out since (kept: nothing received is thrown away);
-- ``gallery.json``: every capture ever seen with its tags and whether it is in the summary (rewritten atomically);
+- ``gallery.json``: every capture ever seen with its tags (its topic among them) and whether it is in the summary,
+  and the topics the companion follows (rewritten atomically);
 - ``log.csv``: one appended row per event (added, thumbnail, tags, removed, dive), for spreadsheets and audits;
 - ``dives/<dive>/summary|removed/<n>.<ext>``: the thumbnails of earlier dives.
 
@@ -12,7 +13,8 @@ its ``file_url``, ``mftp://summary/<dive>/<n>.jpg``, or index.json) plus its ind
 current dive; a capture of a dive never seen before files the current one away under ``dives/`` first, and a
 late message of an earlier dive is ignored, so old thumbnails never show under new captures.
 
-A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing.
+A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing; a
+folder written before topics existed opens too (its captures' topic is unknown, and its log.csv keeps its columns).
 """
 
 from __future__ import annotations
@@ -30,8 +32,24 @@ from companion.storage.atomic_write import atomic_write
 
 LOG_COLUMNS = [
     "event", "wall_time", "dive", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
-    "lat", "lon", "alt_m", "thumbnail", "thumbnail_via", "file_url",
+    "lat", "lon", "alt_m", "thumbnail", "thumbnail_via", "file_url", "topic",
 ]
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic the companion follows, as its index.json states it: the page heads the topic's frames with it."""
+
+    name: str
+    positive: str
+    negatives: tuple[str, ...] = ()
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Topic:
+        return cls(str(data["name"]), str(data.get("positive") or ""), tuple(str(n) for n in data.get("negatives") or ()))
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "positive": self.positive, "negatives": list(self.negatives)}
 
 
 @dataclass
@@ -52,6 +70,9 @@ class Capture:
     lon: float | None = None
     alt_m: float | None = None
     score: float | None = None
+    topic: str | None = None
+    """The name of the topic whose summary holds it (index.json, or the STATUSTEXT when several are followed);
+    None until the companion said (and in a gallery written before topics)."""
     file_url: str | None = None
     thumbnail: str | None = None
     """Path of the thumbnail relative to DIR, once we have it."""
@@ -87,9 +108,11 @@ class Gallery:
         self.dive: str | None = None
         """The dive now shown (None until a companion names one)."""
         self._dives: list[str] = []
+        self._topics: list[Topic] = []
         self._json = self.root / "gallery.json"
         self._csv = self.root / "log.csv"
         self._load()
+        self._columns = self._log_columns()
 
     def _load(self) -> None:
         if not self._json.exists():
@@ -102,8 +125,20 @@ class Gallery:
             self._archived = [Capture.from_dict(item) for item in data.get("archived", [])]
             self.dive = data.get("dive")
             self._dives = [str(d) for d in data.get("dives", [])]
-        except (OSError, ValueError, TypeError, AttributeError) as err:
+            self._topics = [Topic.from_dict(t) for t in data.get("topics", [])]
+        except (OSError, ValueError, TypeError, AttributeError, KeyError) as err:
             raise MerlionError(f"{self._json}: not a gallery file this tool can read ({err})") from None
+
+    def _log_columns(self) -> list[str]:
+        """The columns log.csv already has (a folder from an older tool keeps its header: rows stay aligned)."""
+        try:
+            with self._csv.open(newline="", encoding="utf-8") as fh:
+                header = next(csv.reader(fh), None)
+        except FileNotFoundError:
+            return list(LOG_COLUMNS)
+        except (OSError, UnicodeDecodeError, csv.Error) as err:
+            raise MerlionError(f"{self._csv}: not a log this tool can append to ({err})") from None
+        return header if header and set(header) <= set(LOG_COLUMNS) else list(LOG_COLUMNS)
 
     # --- reading -------------------------------------------------------------------------------------------
 
@@ -129,6 +164,11 @@ class Gallery:
     def dives(self) -> list[str]:
         with self._lock:
             return list(self._dives)
+
+    def topics(self) -> list[Topic]:
+        """The topics the companion follows, in its order (empty until an index.json listed them)."""
+        with self._lock:
+            return list(self._topics)
 
     def missing_thumbnails(self) -> list[int]:
         with self._lock:
@@ -171,6 +211,15 @@ class Gallery:
             self._dives.append(dive)
             self._persist("dive", Capture(image_index=-1, dive=dive))
             return "new"
+
+    def set_topics(self, topics: list[Topic]) -> bool:
+        """The topics index.json lists now; True if they changed (then gallery.json says so at once)."""
+        with self._lock:
+            if topics == self._topics:
+                return False
+            self._topics = list(topics)
+            self._persist("topics", Capture(image_index=-1, dive=self.dive))
+            return True
 
     def announce(self, cap: Capture) -> bool:
         """A capture was announced (or re-announced); True if it is new to us. Known tags are kept."""
@@ -298,13 +347,16 @@ class Gallery:
             "summary": sorted(i for i, c in self._captures.items() if c.in_summary),
             "captures": [asdict(c) for _, c in sorted(self._captures.items())],
             "archived": [asdict(c) for c in self._archived],
+            "topics": [t.to_dict() for t in self._topics],
         }
         atomic_write(self._json, json.dumps(doc, indent=1))
         new = not self._csv.exists()
+        if new:
+            self._columns = list(LOG_COLUMNS)
         with self._csv.open("a", newline="", encoding="utf-8") as fh:
             writer = csv.writer(fh)
             if new:
-                writer.writerow(LOG_COLUMNS)
+                writer.writerow(self._columns)
             row = asdict(cap)
             row.update(event=event, wall_time=f"{time.time():.3f}")
-            writer.writerow(["" if row.get(k) is None else row.get(k) for k in LOG_COLUMNS])
+            writer.writerow(["" if row.get(k) is None else row.get(k) for k in self._columns])

@@ -12,7 +12,7 @@ import math
 import re
 from dataclasses import dataclass, field
 
-from companion.topside.gallery import Capture
+from companion.topside.gallery import Capture, Topic
 
 
 def heading_from_q(q: list[float] | tuple[float, ...]) -> float | None:
@@ -77,6 +77,8 @@ class StatusFacts:
     removed: list[int] = field(default_factory=list)
     added: list[int] = field(default_factory=list)
     scores: dict[int, float] = field(default_factory=dict)
+    topics: dict[int, str] = field(default_factory=dict)
+    """The topic an added frame entered (``Summary +#7 fish ss=0.83 ...``: named when several are followed)."""
     summary_changed: bool = False
     """The line is about the summary but we could not read which frames: pull index.json to be sure."""
 
@@ -85,11 +87,17 @@ _REMOVED = re.compile(r"\b(?:trim\w*|remov\w*|drop\w*|evict\w*|out)\b", re.I)
 _ADDED = re.compile(r"\b(?:add\w*|new|kept|keep|captur\w*|in)\b", re.I)
 _INDEX = re.compile(r"(?:#|\b(?:img|image|idx|index|frame|n)\s*[:=#]?\s*)(\d+)", re.I)
 _SCORE = re.compile(r"\b(?:score|ss|s)\s*[:=]?\s*(-?\d+(?:\.\d+)?)", re.I)
+_TOPIC = re.compile(r"\+#\d+ ([a-z0-9][a-z0-9_-]{0,23}) ss=")
+"""A topic name (vehicle/protocol/queries.py's rule) between the index and the score; a name the 50-character
+line cut short is not followed by `` ss=``, so it is never taken for another topic."""
 
 
 def parse_statustext(text: str) -> StatusFacts:
     """Read summary events from a status line, e.g. ``summary -#12 (trimmed)`` or ``added #7 score 0.83``."""
     facts = StatusFacts()
+    if text.startswith(("Queries set", "Topics set")):  # new topics: index.json lists them (and drops frames)
+        facts.summary_changed = True
+        return facts
     if not any(w in text.lower() for w in ("summ", "trim", "remov", "drop", "evict", "add", "img", "image", "#")):
         return facts
     indices = [int(m) for m in _INDEX.findall(text)]
@@ -100,6 +108,9 @@ def parse_statustext(text: str) -> StatusFacts:
         score = _SCORE.search(text)
         if score and len(facts.added) == 1:
             facts.scores[facts.added[0]] = float(score.group(1))
+        topic = _TOPIC.search(text)
+        if topic and len(facts.added) == 1:
+            facts.topics[facts.added[0]] = topic.group(1)
     elif indices and _REMOVED.search(text):
         facts.removed = indices
     elif indices and _ADDED.search(text):
@@ -144,6 +155,21 @@ def index_dive(data: bytes) -> str | None:
     return str(dive) if dive else None
 
 
+def index_topics(data: bytes) -> list[Topic] | None:
+    """The topics an index.json lists (top-level ``topics``: name, positive, negatives), else None (an older
+    companion, which follows one query and says nothing of it)."""
+    doc = json.loads(data.decode("utf-8"))
+    items = doc.get("topics") if isinstance(doc, dict) else None
+    if not isinstance(items, list):
+        return None
+    topics = []
+    for item in items:
+        if isinstance(item, dict) and isinstance(item.get("name"), str) and item["name"]:
+            negatives = item.get("negatives") if isinstance(item.get("negatives"), list) else []
+            topics.append(Topic(item["name"], str(item.get("positive") or ""), tuple(str(n) for n in negatives)))
+    return topics
+
+
 def parse_index(data: bytes) -> list[Capture]:
     """/summary/index.json -> the captures now in the summary (with score, heading, depth, time where given)."""
     doc = json.loads(data.decode("utf-8"))
@@ -182,6 +208,7 @@ def parse_index(data: bytes) -> list[Capture]:
             q=[float(v) for v in q] if isinstance(q, list) and len(q) == 4 else None,
             lat=_num(tags.get("lat")), lon=_num(tags.get("lon")), alt_m=_num(tags.get("alt_m")),
             score=_num(_first(tags, "score", "ss", "semantic_score")),
+            topic=str(tags["topic"]) if isinstance(tags.get("topic"), str) and tags["topic"] else None,
             file_url=url if isinstance(url, str) else None,
         )
         cap.thumbnail_bytes = int(size) if _num(size) is not None else None

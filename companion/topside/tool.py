@@ -33,6 +33,7 @@ from companion.topside.gallery import Capture, Gallery
 from companion.topside.messages import (
     capture_from_message,
     index_dive,
+    index_topics,
     mftp_path,
     parse_index,
     parse_statustext,
@@ -539,6 +540,8 @@ class SurfaceTool:
             self._waiting = deque((i, t) for i, t in self._waiting if i != index)
         for index, score in facts.scores.items():
             self.gallery.update_tags(index, score=score)
+        for index, topic in facts.topics.items():
+            self.gallery.update_tags(index, topic=topic)
         if facts.removed or facts.summary_changed or facts.added:
             self._want_index()
 
@@ -558,6 +561,7 @@ class SurfaceTool:
         try:
             captures = parse_index(data)
             dive = index_dive(data)
+            topics = index_topics(data)
         except (ValueError, UnicodeDecodeError) as err:
             log.warning("%s: not JSON this tool understands (%s)", INDEX_PATH, err)
             return
@@ -566,6 +570,8 @@ class SurfaceTool:
         with self.lock:
             self.status.index_pulls += 1
             self.status.ftp_ok += 1
+        if topics is not None:
+            self.gallery.set_topics(topics)
         asked = self._ftp.started_wall if self._ftp is not None else None
         gone = set(self.gallery.mirror([c.image_index for c in captures], announced_before=asked))
         # frames that left without a push keep no place in the pairing queue (else every later push shifts)
@@ -578,7 +584,7 @@ class SurfaceTool:
                 if cap.thumbnail_crc32 is not None:
                     self._crc[cap.image_index] = cap.thumbnail_crc32
             tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
-                                                 "score", "file_url", "thumbnail_crc32")}
+                                                 "score", "topic", "file_url", "thumbnail_crc32")}
             self.gallery.update_tags(cap.image_index, **tags)
             known = self.gallery.get(cap.image_index)
             if known is None:
@@ -726,8 +732,9 @@ class SurfaceTool:
             }
             marks = {k: list(v) for k, v in self.marks.items()}
         summary = [_capture_view(c) for c in self.gallery.summary()]
+        topics = [t.to_dict() for t in self.gallery.topics()]
         return {"time": now, "link": link, "companion": companion, "dive": self.gallery.dive, "summary": summary,
-                "thumbnails_waiting": self.gallery.missing_thumbnails(), "marks": marks}
+                "topics": topics, "thumbnails_waiting": self.gallery.missing_thumbnails(), "marks": marks}
 
 
 def _age(now: float, then: float | None) -> float | None:
@@ -737,7 +744,7 @@ def _age(now: float, then: float | None) -> float | None:
 def _capture_view(c: Capture) -> dict:
     return {
         "image_index": c.image_index, "dive": c.dive, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
-        "score": c.score, "lat": c.lat, "lon": c.lon, "alt_m": c.alt_m, "thumbnail": c.thumbnail,
+        "score": c.score, "topic": c.topic, "lat": c.lat, "lon": c.lon, "alt_m": c.alt_m, "thumbnail": c.thumbnail,
         "via": c.thumbnail_via,
         "bytes": c.thumbnail_bytes,
     }

@@ -133,7 +133,7 @@ function markButtons(frame, marks) {
   return row;
 }
 
-function card(frame, marks) {
+function card(frame, marks, showTopic) {
   const fig = el("figure", "frame");
   fig.dataset.index = frame.image_index;
   if (frame.thumbnail) {
@@ -155,6 +155,7 @@ function card(frame, marks) {
     ["time", timeText(frame.time_utc)],
     ["score", "score " + fmt(frame.score, 2, "")],
   ];
+  if (showTopic) rows.splice(1, 0, ["topic", "topic " + (frame.topic || "?")]);
   const where = positionText(frame);
   if (where) rows.splice(4, 0, ["position", where]);
   for (const [cls, text] of rows) {
@@ -236,6 +237,39 @@ function lines(id, items, limit) {
   document.getElementById(id).classList.toggle("empty", items.length === 0);
 }
 
+// --- topics: a section per topic when the companion follows several, headed by the topic's positive query ---
+
+// null when one topic (or none) is followed: the gallery then looks as it always did
+function topicGroups(topics, frames) {
+  // the companion's order; topics its index.json has not listed yet (named by a status line) after, by name
+  const names = topics.map((t) => t.name);
+  const more = [...new Set(frames.map((f) => f.topic).filter((n) => n && !names.includes(n)))].sort();
+  names.push(...more);
+  if (names.length <= 1) return null;
+  const byName = Object.fromEntries(topics.map((t) => [t.name, t]));
+  const groups = names.map((name) => ({
+    name: name, query: byName[name] ? byName[name].positive : "", frames: frames.filter((f) => f.topic === name),
+  }));
+  const unknown = frames.filter((f) => !f.topic || !names.includes(f.topic));
+  if (unknown.length) groups.push({ name: "", query: "", frames: unknown });  // its index.json is on its way
+  return groups;
+}
+
+function topicSection(group, marks) {
+  const section = el("section", "topic");
+  section.dataset.topic = group.name;
+  const heading = el("h2");
+  heading.appendChild(el("span", "query", group.query || (group.name ? group.name : "topic not known yet")));
+  const count = group.frames.length + (group.frames.length === 1 ? " frame" : " frames");
+  heading.appendChild(el("span", "muted", " " + (group.name ? "topic " + group.name + ", " : "") + count));
+  section.appendChild(heading);
+  const cards = el("div", "cards");
+  if (group.frames.length === 0) cards.appendChild(el("p", "muted", "No summary frames yet."));
+  for (const frame of group.frames) cards.appendChild(card(frame, marks, true));
+  section.appendChild(cards);
+  return section;
+}
+
 let lastGallery = "";
 
 function render(state) {
@@ -267,14 +301,19 @@ function render(state) {
   const frames = state.summary.slice().sort((a, b) => b.image_index - a.image_index);
   drawDepth(comp.depth_track || [], frames);
   const marks = state.marks || { like: [], unlike: [] };
-  const key = JSON.stringify([state.summary, marks]);
+  const topics = state.topics || [];
+  const key = JSON.stringify([state.summary, marks, topics]);
   if (key !== lastGallery) {
     lastGallery = key;
     const gallery = document.getElementById("gallery");
-    if (frames.length === 0) {
+    const groups = topicGroups(topics, frames);
+    gallery.classList.toggle("grouped", groups !== null);
+    if (groups !== null) {
+      gallery.replaceChildren(...groups.map((group) => topicSection(group, marks)));
+    } else if (frames.length === 0) {
       gallery.replaceChildren(el("p", "muted", "No summary frames yet."));
     } else {
-      gallery.replaceChildren(...frames.map((frame) => card(frame, marks)));
+      gallery.replaceChildren(...frames.map((frame) => card(frame, marks, false)));
     }
   }
 }

@@ -9,7 +9,7 @@ import time
 import pytest
 
 from companion.errors import MerlionError
-from companion.topside.gallery import Capture, Gallery
+from companion.topside.gallery import LOG_COLUMNS, Capture, Gallery, Topic
 
 
 def test_round_trip_add_thumbnail_remove_reopen(tmp_path):
@@ -91,3 +91,50 @@ def test_a_capture_or_push_arriving_after_its_trim_goes_to_removed(tmp_path):
     assert not five.in_summary and five.depth_m == 3.0 and five.thumbnail == "removed/5.jpg"
     assert (tmp_path / "removed" / "5.jpg").is_file() and not (tmp_path / "summary" / "5.jpg").exists()
     assert Gallery(tmp_path).summary() == []
+
+
+def test_each_capture_keeps_its_topic_and_the_gallery_the_topics(tmp_path):
+    g = Gallery(tmp_path)
+    g.announce(Capture(image_index=1))
+    g.add_thumbnail(1, b"\xff\xd8one")  # a push may come before anything says its topic
+    assert g.get(1).topic is None
+    assert g.update_tags(1, topic="fish")
+    assert not g.announce(Capture(image_index=1, depth_m=3.0))  # a later announcement keeps the topic
+    g.announce(Capture(image_index=2, topic="coral"))
+    topics = [Topic("fish", "underwater image with fish", ("underwater image without fish",)),
+              Topic("coral", "a coral reef", ("sand",))]
+    assert g.set_topics(topics) and not g.set_topics(list(topics))
+
+    again = Gallery(tmp_path)
+    assert [(c.image_index, c.topic) for c in again.summary()] == [(2, "coral"), (1, "fish")]
+    assert again.topics() == topics
+    doc = json.loads((tmp_path / "gallery.json").read_text())
+    assert doc["topics"][1] == {"name": "coral", "positive": "a coral reef", "negatives": ["sand"]}
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    assert [r["topic"] for r in rows if r["image_index"] == "1"] == ["", "", "fish", "fish"]
+
+
+def test_a_gallery_folder_from_before_topics_still_opens_and_its_log_stays_aligned(tmp_path):
+    old_columns = [c for c in LOG_COLUMNS if c != "topic"]
+    (tmp_path / "summary").mkdir()
+    (tmp_path / "summary" / "4.jpg").write_bytes(b"\xff\xd8four")
+    (tmp_path / "gallery.json").write_text(json.dumps({
+        "updated": 1.7e9, "dive": "5e1f0c2a", "dives": ["5e1f0c2a"], "summary": [4],
+        "captures": [{"image_index": 4, "dive": "5e1f0c2a", "depth_m": 7.5, "score": 0.6, "thumbnail": "summary/4.jpg",
+                      "thumbnail_via": "push", "in_summary": True}],
+        "archived": []}))
+    with (tmp_path / "log.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerow(old_columns)
+        csv.writer(fh).writerow(["added", "1700000000.0", "5e1f0c2a", "4"] + [""] * (len(old_columns) - 4))
+
+    g = Gallery(tmp_path)
+    four = g.get(4)
+    assert (four.topic, four.depth_m, four.thumbnail) == (None, 7.5, "summary/4.jpg")
+    assert g.topics() == [] and g.dive == "5e1f0c2a"
+    g.update_tags(4, topic="fish", score=0.7)
+    g.set_topics([Topic("fish", "fish", ("no fish",))])
+    with (tmp_path / "log.csv").open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == old_columns and all(len(r) == len(old_columns) for r in rows)  # no column slipped
+    assert [r[0] for r in rows[1:]] == ["added", "tags", "topics"]
+    assert Gallery(tmp_path).get(4).topic == "fish"

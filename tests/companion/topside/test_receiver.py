@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import time
 
@@ -9,17 +10,25 @@ import cv2
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from companion.config import SurfaceConfig
+from companion.topside.gallery import Topic
 from companion.topside.messages import (
     capture_from_message,
     heading_from_q,
+    index_topics,
     mftp_path,
     parse_index,
     parse_statustext,
 )
+from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import CompanionPeer, summary_frame
+from tests.conftest import free_udp_port
+from tests.vehicle.surface_env import companion_link
 from vehicle.camera.captures import added_text, captured_message, trimmed_text
+from vehicle.camera.downlink import Downlink
 from vehicle.camera.thumbnails import make_thumbnail
 from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
+from vehicle.protocol.queries import QueryTopic
 
 
 def _receive(sock: socket.socket, receiver: ImageReceiver, want: int, timeout: float = 5.0) -> list:
@@ -156,3 +165,35 @@ def test_a_lost_packet_and_a_lost_handshake_never_make_a_mixed_image():
     assert len(got) == 1 and isinstance(got[0], Abandoned) and got[0].next_headless
     assert got[0].chunks[0] == first.data[:253] and 3 * 253 not in got[0].chunks
     assert more == []  # the second image's packets are not taken for the first one's missing packet
+
+
+def test_the_topic_of_a_new_frame_is_read_from_its_status_line():
+    frame = dataclasses.replace(summary_frame(12, score=0.83), topic="coral_reef")
+    named = parse_statustext(added_text(frame, 4, topic=True))
+    assert named.added == [12] and named.scores == {12: 0.83} and named.topics == {12: "coral_reef"}
+    assert parse_statustext(added_text(frame, 4)).topics == {}  # one topic followed: the line names none
+    long = dataclasses.replace(frame, image_index=123456, topic="a" * 24)
+    cut = added_text(long, 4, topic=True)
+    assert parse_statustext(cut).topics in ({123456: "a" * 24}, {})  # never a name cut short
+    assert parse_statustext("Summary +#7 fis").topics == {}
+    assert parse_statustext("Topics set: fish, coral").summary_changed  # index.json lists the new topics
+
+
+def test_the_topics_and_each_frames_topic_come_from_the_companions_index():
+    link = companion_link(free_udp_port())
+    topics = [QueryTopic("fish", "underwater image with fish", ("underwater image without fish",)),
+              QueryTopic("coral", "a coral reef", ("sand", "rocks"))]
+    surface = Downlink(link, SurfaceConfig(push=False), queries=topics)
+    try:
+        surface.start()
+        surface.publish(SummaryEvent("added", dataclasses.replace(summary_frame(3), topic="fish"), summary=[3]))
+        surface.publish(SummaryEvent("added", dataclasses.replace(summary_frame(4), topic="coral"), summary=[3, 4]))
+        index = surface.index_json()
+    finally:
+        surface.stop()
+        link.stop()
+    assert index_topics(index) == [Topic("fish", "underwater image with fish", ("underwater image without fish",)),
+                                   Topic("coral", "a coral reef", ("sand", "rocks"))]
+    assert {c.image_index: c.topic for c in parse_index(index)} == {3: "fish", 4: "coral"}
+    assert index_topics(b'{"summary": [{"image_index": 1}]}') is None  # an older companion names no topics
+    assert parse_index(b'{"summary": [{"image_index": 1}]}')[0].topic is None
