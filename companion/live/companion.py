@@ -156,7 +156,14 @@ class LiveCompanion:
             self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
             return removed
 
-        self.keeper.change(restore)
+        removed = self.keeper.change(restore)
+        if resume.frames:  # which topic got which frame back, and what a topic no longer followed lost
+            log.info("resumed topics: %s", "; ".join(f"{t.name} {[f.image_index for f in t.summary]}"
+                                                      for t in self.pipeline.topics))
+            dropped = sorted({e.frame.topic for e in removed} - {t.name for t in self.pipeline.topics})
+            if dropped:
+                log.warning("frames of topic(s) %s left the summary: not in the queries in force",
+                            ", ".join(dropped))
 
     def _make_keeper(self) -> SummaryKeeper:
         def tags(frame: SummaryFrame) -> dict[str, Any]:
