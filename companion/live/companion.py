@@ -335,6 +335,7 @@ class LiveCompanion:
         specs = [TopicSpec(t.name, t.positive, tuple(t.negatives)) for t in topics]
 
         def set_topics() -> list[SummaryEvent]:
+            self._check_queries(specs)  # all or nothing: no topic changes if one query cannot be scored
             events = self.pipeline.set_topics(specs)
             if self.selective is not None:  # the raw gate follows every topic, kept, new or dropped
                 self.selective.raw.set_topics(specs)
@@ -351,6 +352,21 @@ class LiveCompanion:
             log.info("marks cleared with the queries")
             if self.surface is not None:
                 self.surface.event("Marks cleared with the queries")
+
+    def _check_queries(self, specs) -> None:
+        """Refuse (ValueError, and why on the surface) queries the encoder cannot score, e.g. a concept the
+        packaged encoder does not know, before any topic changes."""
+        from companion.errors import MerlionError
+
+        for spec in specs:
+            try:
+                self.encoder.encode_texts([spec.positive, *spec.negatives])
+            except MerlionError as err:
+                if self.surface is not None:
+                    from vehicle.camera import status as st
+
+                    self.surface.event(f"Queries refused: {spec.name}: {err}"[:50], st.WARNING)
+                raise ValueError(f"topic {spec.name}: {err}") from None
 
     # ---- the operator's marks -----------------------------------------------------------------------------------
     def _on_marks(self, like: list[int], unlike: list[int]) -> None:
