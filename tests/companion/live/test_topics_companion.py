@@ -110,3 +110,29 @@ def test_uploaded_topics_last_until_a_restart_as_uploaded_queries_do(tmp_path: P
     resumed = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("resumed topics:"))
     assert resumed.startswith(f"resumed topics: fish {held['fish']}; coral []"), resumed
     assert not set(held["wreck"]) & set(again.store.summary)
+
+
+def test_selective_enhancement_serves_every_topic_and_follows_their_changes(tmp_path: Path) -> None:
+    cfg = _config(tmp_path / "store", (FISH, {**CORAL, "tau_ss": 0.2}))
+    cfg = build_config({**cfg.model_dump(), "enhance": {"mode": "selective", "method": "classic", "tau_ses": 0.4}})
+    app = LiveCompanion(cfg)
+    app.start()
+    try:
+        assert wait_until(lambda: _both_hold(app), 30), "enhanced frames in both topics"
+        assert app.selective.raw.names == ["fish", "coral"]
+        assert [app.selective.raw.tau_of(n) for n in ("fish", "coral")] == [0.5, 0.2]
+        assert [t.presampler.tau_ss for t in app.pipeline.topics] == [0.4, 0.4]  # enhanced frames face tau_ses
+        app._on_param("MERL_ENHANCE", 0)  # off: each topic's pipeline gate is its own tau_ss again
+        assert [t.presampler.tau_ss for t in app.pipeline.topics] == [0.5, 0.2]
+        app._on_param("MERL_ENHANCE", 1)
+        app._on_queries([QueryTopic("fish", FISH["positive"], tuple(FISH["negatives"])),
+                         QueryTopic("wreck", "underwater image of a wreck", ("underwater image of sand",))])
+        assert app.selective.raw.names == ["fish", "wreck"] == [t.name for t in app.pipeline.topics]
+        doc = app.keeper_document()
+    finally:
+        app.stop()
+    sidecars = [json.loads(p.read_text()) for p in (tmp_path / "store" / "frames").glob("*.json")]
+    assert {"fish", "coral"} <= {s["topic"] for s in sidecars} <= {"fish", "coral", "wreck"}
+    assert any(s["enhanced"] for s in sidecars)  # (MERL_ENHANCE was off for a moment)
+    # the raw frames once each, their enhanced versions once more: still one pass for both topics
+    assert doc["encoder"]["images"] == doc["encoder"]["scored"] and doc["encoder"]["marks"] == 0
