@@ -138,9 +138,22 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     wait_until(lambda: max(store_summary(store).get("summary", [-1])) > resumed_max, 30,
                "a new frame after the restart")
 
-    # a ground station uploads two topics: fish stays, coral goes, wreck comes
+    # a topic the packaged encoder cannot score: the whole file is refused, nothing changes
     client = _ftp(gcs)
     upload = tmp_path / "queries.txt"
+    upload.write_text(UPLOAD + "[kelp]\nunderwater image of kelp\nunderwater image of sand\n")
+    for _ in range(3):  # the first request may reach the hub before it knows where the companion is
+        client.cmd_put([str(upload), "/config/queries.txt"])
+        client.process_ftp_reply("put", timeout=15)  # (mavftp does not report the NAK on the close)
+        if any("Queries refused: kelp" in t for t in listener.texts()):
+            break
+    listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Queries refused: kelp" in str(m.text), 5,
+                      "the refusal's reason")
+    again.wait_for("refused", 5)
+    index = _get_json(client, "/summary/index.json", tmp_path / "index.json")
+    assert [t["name"] for t in index["topics"]] == ["fish", "coral"]
+
+    # a ground station uploads two topics: fish stays, coral goes, wreck comes
     upload.write_text(UPLOAD)
     for _ in range(3):  # the first request may reach the hub before it knows where the companion is
         client.cmd_put([str(upload), "/config/queries.txt"])
