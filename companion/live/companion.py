@@ -548,7 +548,6 @@ class LiveCompanion:
                               "marks": self.mark_images}
         return doc
 
-
     def report(self) -> dict[str, Any]:
         """Numbers for the demo report, the soak bench and logs."""
         c = self.counters
