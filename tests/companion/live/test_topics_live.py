@@ -118,6 +118,8 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     assert {item["topic"] for item in index["summary"]} == {"fish", "coral"}
     written = _sidecar_topics(store)
     assert all(written[item["image_index"]] == item["topic"] for item in index["summary"])  # store == wire
+    listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and re.match(r"Summary \+#\d+ coral ss=", str(m.text)),
+                      10, "a new frame's STATUSTEXT naming its topic")
     keeper = _get_json(client, "/store/summary.json", tmp_path / "keeper.json")
     assert set(keeper["topics"]) == {"fish", "coral"} and all(len(v) <= K for v in keeper["topics"].values())
     assert keeper["mismatches"] == 0
