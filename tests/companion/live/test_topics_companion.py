@@ -57,6 +57,9 @@ def test_a_mark_teaches_only_the_topic_of_its_frame(tmp_path: Path, caplog) -> N
     try:
         fish = app.pipeline.topic("fish").summary[0].image_index
         coral = app.pipeline.topic("coral").summary[0].image_index
+        with app.keeper.lock:  # between two changes: the status line's counts are the summaries'
+            held = {t.name: len(t.summary) for t in app.pipeline.topics}
+            assert f"summary fish {held['fish']}/3, coral {held['coral']}/3;" in app.status_line()
         app._on_marks([fish], [coral])  # as an upload of /config/marks.json does
         assert _marks_of(app, "fish") == (1, 0) and _marks_of(app, "coral") == (0, 1)
         report = app.report()
