@@ -76,7 +76,9 @@ class LiveCompanion:
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
         self.marks = SavedMarks()
-        """The operator's marks in force (image indices), and the query they were given under."""
+        """The operator's marks in force (image indices), and the queries they were given under."""
+        self.mark_images = 0
+        """Marked frames the encoder embedded (beside the frames it scored)."""
         self.pipeline = None
         self.encoder = None
         self.link = None
@@ -120,22 +122,28 @@ class LiveCompanion:
         factory = self.options.make_encoder
         if factory is None:
             from companion.vision.encoders.factory import make_encoder as factory
-        self.encoder = factory(self.cfg.encoder)
+        from companion.live.counted_encoder import CountedEncoder
+
+        self.encoder = CountedEncoder(factory(self.cfg.encoder))  # counted: one pass serves every topic
         cfg = self.cfg
         if cfg.enhance.mode == "selective":
             # the pipeline samples enhanced frames behind a tau_ses gate; tau_ss is applied before the worker
             from companion.live.enhance_worker import SelectiveStage
+            from companion.live.raw_gate import RawGate
             from companion.vision.enhancers.factory import make_enhancer
-            from companion.vision.presampler import PreSampler
+            from companion.vision.topics import TopicSpec
 
             data = cfg.model_dump()
             data["enhance"]["mode"] = "none"
             data["queries"]["tau_ss"] = cfg.enhance.tau_ses
+            for topic in data["queries"]["topics"]:
+                topic["tau_ss"] = None  # a topic's own tau_ss is its raw gate's; enhanced frames face tau_ses
             data["gate"]["mode"] = "none"  # candidates arrive sparse and already chosen: never skip one
             self.pipeline = Pipeline.from_config(build_config(data, origin="enhance"), self.encoder,
                                                  first_image_index=resume.next_image_index)
             self.keeper = self._make_keeper()
-            raw = PreSampler(self.encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
+            raw = RawGate(self.encoder, [TopicSpec.from_config(t) for t in cfg.queries.topic_list()],
+                          cfg.queries.tau_ss)
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
             self.selective = SelectiveStage(self.pipeline, raw, enhancer, queue_size=cfg.enhance.queue,
                                             lock=self.keeper.lock)
@@ -148,7 +156,14 @@ class LiveCompanion:
             self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
             return removed
 
-        self.keeper.change(restore)
+        removed = self.keeper.change(restore)
+        if resume.frames:  # which topic got which frame back, and what a topic no longer followed lost
+            log.info("resumed topics: %s", "; ".join(f"{t.name} {[f.image_index for f in t.summary]}"
+                                                      for t in self.pipeline.topics))
+            dropped = sorted({e.frame.topic for e in removed} - {t.name for t in self.pipeline.topics})
+            if dropped:
+                log.warning("frames of topic(s) %s left the summary: not in the queries in force",
+                            ", ".join(dropped))
 
     def _make_keeper(self) -> SummaryKeeper:
         def tags(frame: SummaryFrame) -> dict[str, Any]:
@@ -203,7 +218,7 @@ class LiveCompanion:
         self.surface.on_queries_changed(self._on_queries)
         self.surface.on_marks_changed(self._on_marks)
         self.surface.set_marks(self.marks.like, self.marks.unlike)
-        self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper.document()).encode())
+        self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper_document()).encode())
         self.link.on_autopilot(self._on_autopilot)
         self.link.start()
         if self.telemetry is not None and hasattr(self.telemetry, "start"):
@@ -260,7 +275,7 @@ class LiveCompanion:
         sel = self.selective
         if name == "MERL_TAU_SS":
             if sel is not None:
-                sel.raw.tau_ss = value
+                sel.raw.tau_ss = value  # every topic's raw gate
                 if not sel.on:
                     self.pipeline.tau_ss = value
             else:
@@ -277,10 +292,17 @@ class LiveCompanion:
         elif name == "MERL_ENHANCE":
             if sel is not None:
                 sel.on = bool(value)
-                self.pipeline.tau_ss = self.pipeline.tau_ses if value else sel.raw.tau_ss
+                self._selective_gates()
             else:  # enhance.mode always: every frame enhanced, or none
                 self.pipeline.enhance_mode = "always" if value else "none"
         return []
+
+    def _selective_gates(self) -> None:
+        """enhance.mode selective: the pipeline's gate is tau_ses while the enhancer runs, else each topic's own
+        tau_ss (the raw gate's), so switching MERL_ENHANCE off leaves every topic its threshold."""
+        sel = self.selective
+        for topic in self.pipeline.topics:
+            topic.presampler.tau_ss = self.pipeline.tau_ses if sel.on else sel.raw.tau_of(topic.name)
 
     def _refuse(self, name: str, why: str, detail: str = "") -> None:
         """Say on the surface why a parameter change is refused (``why``, short), then refuse it with ``detail``
@@ -313,9 +335,11 @@ class LiveCompanion:
         specs = [TopicSpec(t.name, t.positive, tuple(t.negatives)) for t in topics]
 
         def set_topics() -> list[SummaryEvent]:
+            self._check_queries(specs)  # all or nothing: no topic changes if one query cannot be scored
             events = self.pipeline.set_topics(specs)
-            if self.selective is not None:
-                self.selective.raw.set_queries(specs[0].positive, specs[0].negatives)
+            if self.selective is not None:  # the raw gate follows every topic, kept, new or dropped
+                self.selective.raw.set_topics(specs)
+                self._selective_gates()
             return events
 
         self.keeper.change(set_topics)
@@ -329,6 +353,21 @@ class LiveCompanion:
             if self.surface is not None:
                 self.surface.event("Marks cleared with the queries")
 
+    def _check_queries(self, specs) -> None:
+        """Refuse (ValueError, and why on the surface) queries the encoder cannot score, e.g. a concept the
+        packaged encoder does not know, before any topic changes."""
+        from companion.errors import MerlionError
+
+        for spec in specs:
+            try:
+                self.encoder.encode_texts([spec.positive, *spec.negatives])
+            except MerlionError as err:
+                if self.surface is not None:
+                    from vehicle.camera import status as st
+
+                    self.surface.event(f"Queries refused: {spec.name}: {err}"[:50], st.WARNING)
+                raise ValueError(f"topic {spec.name}: {err}") from None
+
     # ---- the operator's marks -----------------------------------------------------------------------------------
     def _on_marks(self, like: list[int], unlike: list[int]) -> None:
         """Marks from the surface (image indices): score by them from the next batch on, and keep them on disk.
@@ -336,7 +375,8 @@ class LiveCompanion:
         ValueError (a frame the store no longer has) refuses the upload; the surface gets a NAK.
         """
         self._apply_marks(like, unlike)
-        self.marks = SavedMarks(list(like), list(unlike), self.pipeline.presampler.positive)
+        self.marks = SavedMarks(list(like), list(unlike), self.pipeline.presampler.positive,
+                                {t.name: t.presampler.positive for t in self.pipeline.topics})
         if self.surface is not None:
             self.surface.set_marks(like, unlike)
         try:
@@ -349,45 +389,77 @@ class LiveCompanion:
         log.info("marks set: like %s, unlike %s", like, unlike)
 
     def _restore_marks(self, saved: SavedMarks) -> None:
-        """Re-apply the marks an earlier run saved, if they were given under the query in force now."""
+        """Re-apply the marks an earlier run saved, each only if its topic's query is still the one in force."""
         if not saved:
             return
-        if saved.query != self.pipeline.presampler.positive:
-            log.info("saved marks were given for %r, not %r: not applied", saved.query,
-                     self.pipeline.presampler.positive)
+        queries = {t.name: t.presampler.positive for t in self.pipeline.topics}
+
+        def current(indices: list[int]) -> list[int]:
+            kept = []
+            for index in indices:
+                topic = self._topic_of(index)
+                if topic is None or saved.query_of(topic) == queries.get(topic):
+                    kept.append(index)  # (a frame the store lacks: refused below, naming it)
+                else:
+                    log.info("saved marks were given for %r, not %r: not applied to image %d (topic %s)",
+                             saved.query_of(topic), queries.get(topic), index, topic)
+            return kept
+
+        like, unlike = current(saved.like), current(saved.unlike)
+        if not like and not unlike:
             return
         try:
-            self._apply_marks(saved.like, saved.unlike)
+            self._apply_marks(like, unlike)
         except ValueError as err:
             log.warning("saved marks not applied: %s", err)
             return
-        self.marks = saved
-        log.info("restored marks: %d like, %d unlike", len(saved.like), len(saved.unlike))
+        self.marks = SavedMarks(like, unlike, saved.query, {t: q for t, q in saved.topics.items() if t in queries})
+        log.info("restored marks: %d like, %d unlike", len(like), len(unlike))
+
+    def _topic_of(self, index: int) -> str | None:
+        """The topic a summary frame belongs to: the one holding it, else its sidecar's (a frame stored before
+        topics: the default topic); None when the store does not have it."""
+        held = self.pipeline.topic_of(index)
+        if held is not None:
+            return held.name
+        sidecar = self.store.sidecar(index)
+        if sidecar is None:
+            return None
+        return str(sidecar.get("topic") or self.pipeline.topics[0].name)
 
     def _apply_marks(self, like: list[int], unlike: list[int]) -> None:
-        """Embed the marked frames' stored images and switch the pre-sampler(s) to the combined score.
+        """Embed the marked frames' stored images and switch each topic's pre-sampler(s) to the combined score.
 
-        Runs inside the keeper: the encoder is the inference loop's, and the next batch sees the new score.
+        A mark teaches the topic of the frame it names (marking a coral frame says nothing about fish), so each
+        topic gets only its own marks, and a topic with none scores by its queries alone. Runs inside the
+        keeper: the encoder is the inference loop's, and the next batch sees the new scores.
         """
         from companion.vision.feedback import Marks
 
-        def images(indices: list[int]) -> list:
-            found = []
+        def images(indices: list[int]) -> dict[str, list]:
+            found: dict[str, list] = {t.name: [] for t in self.pipeline.topics}
             for index in indices:
                 frame = self.store.frame(index)
                 if frame is None or frame.image is None:
                     raise ValueError(f"image {index} is not in the store")
-                found.append(self.pipeline.prepare(frame.image))
+                topic = self._topic_of(index)
+                if topic not in found:
+                    raise ValueError(f"image {index} is of topic {topic}, no longer followed")
+                found[topic].append(self.pipeline.prepare(frame.image))
             return found
 
         def apply() -> None:
-            if like or unlike:
-                marks = Marks.from_images(self.encoder, images(like), images(unlike))
-            else:
-                marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))
-            self.pipeline.presampler = _marked(self.pipeline.presampler, marks)
-            if self.selective is not None:
-                self.selective.raw = _marked(self.selective.raw, marks)
+            liked, unliked = images(like), images(unlike)  # all checked before any topic changes
+            for topic in self.pipeline.topics:
+                if liked[topic.name] or unliked[topic.name]:
+                    marks = Marks.from_images(self.encoder, liked[topic.name], unliked[topic.name])
+                    self.mark_images += len(liked[topic.name]) + len(unliked[topic.name])
+                else:
+                    marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))
+                topic.presampler = _marked(topic.presampler, marks)
+                if self.selective is not None:
+                    raw = self.selective.raw.presamplers
+                    raw[topic.name] = _marked(raw[topic.name], marks)
 
         self.keeper.change(apply)
 
@@ -447,9 +519,34 @@ class LiveCompanion:
         src = self.source.state if self.source is not None else "starting"
         ap = "up" if self.link is not None and self.link.autopilot_alive else "down"
         store = "memory-only" if self.store is not None and self.store.memory_only else "ok"
-        summary = len(self.store.summary) if self.store is not None else 0
         return (f"source {src}; {c.fps():.1f} fps; seen {c.frames_seen} passed {c.frames_passed}; "
-                f"summary {summary}/{self.cfg.sampler.k}; dropped {self.queue.dropped}; autopilot {ap}; store {store}")
+                f"summary {self._summary_text()}; dropped {self.queue.dropped}; autopilot {ap}; store {store}")
+
+    def _summary_text(self) -> str:
+        """"3/6" with one topic; "fish 3/6, coral 2/6" with several (the keeper's counts after its last change)."""
+        k = self.pipeline.sampler.k if self.pipeline is not None else self.cfg.sampler.k  # MERL_K may change it
+        held = self.keeper.held_by_topic() if self.keeper is not None else {}
+        if len(held) > 1:
+            return ", ".join(f"{name} {n}/{k}" for name, n in held.items())
+        summary = len(self.store.summary) if self.store is not None else 0
+        return f"{summary}/{k}"
+
+    def keeper_document(self) -> dict[str, Any]:
+        """/store/summary.json: the keeper's summary and history, each frame's topic, and what the encoder did,
+        all read under the keeper's lock (so the counts belong to the same moment as the summary).
+
+        ``encoder.images`` counts what the encoder itself was given; ``scored`` the images whose scores were
+        computed (each frame once, and with enhance.mode selective each enhanced version once more) and
+        ``marks`` the marked frames embedded. ``images == scored + marks`` however many topics are followed: one
+        encoder pass serves them all.
+        """
+        with self.keeper.lock:
+            doc = self.keeper.document()
+            doc["topics"] = {t.name: [f.image_index for f in t.summary] for t in self.pipeline.topics}
+            scored = self.pipeline.counts["encoded"] + (self.selective.scored if self.selective is not None else 0)
+            doc["encoder"] = {"images": self.encoder.images, "calls": self.encoder.calls, "scored": scored,
+                              "marks": self.mark_images}
+        return doc
 
     def report(self) -> dict[str, Any]:
         """Numbers for the demo report, the soak bench and logs."""
@@ -461,6 +558,8 @@ class LiveCompanion:
             "enhance_dropped": self.selective.queue.dropped if self.selective is not None else 0,
             "frames_lost": self.source.lost if self.source is not None else 0,
             "summary": self.store.summary if self.store is not None else [],
+            "topics": self._topics_report(),
+            "images_encoded": getattr(self.encoder, "images", 0),
             "summary_added": c.summary_added, "summary_removed": c.summary_removed,
             "inference_errors": c.inference_errors,
             "bytes_sent": link.tx_bytes if link is not None else 0,
@@ -474,6 +573,14 @@ class LiveCompanion:
             "watchdog_pings": self.watchdog_pings, "watchdog_withheld": self.watchdog_withheld,
             "uptime_s": round(time.monotonic() - self.started_at, 1),
         }
+
+    def _topics_report(self) -> dict[str, dict[str, Any]]:
+        """Each topic followed: its positive query and the image indices its summary holds."""
+        if self.pipeline is None or self.keeper is None:
+            return {}
+        with self.keeper.lock:
+            return {t.name: {"positive": t.presampler.positive, "summary": [f.image_index for f in t.summary]}
+                    for t in self.pipeline.topics}
 
     # ---- running and stopping -----------------------------------------------------------------------------------
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:

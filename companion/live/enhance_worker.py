@@ -5,7 +5,8 @@ a bounded drop-oldest queue (``enhance.queue``; drops are counted). The worker e
 pipeline, whose pre-sampler gate here is tau_ses, re-encodes the enhanced frame, scores it (ss_e), and offers
 those above tau_ses to the sampler with the enhanced embedding: REFERENCE.md step 8, with a slow enhancer never
 holding up the scoring of new frames. The encoder is shared, so its calls are serialised by one lock; the
-enhancement itself runs outside it.
+enhancement itself runs outside it. With several topics, the raw gate (``RawGate``) scores every topic on the
+one embedding; a candidate carries the topics it passed for and may enter only their summaries.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from companion.live.health import Health
 from companion.live.loops import LiveCounters
 from companion.live.queues import DropOldestQueue
+from companion.live.raw_gate import RawGate
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
 
@@ -32,35 +34,41 @@ class Candidate:
     frame: Frame
     score: float
     pose: object | None
+    topics: tuple[str, ...] = ()
+    """The topics whose tau_ss it passed: the only summaries it may enter after enhancement."""
 
 
 class SelectiveStage:
     """The split pipeline: ``score`` on the inference thread, ``EnhanceWorker`` for the rest."""
 
-    def __init__(self, pipeline, raw_presampler, enhancer, *, queue_size: int, lock: threading.Lock) -> None:
+    def __init__(self, pipeline, raw: RawGate, enhancer, *, queue_size: int, lock: threading.Lock) -> None:
         self.pipeline = pipeline
         """Built with enhancement off and its pre-sampler gate at tau_ses: it scores ss_e and samples."""
-        self.raw = raw_presampler
-        """The tau_ss gate on the frames as captured."""
+        self.raw = raw
+        """The tau_ss gate on the frames as captured, one pre-sampler per topic."""
         self.enhancer = enhancer
         self.queue: DropOldestQueue[Candidate] = DropOldestQueue(queue_size)
         self.lock = lock
         self.enhanced = 0
         self.enhanced_passed = 0
+        self.scored = 0
+        """Frames the raw gate scored (under the lock, so it can be read beside the encoder's count)."""
         self.on = True
         """MERL_ENHANCE from the surface: off sends frames straight to the pipeline (gate back at tau_ss)."""
 
     def score(self, frames: list[Frame], poses: list | None) -> list[tuple[Frame, float, bool]]:
-        """ss_t of each frame; those above tau_ss are queued for the enhancer (the oldest waiting one may go)."""
+        """Best ss_t of each frame over the topics; a frame above any topic's tau_ss is queued for the enhancer
+        (the oldest waiting one may go), one encoder pass for every topic."""
         with self.lock:
             small = [self.pipeline.prepare(f.image) for f in frames]
             emb = self.pipeline.encoder.encode_images(small)
-            scores = self.raw.scores(emb)
-            passed = self.raw.passes(scores)
+            scores, passed = self.raw.score(emb)
+            self.scored += len(frames)
         out = []
         for i, frame in enumerate(frames):
             if passed[i]:
-                self.queue.put(Candidate(frame, float(scores[i]), poses[i] if poses is not None else None))
+                self.queue.put(Candidate(frame, float(scores[i]), poses[i] if poses is not None else None,
+                                         passed[i]))
             out.append((frame, float(scores[i]), bool(passed[i])))
         return out
 
@@ -101,9 +109,10 @@ class EnhanceWorker(threading.Thread):
             frames.append(Frame(enhanced, item.frame.index, item.frame.time_s, item.frame.capture_time))
             self.health.beat("enhance")
         poses = [item.pose for item in items]
+        only = [item.topics for item in items]
 
         def sample():
-            outcome = stage.pipeline.process(frames, poses=poses)
+            outcome = stage.pipeline.process(frames, poses=poses, only=only)
             for event in outcome.events:  # the frame as captured goes to the store beside the enhanced one
                 raw = raws.get(event.frame.frame_index)
                 if event.kind == "added" and raw is not None and event.frame.raw_image is None:

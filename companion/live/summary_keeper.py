@@ -49,6 +49,7 @@ class SummaryKeeper:
         self.mismatches = 0
         """Changes after which the store's summary differed from the sampler's (a bug if ever above 0)."""
         self._history: deque[tuple[int, list[int]]] = deque(maxlen=HISTORY)
+        self._by_topic: dict[str, int] = {}
 
     def change(self, fn: Callable[[], T], events_of: Callable[[T], list[SummaryEvent]] | None = None) -> T:
         """Run ``fn`` (which may alter the pipeline) and apply the events it caused; returns what ``fn`` did.
@@ -60,7 +61,13 @@ class SummaryKeeper:
             events = events_of(result) if events_of is not None else (result or [])
             if events:
                 self._apply(events)
+            # replaced whole, never changed in place: the status thread reads it without the lock
+            self._by_topic = {t.name: len(t.sampler.keys) for t in getattr(self.pipeline, "topics", [])}
             return result
+
+    def held_by_topic(self) -> dict[str, int]:
+        """How many frames each topic's summary held after the last change (for the status line, lock-free)."""
+        return self._by_topic
 
     def _apply(self, events: list[SummaryEvent]) -> None:
         """Store first (the source of truth), then the surface: a crash in between loses no saved frame."""

@@ -25,7 +25,7 @@ never scored, never offered to the sampler).
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -294,12 +294,15 @@ class Pipeline:
             return self.encoder.encode_images(list(small))
 
     def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray | None] | None = None,
-                poses: Sequence[Pose | None] | None = None, *, gated: bool = False) -> BatchOutcome:
+                poses: Sequence[Pose | None] | None = None, *, gated: bool = False,
+                only: Sequence[Collection[str]] | None = None) -> BatchOutcome:
         """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
 
         The gate goes first: only the frames it admits are encoded; the others get ``encoded=False`` results.
         ``gated``: the caller already ran this pipeline's gate (``FrameFeed(gate=pipeline.gate)`` in its decode
         thread) and ``prepared[i] is None`` marks the frames it skipped.
+        ``only``: per frame, the names of the topics it may enter (a gate the caller ran before, e.g. the live
+        companion's tau_ss gate ahead of its enhancer); None: every topic.
         """
         n = len(frames)
         if n == 0:
@@ -308,7 +311,7 @@ class Pipeline:
         if not self.gate.on:
             self.gate.seen += n
             self.gate.encoded += n
-            return self._process_encoded(frames, prepared, poses)
+            return self._process_encoded(frames, prepared, poses, only)
         if gated:
             if prepared is None:
                 raise ValueError("gated=True needs the prepared images (None marks a skipped frame)")
@@ -320,19 +323,21 @@ class Pipeline:
         go = np.flatnonzero(keep)
         self.counts["skipped"] += n - len(go)
         if len(go) == n:
-            return self._process_encoded(frames, prepared, poses)
+            return self._process_encoded(frames, prepared, poses, only)
         results = [FrameResult(f.index, f.time_s, float("nan"), False, encoded=False) for f in frames]
         if len(go) == 0:
             return BatchOutcome(results, [])
         outcome = self._process_encoded([frames[i] for i in go],
                                         None if prepared is None else [prepared[i] for i in go],
-                                        None if poses is None else [poses[i] for i in go])
+                                        None if poses is None else [poses[i] for i in go],
+                                        None if only is None else [only[i] for i in go])
         for i, result in zip(go, outcome.results, strict=True):
             results[i] = result
         return BatchOutcome(results, outcome.events)
 
     def _process_encoded(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None,
-                         poses: Sequence[Pose | None] | None) -> BatchOutcome:
+                         poses: Sequence[Pose | None] | None,
+                         only: Sequence[Collection[str]] | None = None) -> BatchOutcome:
         """Every stage after the gate, for the frames it let through."""
         n = len(frames)
         images = [f.image for f in frames]
@@ -347,6 +352,9 @@ class Pipeline:
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
             scores, passed = score_matrix(self.topics, emb)
+            if only is not None:
+                passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
+                                   dtype=bool).reshape(passed.shape)
         results = [FrameResult(f.index, f.time_s, float(row.max()), bool(ok.any()),
                                enhanced=self.enhance_mode == "always",
                                topic_scores={name: float(v) for name, v in zip(names, row, strict=True)})

@@ -36,3 +36,20 @@ def test_a_newer_file_stops_the_start_and_stays(tmp_path):
     with pytest.raises(NewerFileError, match="42.0"):
         MarksFile(path, version="1.0").load()
     assert path.read_text() == text
+
+
+def test_each_topics_query_is_kept_and_an_older_file_answers_with_its_one_query(tmp_path):
+    file = MarksFile(tmp_path / "marks.json", version="9.9")
+    marks = SavedMarks([3], [7], "underwater image with fish",
+                       {"fish": "underwater image with fish", "coral": "underwater image of a coral reef"})
+    file.save(marks)
+    assert file.load() == marks
+    assert marks.query_of("coral") == "underwater image of a coral reef" and marks.query_of("wreck") == ""
+
+    file.path.write_text('{"version": 1, "query": "underwater image with fish", "like": [3]}')  # before topics
+    older = file.load()
+    assert older == SavedMarks([3], [], "underwater image with fish")
+    assert older.query_of("main") == older.query_of("coral") == "underwater image with fish"
+
+    file.path.write_text('{"version": 1, "topics": {"fish": 4}, "like": [3]}')
+    assert file.load() == SavedMarks()  # damaged: ignored

@@ -1,0 +1,73 @@
+"""The tau_ss gate on frames as captured, for every topic followed (enhance.mode selective on the vehicle).
+
+With selective enhancement the inference thread only scores frames and hands those that pass to the enhancer's
+worker (companion/live/enhance_worker.py). With several topics (issue 13 item 4) every topic scores the one
+embedding with its own queries and threshold: a frame is a candidate when any topic passes, and it carries the
+names of the topics it passed for, so that after enhancement it may enter only those topics' summaries (the
+method's ss_t > tau_ss, then ss_e > tau_ses, per topic, as ``Pipeline`` does offline).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from companion.vision.encoders.base import Encoder
+from companion.vision.presampler import PreSampler
+from companion.vision.topics import TopicSpec, check_names
+
+
+class RawGate:
+    """One pre-sampler per topic, in the pipeline's topic order; ``tau_ss`` is the default for new topics."""
+
+    def __init__(self, encoder: Encoder, specs: Sequence[TopicSpec], tau_ss: float) -> None:
+        self.encoder = encoder
+        self.default_tau = tau_ss
+        self.presamplers: dict[str, PreSampler] = {}
+        self.set_topics(specs)
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.presamplers)
+
+    def set_topics(self, specs: Sequence[TopicSpec]) -> None:
+        """Follow these topics: a kept name keeps its pre-sampler (and marks) under its new queries."""
+        check_names([s.name for s in specs])
+        old, self.presamplers = self.presamplers, {}
+        for spec in specs:
+            kept = old.get(spec.name)
+            if kept is None:
+                kept = PreSampler(self.encoder, spec.positive, spec.negatives, self.default_tau)
+            else:
+                kept.set_queries(spec.positive, spec.negatives)
+            if spec.tau_ss is not None:
+                kept.tau_ss = spec.tau_ss
+            self.presamplers[spec.name] = kept
+
+    @property
+    def tau_ss(self) -> float:
+        """The default threshold (MERL_TAU_SS)."""
+        return self.default_tau
+
+    @tau_ss.setter
+    def tau_ss(self, value: float) -> None:
+        """Every topic's threshold, as MERL_TAU_SS sets it on the pipeline."""
+        for presampler in self.presamplers.values():
+            presampler.tau_ss = value
+        self.default_tau = next(iter(self.presamplers.values())).tau_ss
+
+    def tau_of(self, name: str) -> float:
+        return self.presamplers[name].tau_ss if name in self.presamplers else self.default_tau
+
+    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]]]:
+        """Each frame's best ss_t over the topics, and the names of the topics it passed for (empty: none)."""
+        n = len(embeddings)
+        best = np.full(n, -np.inf, dtype=np.float32) if n else np.zeros(0, dtype=np.float32)
+        passed: list[list[str]] = [[] for _ in range(n)]
+        for name, presampler in self.presamplers.items():
+            scores = presampler.scores(embeddings)
+            best = np.maximum(best, scores)
+            for i in np.flatnonzero(presampler.passes(scores)):
+                passed[i].append(name)
+        return best, [tuple(p) for p in passed]

@@ -1,0 +1,84 @@
+"""enhance.mode selective with several topics: the raw tau_ss gate scores every topic on the one embedding.
+
+On the survey video with the packaged encoder: a frame is a candidate for the enhancer when any topic passes,
+it carries the topics it passed for, and after enhancement the pipeline offers it to those topics only.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from companion.config import Config, EncoderConfig
+from companion.live.counted_encoder import CountedEncoder
+from companion.live.enhance_worker import SelectiveStage
+from companion.live.raw_gate import RawGate
+from companion.sources.video import VideoSource
+from companion.vision.encoders.imagenet import ImageNetEncoder
+from companion.vision.encoders.visual import VisualEncoder
+from companion.vision.pipeline import Pipeline
+from companion.vision.presampler import PreSampler
+from companion.vision.topics import TopicSpec
+from tests.conftest import shared_file
+
+FISH = TopicSpec("fish", "underwater image with fish", ("underwater image without fish",), 0.5)
+CORAL = TopicSpec("coral", "underwater image of a coral reef", ("underwater image without coral",), 0.2)
+
+
+@pytest.fixture(scope="module")
+def encoder():
+    return CountedEncoder(ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), regions=False))
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return list(VideoSource(shared_file("survey/survey_480x270.mp4"), fps=2))
+
+
+def _pipeline(encoder, tau: float = 0.3) -> Pipeline:
+    cfg = Config.model_validate({"sampler": {"k": 50}, "gate": {"mode": "none"}, "queries": {"tau_ss": tau, "topics": [
+        {"name": "fish", "positive": FISH.positive, "negatives": list(FISH.negatives)},
+        {"name": "coral", "positive": CORAL.positive, "negatives": list(CORAL.negatives)}]}})
+    return Pipeline.from_config(cfg, encoder)
+
+
+def test_every_topic_is_scored_on_one_embedding_and_a_frame_goes_on_for_any(encoder, frames) -> None:
+    pipeline = _pipeline(encoder)
+    gate = RawGate(encoder, [FISH, CORAL], tau_ss=0.5)
+    stage = SelectiveStage(pipeline, gate, enhancer=None, queue_size=len(frames), lock=threading.RLock())
+    before = encoder.images
+    out = stage.score(frames, None)
+    assert encoder.images - before == len(frames)  # one pass for both topics
+
+    emb = encoder.encode_images([pipeline.prepare(f.image) for f in frames])
+    alone = {spec.name: PreSampler(encoder, spec.positive, spec.negatives, spec.tau_ss) for spec in (FISH, CORAL)}
+    scores = {name: p.scores(emb) for name, p in alone.items()}
+    want = [tuple(n for n in ("fish", "coral") if scores[n][i] > alone[n].tau_ss) for i in range(len(frames))]
+    assert len(set(want)) >= 3, want  # frames passing one topic, the other, both or none: the case is real
+    queued = stage.queue.get_batch(len(frames), timeout=0.1)
+    assert [c.topics for c in queued] == [w for w in want if w]
+    assert [passed for _f, _s, passed in out] == [bool(w) for w in want]
+    best = np.maximum(scores["fish"], scores["coral"])
+    np.testing.assert_allclose([s for _f, s, _p in out], best, rtol=1e-5)
+
+
+def test_the_gate_follows_query_changes_and_tau_for_every_topic(encoder) -> None:
+    gate = RawGate(encoder, [FISH, CORAL], tau_ss=0.4)
+    fish = gate.presamplers["fish"]
+    gate.set_topics([TopicSpec("fish", "underwater image of fish", ("underwater image without fish",)),
+                     TopicSpec("wreck", "underwater image of a wreck", ("underwater image without a wreck",))])
+    assert gate.names == ["fish", "wreck"]
+    assert gate.presamplers["fish"] is fish and fish.positive == "underwater image of fish"  # kept: marks too
+    assert fish.tau_ss == 0.5 and gate.tau_of("wreck") == 0.4  # its own tau stays; a new one takes the default
+    gate.tau_ss = 0.3  # MERL_TAU_SS
+    assert [p.tau_ss for p in gate.presamplers.values()] == [0.3, 0.3] and gate.tau_ss == 0.3
+
+
+def test_after_enhancement_a_frame_enters_only_the_topics_it_passed_for(frames) -> None:
+    pipeline = _pipeline(VisualEncoder(), tau=0.0)  # no text tower: every frame passes every topic by itself
+    outcome = pipeline.process(frames[:4], only=[("fish",), ("coral",), (), ("fish", "coral")])
+    assert [r.added_to for r in outcome.results] == [["fish"], ["coral"], [], ["fish", "coral"]]
+    assert [r.passed for r in outcome.results] == [True, True, False, True]
+    assert {e.frame.topic for e in outcome.events if e.frame.frame_index == frames[0].index} == {"fish"}
