@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,6 +40,10 @@ class VideoSource(FrameSource):
         self.lost = 0
         self.decoded = 0
         self._cap: cv2.VideoCapture | None = None
+        self._cap_lock = threading.Lock()
+        """Held around every call into the decoder: ``close`` from another thread (the live companion stopping)
+        must not release the capture while the reading thread is inside grab() (FFmpeg hangs or crashes)."""
+        self._closed = False
         self.source_fps, self.frame_count = self._probe()
 
     def _open(self) -> cv2.VideoCapture:
@@ -66,6 +71,8 @@ class VideoSource(FrameSource):
         offset_index, offset_time = 0, 0.0
         while True:
             read = yield from self._one_pass(pacer, offset_index, offset_time)
+            if self._closed:
+                return
             if self.decoded == 0:
                 raise MerlionError(f"{self.path}: no frame could be decoded (corrupt or truncated video)")
             if not self.loop or read == 0:
@@ -75,20 +82,27 @@ class VideoSource(FrameSource):
 
     def _one_pass(self, pacer: Pacer, offset_index: int, offset_time: float) -> Iterator[Frame]:
         """Decodes the file once; returns how many frame positions it went through."""
-        cap = self._cap = self._open()
+        with self._cap_lock:
+            if self._closed:
+                return 0
+            cap = self._cap = self._open()
         sub = RateSubsampler(self.fps)
         index, failures = 0, 0
         try:
             while True:
-                if not cap.grab():
+                with self._cap_lock:
+                    if self._closed:
+                        break
+                    grabbed = cap.grab()
+                    ok, image = cap.retrieve() if grabbed and sub.keep(index / self.source_fps) else (None, None)
+                if not grabbed:
                     failures += 1
                     if failures > MAX_GRAB_RETRIES or (self.frame_count and index >= self.frame_count):
                         break
                     continue
                 failures = 0
                 time_s = index / self.source_fps
-                if sub.keep(time_s):
-                    ok, image = cap.retrieve()
+                if ok is not None:  # kept by the subsampler: retrieved
                     if not ok or image is None:
                         self.lost += 1
                     else:
@@ -99,15 +113,19 @@ class VideoSource(FrameSource):
                     self.decoded += 1
                 index += 1
         finally:
-            cap.release()
-            self._cap = None
-        missing = max(0, self.frame_count - index)
+            with self._cap_lock:
+                cap.release()
+                self._cap = None
+        missing = 0 if self._closed else max(0, self.frame_count - index)
         if missing:
             self.lost += missing
             log.warning("%s: %d of %d frames could not be decoded", self.path, missing, self.frame_count)
         return index
 
     def close(self) -> None:
-        if self._cap is not None:
-            self._cap.release()
-            self._cap = None
+        """Stop reading (safe from another thread: waits for a grab in progress, then releases the file)."""
+        with self._cap_lock:
+            self._closed = True
+            if self._cap is not None:
+                self._cap.release()
+                self._cap = None

@@ -155,3 +155,32 @@ def test_factory_dispatches_on_the_uri(image_folder, tmp_path):
     assert isinstance(video, VideoSource) and not video.realtime and video.fps == 2
     with pytest.raises(MerlionError, match="no such file"):
         open_source(SourceConfig(uri=str(tmp_path / "missing.mp4")))
+
+
+def test_video_closed_from_another_thread_while_reading_stops_the_reader():
+    """The live companion closes the source from its main thread while the capture thread is inside the
+    decoder; releasing the capture under a grab hung the process (seen in `merlion run` with a looping file)."""
+    import random
+    import threading
+
+    path = shared_file("survey/survey_480x270.mp4")
+    rng = random.Random(7)
+    for _ in range(12):
+        src = VideoSource(path, fps=1000, realtime=False, loop=True)
+        seen, errors = [], []
+
+        def read(src=src, seen=seen, errors=errors):
+            try:
+                for frame in src:
+                    seen.append(frame.index)
+            except Exception as err:  # noqa: BLE001 - the test reports it
+                errors.append(err)
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        threading.Event().wait(rng.uniform(0.0, 0.15))
+        src.close()
+        reader.join(10)
+        assert not reader.is_alive() and errors == []
+        assert seen == sorted(seen)
+        assert src._cap is None
