@@ -103,8 +103,8 @@ class QueryConfig(_Section):
     """Several named topics followed at once, each with its own summary of K frames, e.g. [{name: fish, positive:
     ..., negatives: [...]}, {name: coral, ...}]; one encoder pass serves them all. Empty: the one topic above;
     given: these topics replace it (name/positive/negatives above are then not used). A topic may set its own
-    tau_ss. A queries file uploaded from the surface replaces the topics until the next restart, which comes
-    back to these (see docs/live-companion.md)."""
+    tau_ss. A queries file uploaded from the surface replaces the topics, also across restarts (the store's
+    queries.json), until these configured topics are changed (see docs/live-companion.md)."""
 
     @field_validator("tau_ss")
     @classmethod

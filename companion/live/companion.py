@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from companion import __version__
-from companion.config import Config, build_config
+from companion.config import Config, ConfigError, build_config
 from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
@@ -36,6 +36,7 @@ from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
+from companion.storage.queries_file import QueriesFile, SavedQueries, topic_dicts
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent, SummaryFrame
 
@@ -75,6 +76,7 @@ class LiveCompanion:
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
+        self._configured: list[dict[str, Any]] = []
         self.marks = SavedMarks()
         """The operator's marks in force (image indices), and the queries they were given under."""
         self.mark_images = 0
@@ -101,6 +103,8 @@ class LiveCompanion:
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
         self.store = Store(cfg.store)
+        self._follow_saved_queries()
+        cfg = self.cfg
         saved_marks = self._marks_file().load()
         resume = self.store.resume_state()
         if resume.frames:
@@ -164,6 +168,32 @@ class LiveCompanion:
             if dropped:
                 log.warning("frames of topic(s) %s left the summary: not in the queries in force",
                             ", ".join(dropped))
+
+    def _queries_file(self) -> QueriesFile:
+        return QueriesFile(self.store.dir / "queries.json", version=__version__)
+
+    def _follow_saved_queries(self) -> None:
+        """Take up the topics the surface uploaded before a restart, unless the configuration changed since."""
+        self._configured = topic_dicts(self.cfg.queries.topic_list())
+        """The configured topics, as the saved upload records them (never the uploaded ones)."""
+        path = self._queries_file().path
+        saved = self._queries_file().load()
+        if saved is None:
+            return
+        if saved.configured != self._configured:
+            log.warning("%s: the configuration's topics changed since that upload: following the configuration",
+                        path)
+            return
+        own_tau = {t.name: t.tau_ss for t in self.cfg.queries.topic_list()}
+        data = self.cfg.model_dump()
+        data["queries"]["topics"] = [{**t, "tau_ss": own_tau.get(t["name"])} for t in saved.topics]
+        try:
+            self.cfg = build_config(data, origin=str(path))
+        except ConfigError as err:
+            log.warning("saved queries not followed: %s", err)
+            return
+        log.info("following the topics uploaded before the restart (%s): %s", path,
+                 ", ".join(t["name"] for t in saved.topics))
 
     def _make_keeper(self) -> SummaryKeeper:
         def tags(frame: SummaryFrame) -> dict[str, Any]:
@@ -343,6 +373,10 @@ class LiveCompanion:
             return events
 
         self.keeper.change(set_topics)
+        try:  # a restart goes on with these topics (and the frames they hold)
+            self._queries_file().save(SavedQueries(topic_dicts(specs), self._configured))
+        except OSError as err:  # a memory-only store: they hold for this run
+            log.warning("queries not saved: %s", err)
         if len(specs) == 1:
             log.info("queries set: %r against %r", specs[0].positive, list(specs[0].negatives))
         else:

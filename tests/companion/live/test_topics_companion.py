@@ -89,7 +89,7 @@ def test_a_mark_teaches_only_the_topic_of_its_frame(tmp_path: Path, caplog) -> N
     assert _marks_of(older, "fish") == (1, 0) and _marks_of(older, "coral") == (0, 0)
 
 
-def test_uploaded_topics_last_until_a_restart_as_uploaded_queries_do(tmp_path: Path, caplog) -> None:
+def test_uploaded_topics_survive_a_restart_until_the_configuration_changes(tmp_path: Path, caplog) -> None:
     store = tmp_path / "store"
     app = _start(store, until=_both_hold)
     try:
@@ -104,15 +104,31 @@ def test_uploaded_topics_last_until_a_restart_as_uploaded_queries_do(tmp_path: P
     finally:
         app.stop()
     held = {t.name: [f.image_index for f in t.summary] for t in app.pipeline.topics}
+    saved = json.loads((store / "queries.json").read_text())
+    assert [t["name"] for t in saved["topics"]] == ["fish", "wreck"]
+    assert [t["name"] for t in saved["configured"]] == ["fish", "coral"]
 
+    # a restart on the same configuration goes on with the uploaded topics and the frames they hold
     with caplog.at_level(logging.INFO, logger="companion.live.companion"):
-        again = _start(store)  # the configured topics again; fish resumes, wreck's frames leave
+        again = _start(store)
         again.stop()
-    assert [t.name for t in again.pipeline.topics] == ["fish", "coral"]
-    assert "frames of topic(s) wreck left the summary" in caplog.text
+    assert [t.name for t in again.pipeline.topics] == ["fish", "wreck"]
+    assert again.pipeline.topic("wreck").presampler.positive == "underwater image of a wreck"
     resumed = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("resumed topics:"))
-    assert resumed.startswith(f"resumed topics: fish {held['fish']}; coral []"), resumed
-    assert not set(held["wreck"]) & set(again.store.summary)
+    assert resumed.startswith(f"resumed topics: fish {held['fish']}; wreck {held['wreck']}"), resumed
+    assert set(held["fish"] + held["wreck"]) <= set(again.store.summary)
+    assert "left the summary" not in caplog.text
+
+    # someone changed the configuration since the upload: it wins, and wreck's frames leave (said so)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="companion.live.companion"):
+        third = _start(store, topics=(FISH, {**CORAL, "positive": "underwater image of corals"}))
+        third.stop()
+    assert [t.name for t in third.pipeline.topics] == ["fish", "coral"]
+    assert "configuration's topics changed since that upload" in caplog.text
+    assert "frames of topic(s) wreck left the summary" in caplog.text
+    wreck_now = [f.image_index for f in again.pipeline.topic("wreck").summary]
+    assert not set(wreck_now) & set(third.store.summary)
 
 
 def test_selective_enhancement_serves_every_topic_and_follows_their_changes(tmp_path: Path) -> None:
