@@ -1,12 +1,11 @@
 """CLIP's memory rules (issue 14 item 4): the text tower is freed once queries are encoded and re-loaded from the
-weights file only for queries not in the cache; the ONNX runtime keeps no torch copy of the image tower.
+weights file only for queries not in the cache. (The ONNX runtime, which holds no torch at all, is tested in
+test_onnx_clip.py.)
 
 Real open_clip architectures with random weights saved to a checkpoint, loaded through the vehicle's code.
 """
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import open_clip
@@ -73,30 +72,3 @@ def test_query_change_reloads_the_text_tower_and_matches_a_fresh_encoder_and_ope
         ref = torch.nn.functional.normalize(net.encode_text(tokens), dim=-1).numpy()
     np.testing.assert_allclose(changed, ref, atol=1e-5)
     assert not enc.holds_text_tower
-
-
-def test_onnx_encoder_holds_no_torch_image_tower_and_gives_the_torch_embeddings(ckpt):
-    path, _ = ckpt
-    onnx = _encoder(path, runtime="onnx")
-    assert not hasattr(onnx._model, "visual")
-    assert [n for n, _ in onnx._model.named_parameters()] == ["logit_scale"]
-    frames = [np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8) for _ in range(3)]
-    torch_emb = _encoder(path).encode_images(frames)
-    np.testing.assert_allclose(onnx.encode_images(frames), torch_emb, atol=1e-4)
-    np.testing.assert_allclose(onnx.encode_images_reference(frames[:1]), torch_emb[:1], atol=1e-3)
-    assert onnx.encode_texts(QUERIES).shape == (3, torch_emb.shape[1])
-
-
-def test_the_exported_tower_is_cached_so_a_second_start_never_reads_torch_s_tower(ckpt, tmp_path, monkeypatch):
-    monkeypatch.setenv("HOME", str(tmp_path))
-    path, _ = ckpt
-    first = _encoder(path, runtime="onnx")
-    assert not first._onnx.cached
-    assert [p.suffix for p in (tmp_path / ".cache" / "merlion" / "onnx").iterdir()] == [".onnx"]  # no temporary left behind
-    second = _encoder(path, runtime="onnx")
-    assert second._onnx.cached
-    frames = [np.random.default_rng(1).integers(0, 255, (96, 128, 3), dtype=np.uint8) for _ in range(2)]
-    np.testing.assert_array_equal(second.encode_images(frames), first.encode_images(frames))
-    other = tmp_path / "other.pt"  # other weights (here: the same bytes, another file) export afresh
-    other.write_bytes(Path(path).read_bytes())
-    assert not _encoder(str(other), runtime="onnx")._onnx.cached

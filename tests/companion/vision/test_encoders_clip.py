@@ -159,36 +159,6 @@ def test_int8_embeddings_point_the_same_way_as_fp32(small_ckpt, small_fp32, imag
     assert quantized, "int8 asked for but no layer was quantized"
 
 
-def test_onnx_runtime_gives_the_fp32_embeddings(small_ckpt, small_fp32, images):
-    fast = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32",
-                                     runtime="onnx", batch=3))
-    assert fast.describe()["runtime"] == "onnx"
-    got, want = fast.encode_images(images), small_fp32.encode_images(images)
-    assert np.sum(got * want, axis=1).min() > 0.9999
-    queries = _spread_queries(small_fp32, images)
-    np.testing.assert_allclose(fast.semantic_scores(got, queries), small_fp32.semantic_scores(want, queries),
-                               atol=0.01)
-    with pytest.raises(MerlionError, match="runtime onnx"):
-        ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="bf16", runtime="onnx"))
-
-
-def test_onnx_providers_are_chosen_and_a_missing_one_is_a_one_line_error(small_ckpt, small_fp32, images):
-    """The Orin's TensorRT/CUDA providers are named in the config; on this CPU-only build asking for CUDA must
-    fail in one line naming the key, and the CPU provider named explicitly gives the fp32 embeddings."""
-    cpu = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32",
-                                    runtime="onnx", providers=["CPUExecutionProvider"], batch=3))
-    assert cpu.describe()["providers"] == ["CPUExecutionProvider"]
-    np.testing.assert_allclose(cpu.encode_images(images[:2]), small_fp32.encode_images(images[:2]), atol=1e-4)
-    import onnxruntime as ort
-
-    if "CUDAExecutionProvider" not in ort.get_available_providers():
-        with pytest.raises(MerlionError, match="encoder.providers: CUDAExecutionProvider is not in"):
-            ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32",
-                                      runtime="onnx", providers=["CUDAExecutionProvider", "CPUExecutionProvider"]))
-    with pytest.raises(MerlionError, match="only with encoder.runtime onnx"):
-        ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, providers=["CPUExecutionProvider"]))
-
-
 def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_ckpt, small_fp32, images):
     """Trainer checkpoints ({"state_dict": ...}, "module." prefixes) and pre-zip torch files load like plain ones."""
     state = torch.load(small_ckpt, weights_only=True)  # the encoder itself no longer holds the text tower

@@ -1,0 +1,180 @@
+"""CLIP with ``runtime: onnx`` (issue 14 item 4): the running process never imports torch.
+
+Real open_clip architectures with random weights saved to a checkpoint; the first start's export and every query
+not in the cache run in a real child process (``clip_child``); the torch-free start runs in a fresh interpreter,
+where ``sys.modules`` tells whether torch was imported.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import open_clip
+import pytest
+import torch
+
+from companion.config import EncoderConfig
+from companion.errors import MerlionError
+from companion.vision.encoders.clip import ClipEncoder, ClipPreprocess
+from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
+from companion.vision.encoders.factory import make_encoder
+from companion.vision.encoders.onnx_clip import OnnxClipEncoder
+from tests.conftest import shared_file
+
+SMALL = "ViT-S-32-alt"
+QUERIES = ["underwater image with fish", "underwater image without fish"]
+REPO = Path(__file__).resolve().parents[3]
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory) -> str:
+    torch.manual_seed(3)
+    path = tmp_path_factory.mktemp("onnx_clip") / "small.pt"
+    torch.save(open_clip.create_model(SMALL, pretrained=None).state_dict(), path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory) -> str:
+    return str(tmp_path_factory.mktemp("onnx_cache"))
+
+
+def _cfg(ckpt: str, cache_dir: str, **kw) -> EncoderConfig:
+    return EncoderConfig(name="clip", model=SMALL, weights=ckpt, precision="fp32", runtime="onnx", batch=3,
+                         cache_dir=cache_dir, **kw)
+
+
+@pytest.fixture(scope="module")
+def onnx_enc(ckpt, cache_dir) -> OnnxClipEncoder:
+    """The first start: the tower is exported by a child process into the cache."""
+    return make_encoder(_cfg(ckpt, cache_dir))
+
+
+@pytest.fixture(scope="module")
+def torch_enc(ckpt) -> ClipEncoder:
+    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt, precision="fp32", batch=3))
+
+
+@pytest.fixture(scope="module")
+def images() -> list[np.ndarray]:
+    """Real frames of several shapes: 4:3, near-square, 16:9, portrait, and one smaller than the model input."""
+    suim = cv2.imread(str(shared_file("suim/images/f_r_1965_.jpg")))
+    square = cv2.imread(str(shared_file("suim/images/d_r_47_.jpg")))
+    wide = cv2.imread(str(shared_file("aquarium_fish/frames/000001.jpg")))
+    return [suim, square, wide, np.ascontiguousarray(wide[:, 300:600]), cv2.resize(suim, (160, 120))]
+
+
+def test_numpy_preprocessing_equals_open_clip_s_transform(images):
+    """The same input as open_clip's PIL pipeline (PIL resizes in both; measured: identical floats, bound 1e-6).
+    The torch runtime's fast path (torch's antialiased resize) is the looser one: measured up to 9 uint8 steps on
+    the upscaled frame, 3 elsewhere, 0.08-0.18 steps on average; bound 10 and 0.25."""
+    model = open_clip.create_model(SMALL, pretrained=None, device="meta")
+    pcfg = open_clip.get_model_preprocess_cfg(model)
+    ours = NumpyClipPreprocess(pcfg)
+    torch_fast = ClipPreprocess(pcfg)
+    for img in images:
+        want = torch_fast.reference(img).numpy()  # open_clip.image_transform on the PIL image
+        got = ours(img)
+        assert got.shape == want.shape == (3, 224, 224) and got.dtype == np.float32
+        assert np.abs(got - want).max() < 1e-6
+        assert ours.resized(img).shape == (224, 224, 3) and ours.resized(img).dtype == np.uint8
+        one_step = 1.0 / 255 / min(ours.std.flatten())  # a uint8 step after normalisation
+        diff = np.abs(torch_fast(img).numpy() - got)
+        assert diff.max() < 10 * one_step and diff.mean() < 0.25 * one_step
+
+
+def test_onnx_embeddings_equal_torch_fp32_and_the_first_start_exported_in_a_child(onnx_enc, torch_enc, images):
+    assert not onnx_enc.cached and onnx_enc.child_peaks_mb["export"] > 0
+    got, want = onnx_enc.encode_images(images), torch_enc.encode_images(images)
+    assert np.sum(got * want, axis=1).min() > 0.9999  # torch's resize differs from PIL's by a few uint8 steps
+    texts = onnx_enc.encode_texts(QUERIES)
+    np.testing.assert_allclose(texts, torch_enc.encode_texts(QUERIES), atol=1e-6)
+    spread = torch_enc.encode_images(images[::-1])  # random towers' texts are alike: images make varied scores
+    np.testing.assert_allclose(onnx_enc.semantic_scores(got, spread), torch_enc.semantic_scores(want, spread),
+                               atol=0.01)
+    with torch.inference_mode():  # against the reference transform itself: the only difference is the runtime
+        ref = torch.stack([torch_enc.preprocess.reference(img) for img in images])
+        exact = torch.nn.functional.normalize(torch_enc._model.encode_image(ref), dim=-1).numpy()
+    np.testing.assert_allclose(got, exact, atol=1e-4)
+    assert onnx_enc.encode_images([]).shape == (0, 256)
+    assert onnx_enc.describe()["runtime"] == "onnx" and onnx_enc.describe()["export_cached"] is False
+
+
+_FRESH = """
+import json, sys
+import numpy as np
+import cv2
+from companion.config import EncoderConfig
+from companion.vision.encoders.factory import make_encoder
+cfg = EncoderConfig(**json.loads(sys.argv[1]))
+enc = make_encoder(cfg)
+loaded = "torch" in sys.modules or "open_clip" in sys.modules
+frames = [cv2.imread(p) for p in json.loads(sys.argv[2])]
+np.save(sys.argv[3] + "/images.npy", enc.encode_images(frames))
+np.save(sys.argv[3] + "/queries.npy", enc.encode_texts(json.loads(sys.argv[4])))
+np.save(sys.argv[3] + "/changed.npy", enc.encode_texts(json.loads(sys.argv[5])))  # a live query change
+print(json.dumps({"cached": enc.cached, "torch_after_load": loaded, "children": enc.child_peaks_mb,
+                  "torch_at_end": "torch" in sys.modules or "open_clip" in sys.modules}))
+"""
+
+
+def test_a_start_from_the_cache_never_imports_torch_and_a_query_change_runs_in_a_child(
+        onnx_enc, ckpt, cache_dir, torch_enc, images, tmp_path):
+    onnx_enc.encode_texts(QUERIES)  # the first start cached these
+    files = []
+    for i, img in enumerate(images):
+        files.append(str(tmp_path / f"img{i}.png"))  # PNG: the child reads the same pixels
+        cv2.imwrite(files[-1], img)
+    changed = ["a shipwreck on sand", QUERIES[1]]
+    cfg = _cfg(ckpt, cache_dir).model_dump()
+    proc = subprocess.run([sys.executable, "-c", _FRESH, json.dumps(cfg), json.dumps(files), str(tmp_path),
+                           json.dumps(QUERIES), json.dumps(changed)],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["cached"] is True and out["torch_after_load"] is False and out["torch_at_end"] is False
+    assert list(out["children"]) == ["texts"]  # only the new query needed torch, in its own process
+
+    np.testing.assert_array_equal(np.load(tmp_path / "images.npy"), onnx_enc.encode_images(images))
+    np.testing.assert_array_equal(np.load(tmp_path / "queries.npy"), onnx_enc.encode_texts(QUERIES))
+    fresh = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt, precision="fp32"))
+    np.testing.assert_allclose(np.load(tmp_path / "changed.npy"), fresh.encode_texts(changed), atol=1e-6)
+
+
+def test_an_error_in_the_child_comes_back_as_one_line(tmp_path):
+    torch.manual_seed(0)
+    wrong = tmp_path / "small.pt"  # a checkpoint of another architecture than the configured one
+    torch.save(open_clip.create_model(SMALL, pretrained=None).state_dict(), wrong)
+    with pytest.raises(MerlionError) as err:
+        make_encoder(EncoderConfig(name="clip", model="ViT-B-32", weights=str(wrong), runtime="onnx",
+                                   precision="fp32", cache_dir=str(tmp_path / "cache")))
+    message = str(err.value)
+    assert message.startswith("CLIP ViT-B-32: could not export the image tower to ONNX: CLIP weights ")
+    assert "do not load into ViT-B-32" in message and "\n" not in message
+    assert not list((tmp_path / "cache").rglob("*.onnx")) and not list((tmp_path / "cache").rglob("*.json"))
+
+
+def test_settings_the_onnx_runtime_cannot_honour_are_one_line_errors(ckpt, cache_dir):
+    import onnxruntime as ort
+
+    with pytest.raises(MerlionError, match="encoder.runtime onnx runs the fp32 export"):
+        make_encoder(_cfg(ckpt, cache_dir).model_copy(update={"precision": "bf16"}))
+    if "CUDAExecutionProvider" not in ort.get_available_providers():
+        with pytest.raises(MerlionError, match="encoder.providers: CUDAExecutionProvider is not in"):
+            make_encoder(_cfg(ckpt, cache_dir, providers=["CUDAExecutionProvider", "CPUExecutionProvider"]))
+    with pytest.raises(MerlionError, match="only with encoder.runtime onnx"):
+        make_encoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt, providers=["CPUExecutionProvider"]))
+
+
+def test_replaced_weights_export_afresh(onnx_enc, ckpt, cache_dir, tmp_path):
+    again = make_encoder(_cfg(ckpt, cache_dir))
+    assert again.cached and again.child_peaks_mb == {}
+    assert {p.suffix for p in (Path(cache_dir) / "onnx").iterdir()} == {".onnx", ".json"}  # no temporary left
+    other = tmp_path / "other.pt"  # other weights (here: the same bytes, another file) are another key
+    other.write_bytes(Path(ckpt).read_bytes())
+    assert not make_encoder(_cfg(str(other), cache_dir)).cached
