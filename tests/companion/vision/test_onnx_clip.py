@@ -24,7 +24,7 @@ from companion.vision.encoders.clip import ClipEncoder, ClipPreprocess
 from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
 from companion.vision.encoders.factory import make_encoder
 from companion.vision.encoders.onnx_clip import OnnxClipEncoder
-from tests.conftest import shared_file
+from tests.conftest import run_merlion, shared_file
 
 SMALL = "ViT-S-32-alt"
 QUERIES = ["underwater image with fish", "underwater image without fish"]
@@ -178,3 +178,19 @@ def test_replaced_weights_export_afresh(onnx_enc, ckpt, cache_dir, tmp_path):
     other = tmp_path / "other.pt"  # other weights (here: the same bytes, another file) are another key
     other.write_bytes(Path(ckpt).read_bytes())
     assert not make_encoder(_cfg(str(other), cache_dir)).cached
+
+
+def test_bench_pipeline_reports_the_main_process_peaks_and_the_children_s_apart(ckpt, tmp_path):
+    """First start with the ONNX runtime: the export and query children's peaks are their own JSON field."""
+    proc = run_merlion("bench", "pipeline", str(shared_file("survey/survey_480x270.mp4")), "--encoder", "clip",
+                       "--model", SMALL, "--weights", ckpt, "--runtime", "onnx", "--precision", "fp32",
+                       "--fps", "5", "--frames", "6", "--batch", "3", "--paper-frames", "0", "--json",
+                       env={"HOME": str(tmp_path)})  # the default cache, ~/.cache/merlion, starts empty
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["encoder"]["runtime"] == "onnx" and result["encoder"]["export_cached"] is False
+    assert result["peak_rss_mb"] >= result["load_peak_rss_mb"] > 0 and result["steady_rss_mb"] > 0
+    assert set(result["child_peak_rss_mb"]) == {"export", "texts"}
+    assert all(v > 0 for v in result["child_peak_rss_mb"].values())
+    assert "export child" in proc.stdout
+    assert list((tmp_path / ".cache" / "merlion" / "onnx").glob("*.onnx"))
