@@ -22,7 +22,9 @@ from PIL import Image
 from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
+from companion.vision.encoders.clip_cache import ClipCache, cache_root
 from companion.vision.encoders.clip_scores import positive_share
+from companion.vision.encoders.clip_texts import TextEmbeddings
 from companion.vision.encoders.torch_runtime import (
     configure_threads,
     dtype_name,
@@ -164,9 +166,9 @@ def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: tor
               dtype: torch.dtype = torch.float32, *, int8: bool = False) -> torch.nn.Module:
     """The model with one tower only ("image" or "text"): the other is dropped before it is ever read.
 
-    The image model lives as long as a torch encoder; a text model is loaded only to encode queries missing from
-    the cache and freed at once (with its file mapping), so the text tower's ~254 MB (ViT-B-32 fp32) is never
-    resident beside the running image tower for long. A file that does not load is a one-line MerlionError.
+    The image model lives as long as a torch encoder; a text model is loaded only by the child process that
+    encodes queries missing from the cache (``clip_child``), so the text tower's ~254 MB (ViT-B-32 fp32) is never
+    resident beside the running image tower. A file that does not load is a one-line MerlionError.
     """
     path = weights.path
     try:
@@ -262,12 +264,12 @@ class ClipEncoder(Encoder):
         if self._int8 and self._device.type != "cpu":
             raise UsageError("encoder.precision: int8 runs on the CPU only (use fp16 on CUDA)")
         self._dtype = torch.float32 if self._int8 else pick_dtype(cfg.precision, self._device)
-        self._text_cache: dict[str, np.ndarray] = {}
         self._model = self._load("image")
         pcfg = open_clip.get_model_preprocess_cfg(self._model)
         self._dim = int(getattr(self._model.visual, "output_dim", 0)) or None
         self.preprocess = ClipPreprocess(pcfg)
-        self._tokenizer = open_clip.get_tokenizer(cfg.model)
+        self._texts = TextEmbeddings(ClipCache(cache_root(cfg.cache_dir), self._weights.path, cfg.model),
+                                     self._weights)
         self._batch = cfg.batch
         log.info("CLIP %s loaded from %s (%s) on %s, %s", cfg.model, self._weights.path, self._weights.source,
                  self._device, self.precision)
@@ -308,27 +310,21 @@ class ClipEncoder(Encoder):
 
     @property
     def holds_text_tower(self) -> bool:
-        """False once loaded: the text tower lives only while queries missing from the cache are encoded."""
+        """Always False: the text tower only ever runs in the child process that encodes new queries."""
         return any(hasattr(self._model, name) for name in TEXT_TOWER)
 
-    @torch.inference_mode()
     def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
-        """Embeddings from the cache (keyed by query text); missing ones load the text tower, encode, free it."""
-        missing = [t for t in dict.fromkeys(texts) if t not in self._text_cache]
-        if missing:
-            model = self._load("text")
-            try:
-                tokens = self._tokenizer(missing).to(self._device)
-                emb = F.normalize(model.encode_text(tokens).float(), dim=-1).cpu().numpy()
-            finally:
-                del model
-                release_freed_memory()
-            self._text_cache.update(zip(missing, emb.astype(np.float32), strict=True))
-            log.debug("encoded %d queries with a text tower loaded from %s and freed again", len(missing),
-                      self._weights.path)
+        """From memory, the disk cache, or a torch child process (``clip_texts``): the text tower is never loaded
+        in this process, so a query change adds nothing to its peak."""
         if not texts:
             return np.zeros((0, self._embed_dim()), dtype=np.float32)
-        return np.stack([self._text_cache[t] for t in texts]).astype(np.float32, copy=False)
+        found = self._texts.get(texts)
+        return np.stack([found[t] for t in texts]).astype(np.float32, copy=False)
+
+    @property
+    def child_peaks_mb(self) -> dict[str, float]:
+        """Peak RSS of the torch child processes that encoded queries (transient, so reported apart)."""
+        return {"texts": self._texts.child_peak_mb} if self._texts.child_peak_mb else {}
 
     def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         return positive_share(image_embeddings, text_embeddings)

@@ -79,11 +79,16 @@ def _serve(request: dict) -> dict:
     from companion.vision.encoders.clip_cache import ClipCache, cache_root
     from companion.vision.encoders.clip_pixels import as_pair
     from companion.vision.encoders.torch_runtime import configure_threads
-    from companion.vision.encoders.weights import resolve_clip_weights
+    from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
     configure_threads()
     model_name = request["model"]
-    weights = resolve_clip_weights(model_name, request.get("weights"), request.get("pretrained"))
+    if request.get("resolved"):  # the caller already knows the file (and the tag's preprocessing)
+        known = request["resolved"]
+        weights = ResolvedWeights(path=Path(known["path"]), source=known["source"],
+                                  preprocess=known.get("preprocess") or {})
+    else:
+        weights = resolve_clip_weights(model_name, request.get("weights"), request.get("pretrained"))
     cache = ClipCache(cache_root(request.get("cache_dir")), weights.path, model_name)
     answer: dict = {"weights": str(weights.path), "source": weights.source, "preprocess": weights.preprocess,
                     "exported": False, "encoded": 0}

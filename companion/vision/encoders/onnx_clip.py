@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from companion.vision.encoders.clip_cache import ClipCache, cache_root
 from companion.vision.encoders.clip_child import run_clip_child
 from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
 from companion.vision.encoders.clip_scores import positive_share
+from companion.vision.encoders.clip_texts import TextEmbeddings, resolved_request
 from companion.vision.encoders.heap_trim import release_freed_memory
 from companion.vision.encoders.weights import ResolvedWeights
 
@@ -79,15 +79,13 @@ class OnnxClipEncoder(Encoder):
         self.name = f"clip:{cfg.model}"
         self._cfg = cfg
         self._root = cache_root(cfg.cache_dir)
-        self.child_peaks_mb: dict[str, float] = {}
-        """Peak RSS of each torch child process this encoder ran ("export", "texts"): transient, reported apart."""
-        self._lock = threading.Lock()  # a query change (request worker) and the start-up encode share the cache
+        self._export_peak_mb = 0.0
 
         self._exported = False
         self._weights = self._resolve()
         self._cache = ClipCache(self._root, self._weights.path, cfg.model)
         if not self._cache.has_tower():
-            self._child({"export": True}, "export the image tower to ONNX", "export")
+            self._child({"export": True, **resolved_request(self._weights)}, "export the image tower to ONNX")
         self.cached = not self._exported
         """Whether the exported tower was already in the cache (False: this start exported it in a child)."""
         manifest = self._cache.read_manifest()
@@ -107,7 +105,7 @@ class OnnxClipEncoder(Encoder):
             raise MerlionError(f"encoder.cache_dir: cannot load the exported tower {self._cache.onnx_path} "
                                f"({reason}); delete it to export again") from None
         release_freed_memory()  # the session build's transient buffers
-        self._text: dict[str, np.ndarray] = {}
+        self._texts = TextEmbeddings(self._cache, self._weights)
         self._batch = cfg.batch
         log.info("CLIP %s image tower from %s (%s) in ONNX Runtime %s, %s export", cfg.model, self._weights.path,
                  self._weights.source, providers, "cached" if self.cached else "new")
@@ -122,8 +120,8 @@ class OnnxClipEncoder(Encoder):
         found = recorded_weights(cfg)
         if found is not None:
             return found
-        answer = self._child({"export": True}, f"find the weights of {cfg.pretrained} and export the image tower",
-                             "export")
+        answer = self._child({"export": True, "weights": None, "pretrained": cfg.pretrained},
+                             f"find the weights of {cfg.pretrained} and export the image tower")
         record = _resolution_record(self._root, cfg.model, cfg.pretrained or "")
         record.parent.mkdir(parents=True, exist_ok=True)
         from companion.storage.atomic_write import atomic_write
@@ -133,13 +131,18 @@ class OnnxClipEncoder(Encoder):
         return ResolvedWeights(path=Path(answer["weights"]), source=answer["source"],
                                preprocess=answer["preprocess"])
 
-    def _child(self, request: dict, what: str, kind: str) -> dict:
-        cfg = self._cfg
-        answer = run_clip_child({"model": cfg.model, "weights": cfg.weights, "pretrained": cfg.pretrained,
-                                 "cache_dir": str(self._root), **request}, what)
-        self.child_peaks_mb[kind] = max(self.child_peaks_mb.get(kind, 0.0), float(answer["peak_rss_mb"]))
+    def _child(self, request: dict, what: str) -> dict:
+        answer = run_clip_child({"model": self._cfg.model, "cache_dir": str(self._root), **request}, what)
+        self._export_peak_mb = max(self._export_peak_mb, float(answer["peak_rss_mb"]))
         self._exported |= bool(answer.get("exported"))
         return answer
+
+    @property
+    def child_peaks_mb(self) -> dict[str, float]:
+        """Peak RSS of the torch child processes this encoder ran ("export", "texts"): transient, so reported
+        apart from this process's."""
+        peaks = {"export": self._export_peak_mb, "texts": self._texts.child_peak_mb}
+        return {k: v for k, v in peaks.items() if v}
 
     @property
     def precision(self) -> str:
@@ -164,23 +167,11 @@ class OnnxClipEncoder(Encoder):
         return self._dim or int(self.encode_texts(["x"]).shape[1])
 
     def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
-        """From memory, else the disk cache, else a torch child process that encodes the missing ones (waited for:
-        a query change runs on a request worker)."""
-        with self._lock:
-            missing = [t for t in dict.fromkeys(texts) if t not in self._text]
-            if missing:
-                self._text.update(self._cache.texts(missing))
-                missing = [t for t in missing if t not in self._text]
-            if missing:
-                self._child({"texts": missing}, f"encode {len(missing)} queries", "texts")
-                self._text.update(self._cache.texts(missing))
-                lost = [t for t in missing if t not in self._text]
-                if lost:
-                    raise MerlionError(f"CLIP {self._cfg.model}: the child process left no embedding for {lost[0]!r} "
-                                       f"in {self._cache.text_dir}")
+        """From memory, the disk cache, or a torch child process (``clip_texts``)."""
         if not texts:
             return np.zeros((0, self._embed_dim()), dtype=np.float32)
-        return np.stack([self._text[t] for t in texts]).astype(np.float32, copy=False)
+        found = self._texts.get(texts)
+        return np.stack([found[t] for t in texts]).astype(np.float32, copy=False)
 
     def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         return positive_share(image_embeddings, text_embeddings)

@@ -19,10 +19,13 @@ SMALL = "ViT-S-32-alt"
 QUERIES = ["a coral reef", "sand", "open water"]
 
 
-@pytest.fixture(autouse=True)
-def _onnx_cache_in_tmp(tmp_path, monkeypatch):
-    """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
-    monkeypatch.setenv("HOME", str(tmp_path))  # the default encoder.cache_dir is ~/.cache/merlion
+@pytest.fixture(autouse=True, scope="module")
+def _cache_in_tmp(tmp_path_factory):
+    """Query embeddings are cached between starts: keep the tests' out of the user's cache (one per module, so
+    the queries several tests ask are encoded by one child process)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("HOME", str(tmp_path_factory.mktemp("home")))  # the default encoder.cache_dir, ~/.cache/merlion
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -51,24 +54,25 @@ def test_no_text_tower_is_held_after_loading_nor_after_encoding_queries(ckpt, pr
     assert enc.encode_images([np.zeros((120, 160, 3), np.uint8)]).shape == (1, enc._dim)
 
 
-def test_query_change_reloads_the_text_tower_and_matches_a_fresh_encoder_and_open_clip(ckpt):
+def test_queries_are_encoded_in_a_child_once_then_come_from_the_disk_cache(ckpt, tmp_path):
     path, net = ckpt
-    enc = _encoder(path)
-    loads = []
-    real_load = enc._load
-    enc._load = lambda tower: loads.append(tower) or real_load(tower)  # counts calls, loads for real
+    cfg = EncoderConfig(name="clip", model=SMALL, weights=path, precision="fp32", cache_dir=str(tmp_path))
+    enc = ClipEncoder(cfg)
     first = enc.encode_texts(QUERIES)
-    changed = enc.encode_texts(["a shipwreck", "sand"])
-    assert loads == ["text", "text"]
-    again = enc.encode_texts(QUERIES[::-1])  # all cached: no reload
-    assert loads == ["text", "text"]
+    assert enc._texts.children == 1 and enc.child_peaks_mb["texts"] > 0
+    changed = enc.encode_texts(["a shipwreck", "sand"])  # a query change: only the new text needs the child
+    assert enc._texts.children == 2
+    again = enc.encode_texts(QUERIES[::-1])  # all known: no child
+    assert enc._texts.children == 2
     np.testing.assert_array_equal(again, first[::-1])
     np.testing.assert_array_equal(changed[1], first[1])  # "sand" came from the cache
+    assert not enc.holds_text_tower and _text_params(enc) == []
 
-    fresh = _encoder(path).encode_texts(["a shipwreck", "sand"])
-    np.testing.assert_allclose(changed, fresh, atol=1e-6)  # batch composition moves the last bits only
-    with torch.inference_mode():
+    restarted = ClipEncoder(cfg)  # a later start reads them all from the disk cache
+    np.testing.assert_array_equal(restarted.encode_texts(["a shipwreck", *QUERIES]),
+                                  np.concatenate([changed[:1], first]))
+    assert restarted._texts.children == 0
+    with torch.inference_mode():  # and they are open_clip's own text embeddings
         tokens = open_clip.get_tokenizer(SMALL)(["a shipwreck", "sand"])
         ref = torch.nn.functional.normalize(net.encode_text(tokens), dim=-1).numpy()
     np.testing.assert_allclose(changed, ref, atol=1e-5)
-    assert not enc.holds_text_tower

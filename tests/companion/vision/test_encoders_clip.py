@@ -30,10 +30,13 @@ from tests.conftest import free_tcp_port, run_merlion, shared_file
 SMALL = "ViT-S-32-alt"
 
 
-@pytest.fixture(autouse=True)
-def _onnx_cache_in_tmp(tmp_path, monkeypatch):
-    """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
-    monkeypatch.setenv("HOME", str(tmp_path))  # the default encoder.cache_dir is ~/.cache/merlion
+@pytest.fixture(autouse=True, scope="module")
+def _cache_in_tmp(tmp_path_factory):
+    """Query embeddings are cached between starts: keep the tests' out of the user's cache (one per module, so
+    the queries several tests ask are encoded by one child process)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("HOME", str(tmp_path_factory.mktemp("home")))  # the default encoder.cache_dir, ~/.cache/merlion
+        yield
 
 
 def _save_random(model: str, path) -> tuple[str, torch.nn.Module]:
