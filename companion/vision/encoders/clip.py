@@ -25,6 +25,7 @@ from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.clip_cache import ClipCache, cache_root
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
+from companion.vision.encoders.mapped_cast import cast_dropping_file_pages
 from companion.vision.encoders.torch_runtime import (
     configure_threads,
     dtype_name,
@@ -183,7 +184,11 @@ def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: tor
         drop_text_tower(model)
     else:
         del model.visual
-    model = model.eval().to(device=device or torch.device("cpu"), dtype=dtype)
+    device = device or torch.device("cpu")
+    if device.type == "cpu" and dtype != torch.float32:  # never both the mapped fp32 pages and the cast copy
+        model = cast_dropping_file_pages(model.eval(), dtype, path)
+    else:
+        model = model.eval().to(device=device, dtype=dtype)
     if int8 and tower == "image":
         model.visual = quantize_image_tower(model.visual)
         detach_from_file(model)  # the fp32 tower's mapped pages go with the mapping

@@ -76,3 +76,38 @@ def test_queries_are_encoded_in_a_child_once_then_come_from_the_disk_cache(ckpt,
         tokens = open_clip.get_tokenizer(SMALL)(["a shipwreck", "sand"])
         ref = torch.nn.functional.normalize(net.encode_text(tokens), dim=-1).numpy()
     np.testing.assert_allclose(changed, ref, atol=1e-5)
+
+
+def test_a_cast_of_mapped_weights_gives_back_their_file_pages_and_equals_a_plain_cast(ckpt):
+    from pathlib import Path
+
+    from companion.vision.encoders.clip import read_state_dict
+    from companion.vision.encoders.mapped_cast import cast_dropping_file_pages
+
+    path, net = ckpt
+    mapped = open_clip.create_model(SMALL, pretrained=None, device="meta")
+    mapped.load_state_dict(read_state_dict(Path(path)), strict=False, assign=True)  # tensors in the mapped file
+    mapped.visual = cast_dropping_file_pages(mapped.visual, torch.bfloat16, Path(path))
+    plain = {k: v.to(torch.bfloat16) for k, v in net.visual.state_dict().items()}
+    got = mapped.visual.state_dict()
+    assert got.keys() == plain.keys()
+    for key, want in plain.items():
+        assert got[key].dtype == torch.bfloat16 and torch.equal(got[key], want), key
+    assert _resident_kb_of(path) < 0.05 * Path(path).stat().st_size / 1024  # every fp32 page read was given back
+    cast = mapped.text_projection  # the text tower was not cast: still fp32, still read from the file
+    assert cast.dtype == torch.float32 and torch.equal(cast, net.text_projection)
+
+
+def _resident_kb_of(path: str) -> int:
+    """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
+    import os
+
+    target, inside, total = os.path.realpath(path), False, 0
+    with open("/proc/self/smaps", encoding="utf-8") as smaps:
+        for line in smaps:
+            head = line.split()
+            if "-" in head[0] and len(head) >= 5 and not head[0].endswith(":"):
+                inside = len(head) == 6 and os.path.realpath(head[5]) == target
+            elif inside and head[0] == "Rss:":
+                total += int(head[1])
+    return total

@@ -181,9 +181,12 @@ def test_a_checkpoint_of_another_architecture_is_a_one_line_error(small_ckpt):
 
 
 @pytest.mark.slow
-def test_loading_holds_one_copy_of_the_weights(tmp_path):
+@pytest.mark.parametrize(("precision", "bound"), [("fp32", 0.85), ("bf16", 0.45)])
+def test_loading_holds_one_copy_of_the_weights(tmp_path, precision, bound):
     """open_clip's loader held checkpoint and model at once (~2x the file); the mmap'd load of the image tower
-    alone (the text tower is never read at load) stays well under the file's size (image tower ~58% of it)."""
+    alone (the text tower is never read at load) stays well under the file's size (image tower ~58% of it). In
+    bf16 the fp32 pages are given back as each tensor is cast: the peak is the bf16 tower (~29% of the file), where
+    holding both would be ~87%."""
     torch.manual_seed(0)
     ckpt = tmp_path / "b32_fp32.pt"
     torch.save(open_clip.create_model("ViT-B-32", pretrained=None).state_dict(), ckpt)
@@ -193,7 +196,7 @@ def test_loading_holds_one_copy_of_the_weights(tmp_path):
         "from companion.config import EncoderConfig\n"
         "from companion.vision.encoders.clip import ClipEncoder\n"
         "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
-        f"enc = ClipEncoder(EncoderConfig(name='clip', weights={str(ckpt)!r}, precision='fp32'))\n"
+        f"enc = ClipEncoder(EncoderConfig(name='clip', weights={str(ckpt)!r}, precision={precision!r}))\n"
         "enc.encode_images([__import__('numpy').zeros((240, 320, 3), 'uint8')])\n"
         "print(before, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n"
     )
@@ -201,7 +204,7 @@ def test_loading_holds_one_copy_of_the_weights(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=repo)
     assert proc.returncode == 0, proc.stderr
     before, after = map(float, proc.stdout.split()[-2:])
-    assert after - before < 0.85 * size_mb, (before, after, size_mb)
+    assert after - before < bound * size_mb, (before, after, size_mb)
 
 
 def test_batches_give_the_same_embeddings_as_single_frames(small_fp32, images):
