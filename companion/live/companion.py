@@ -289,6 +289,19 @@ class LiveCompanion:
             self.surface.event(f"{name} refused: {why}"[:50], st.WARNING)
         raise ValueError(detail or why)
 
+    def _embed_ahead(self, positive: str, negatives: list[str]) -> None:
+        """Embed new queries before the keeper's lock is taken: with CLIP a text not yet cached is encoded by a
+        child process (seconds), which must not hold up the encode loop; set_queries then finds it cached."""
+        from companion.errors import MerlionError
+        from companion.vision.presampler import GENERIC_NEGATIVE
+
+        negatives = [n.strip() for n in negatives if n.strip()]
+        if positive.strip():
+            try:
+                self.pipeline.presampler.encoder.encode_texts([positive.strip(), *(negatives or [GENERIC_NEGATIVE])])
+            except MerlionError:
+                pass  # set_queries, under the lock, raises it or falls back exactly as before
+
     def _check_enhance(self, on: bool) -> None:
         """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and
         say why on the surface, rather than accept a value that changes nothing."""
@@ -297,6 +310,8 @@ class LiveCompanion:
                          "enhance.mode: selective or always and restart")
 
     def _on_queries(self, positive: str, negatives: list[str]) -> None:
+        self._embed_ahead(positive, negatives)
+
         def set_queries() -> None:
             self.pipeline.presampler.set_queries(positive, negatives)
             if self.selective is not None:
