@@ -209,3 +209,41 @@ def test_bench_pipeline_reports_the_main_process_peaks_and_the_children_s_apart(
     assert all(v > 0 for v in result["child_peak_rss_mb"].values())
     assert "export child" in proc.stdout
     assert list((tmp_path / ".cache" / "merlion" / "onnx").glob("*.onnx"))
+
+
+_AUTO_TAG = """
+import json, sys
+from companion.config import EncoderConfig
+from companion.vision.encoders.factory import make_encoder
+enc = make_encoder(EncoderConfig(name=sys.argv[2], runtime="onnx", pretrained="laion2b_s34b_b79k",
+                                 cache_dir=sys.argv[1]))
+enc.encode_texts(["underwater image with fish", "underwater image without fish"])
+print(json.dumps({**enc.describe(), "children": enc.child_peaks_mb, "torch": "torch" in sys.modules}))
+"""
+
+
+@pytest.mark.slow
+def test_a_cached_tag_is_found_by_a_child_and_recorded_so_auto_starts_without_torch(tmp_path):
+    """Looking a pretrained tag up needs open_clip: the first start (encoder clip) has its child find the file and
+    export; the file is recorded, so the next start, with auto's check included, imports no torch either."""
+    torch.manual_seed(0)
+    snapshot = tmp_path / "hub" / "models--laion--CLIP-ViT-B-32-laion2B-s34B-b79K" / "snapshots" / "abc123"
+    snapshot.mkdir(parents=True)
+    (snapshot.parents[1] / "refs").mkdir()
+    (snapshot.parents[1] / "refs" / "main").write_text("abc123")
+    weights = snapshot / "open_clip_pytorch_model.bin"
+    torch.save({k: v.half() for k, v in open_clip.create_model("ViT-B-32", pretrained=None).state_dict().items()},
+               weights)
+    env = {**__import__("os").environ, "HF_HUB_CACHE": str(tmp_path / "hub"), "HOME": str(tmp_path)}
+    runs = []
+    for name in ("clip", "auto"):
+        proc = subprocess.run([sys.executable, "-c", _AUTO_TAG, str(tmp_path / "cache"), name], capture_output=True,
+                              text=True, timeout=600, cwd=REPO, env=env)
+        assert proc.returncode == 0, proc.stderr
+        runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    first, second = runs
+    for run in runs:
+        assert run["weights"] == str(weights) and run["weights_source"] == "cache:laion2b_s34b_b79k"
+        assert run["runtime"] == "onnx" and run["torch"] is False
+    assert first["export_cached"] is False and set(first["children"]) == {"export", "texts"}
+    assert second["export_cached"] is True and second["children"] == {}
