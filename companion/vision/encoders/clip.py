@@ -4,6 +4,9 @@ Scores follow REFERENCE.md exactly: L2-normalised embeddings, softmax of 100 x c
 the positive's share (the fixed scale 100, not the model's learned logit scale). Preprocessing is read from the
 loaded model (size, mean/std, interpolation, resize mode), so it is always the one its weights were trained with;
 it runs in torch on uint8 frames (faster than PIL), and a test holds it to open_clip's own transform.
+
+This is ``runtime: torch``, and the loader the torch child process (``clip_child``) shares; ``runtime: onnx`` is
+``onnx_clip.OnnxClipEncoder``, which never imports torch. Query embeddings come from ``clip_texts`` in both.
 """
 
 from __future__ import annotations
@@ -25,13 +28,13 @@ from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.clip_cache import ClipCache, cache_root
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
+from companion.vision.encoders.heap_trim import release_freed_memory
 from companion.vision.encoders.mapped_cast import cast_dropping_file_pages
 from companion.vision.encoders.torch_runtime import (
     configure_threads,
     dtype_name,
     pick_device,
     pick_dtype,
-    release_freed_memory,
 )
 from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 

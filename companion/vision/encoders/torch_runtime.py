@@ -14,7 +14,6 @@ from pathlib import Path
 import torch
 
 from companion.errors import UsageError
-from companion.vision.encoders.heap_trim import release_freed_memory  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
 
