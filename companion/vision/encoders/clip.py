@@ -29,7 +29,7 @@ from companion.vision.encoders.clip_cache import ClipCache, cache_root
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
 from companion.vision.encoders.heap_trim import release_freed_memory
-from companion.vision.encoders.mapped_cast import cast_dropping_file_pages
+from companion.vision.encoders.mapped_cast import cast_dropping_file_pages, drop_file_pages
 from companion.vision.encoders.torch_runtime import (
     configure_threads,
     dtype_name,
@@ -193,9 +193,13 @@ def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: tor
     else:
         model = model.eval().to(device=device, dtype=dtype)
     if int8 and tower == "image":
+        for module in model.visual.modules():  # the packed int8 layers keep the fp32 bias tensor itself: a view
+            if isinstance(module, torch.nn.Linear) and module.bias is not None:  # of the file would pin it
+                module.bias.data = module.bias.data.clone()
         model.visual = quantize_image_tower(model.visual)
         detach_from_file(model)  # the fp32 tower's mapped pages go with the mapping
         release_freed_memory()
+        drop_file_pages(path)  # whatever still maps the file (nothing, once the above is done) keeps no pages
     return model
 
 

@@ -80,3 +80,17 @@ def cast_dropping_file_pages(model: torch.nn.Module, dtype: torch.dtype, checkpo
                     del old
     log.debug("cast to %s, %d MB of %s's pages given back", dtype, dropper.dropped >> 20, checkpoint)
     return model
+
+
+def drop_file_pages(checkpoint: Path) -> int:
+    """Give back every resident page of this process's mappings of ``checkpoint``; returns the bytes dropped.
+
+    For when the model no longer reads the file (an int8 tower holds its own packed copies) but some small tensor
+    still keeps the mapping alive: its pages would fault back in from the page cache if ever read again.
+    """
+    dropper = _PageDropper(checkpoint)
+    if dropper._madvise is not None:
+        for lo, hi in dropper.ranges:
+            if dropper._madvise(lo, hi - lo, _MADV_DONTNEED) == 0:
+                dropper.dropped += hi - lo
+    return dropper.dropped

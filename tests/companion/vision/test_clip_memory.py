@@ -111,3 +111,15 @@ def _resident_kb_of(path: str) -> int:
             elif inside and head[0] == "Rss:":
                 total += int(head[1])
     return total
+
+
+def test_an_int8_tower_leaves_none_of_the_checkpoint_resident(ckpt, tmp_path):
+    """Quantization reads the fp32 pages and something in the quantized tower keeps the mapping alive: the pages
+    are given back (and nothing reads them again while frames are encoded)."""
+    from pathlib import Path
+
+    own = tmp_path / "own.pt"  # a file no other encoder of this test process maps
+    own.write_bytes(Path(ckpt[0]).read_bytes())
+    enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="int8"))
+    enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
+    assert _resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
