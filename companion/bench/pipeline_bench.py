@@ -26,7 +26,6 @@ Speed targets are checked here, never in tests.
 
 from __future__ import annotations
 
-import resource
 import sys
 import time
 from dataclasses import dataclass
@@ -38,6 +37,7 @@ from companion.config import Config
 from companion.sources.factory import open_source
 from companion.sources.frame_feed import FrameFeed
 from companion.vision.encoders.base import Encoder
+from companion.vision.encoders.peak_rss import peak_rss_mb
 from companion.vision.pipeline import Pipeline
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
@@ -149,12 +149,6 @@ def _gate_text(gate: dict | None) -> str:
 
 def _round(value: float | None, digits: int) -> float | None:
     return None if value is None else round(value, digits)
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set of this process (Linux reports KiB, macOS bytes)."""
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
 
 
 def rss_now_mb() -> float:

@@ -15,13 +15,13 @@ from __future__ import annotations
 import json
 import logging
 import os
-import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from companion.errors import MerlionError
+from companion.vision.encoders.peak_rss import peak_rss_mb
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ def main() -> int:
         reason = " ".join(str(err).split())[:300]
         print(f"{type(err).__name__}: {reason}", file=sys.stderr)
         return 1
-    answer["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+    answer["peak_rss_mb"] = round(peak_rss_mb(), 1)  # VmHWM: ru_maxrss would include the parent's at the fork
     print(json.dumps(answer))
     return 0
 

@@ -41,7 +41,9 @@ def _mapped_ranges(path: Path) -> list[tuple[int, int]]:
     return ranges
 
 
-class _PageDropper:
+class FilePages:
+    """The checkpoint's mappings in this process, and the means to give a tensor's pages in them back."""
+
     def __init__(self, path: Path) -> None:
         self.ranges = _mapped_ranges(path)
         name = ctypes.util.find_library("c")
@@ -67,7 +69,7 @@ class _PageDropper:
 
 def cast_dropping_file_pages(model: torch.nn.Module, dtype: torch.dtype, checkpoint: Path) -> torch.nn.Module:
     """``model.to(dtype)`` for floating tensors, one at a time, giving back each one's mapped file pages."""
-    dropper = _PageDropper(checkpoint)
+    dropper = FilePages(checkpoint)
     with torch.no_grad():
         for module in model.modules():
             for store in (module._parameters, module._buffers):
@@ -88,7 +90,7 @@ def drop_file_pages(checkpoint: Path) -> int:
     For when the model no longer reads the file (an int8 tower holds its own packed copies) but some small tensor
     still keeps the mapping alive: its pages would fault back in from the page cache if ever read again.
     """
-    dropper = _PageDropper(checkpoint)
+    dropper = FilePages(checkpoint)
     if dropper._madvise is not None:
         for lo, hi in dropper.ranges:
             if dropper._madvise(lo, hi - lo, _MADV_DONTNEED) == 0:
