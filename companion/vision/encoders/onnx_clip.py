@@ -113,7 +113,7 @@ class OnnxClipEncoder(Encoder):
     def _resolve(self) -> ResolvedWeights:
         """``encoder.weights`` as is (no torch needed); a tag from the record of an earlier start, or a child."""
         cfg = self._cfg
-        if cfg.weights:
+        if cfg.weights or not cfg.pretrained:  # a file, or nothing to look up: says so in one line, torch-free
             from companion.vision.encoders.weights import resolve_clip_weights
 
             return resolve_clip_weights(cfg.model, cfg.weights, cfg.pretrained)
@@ -122,7 +122,7 @@ class OnnxClipEncoder(Encoder):
             return found
         answer = self._child({"export": True, "weights": None, "pretrained": cfg.pretrained},
                              f"find the weights of {cfg.pretrained} and export the image tower")
-        record = _resolution_record(self._root, cfg.model, cfg.pretrained or "")
+        record = _resolution_record(self._root, cfg.model, cfg.pretrained)
         record.parent.mkdir(parents=True, exist_ok=True)
         from companion.storage.atomic_write import atomic_write
 

@@ -247,3 +247,12 @@ def test_a_cached_tag_is_found_by_a_child_and_recorded_so_auto_starts_without_to
         assert run["runtime"] == "onnx" and run["torch"] is False
     assert first["export_cached"] is False and set(first["children"]) == {"export", "texts"}
     assert second["export_cached"] is True and second["children"] == {}
+
+
+def test_missing_weights_are_the_same_one_line_errors_as_with_torch(tmp_path):
+    for cfg, start in ((EncoderConfig(name="clip", weights=str(tmp_path / "nope.pt")), "CLIP weights "),
+                       (EncoderConfig(name="clip", weights=None, pretrained=None), "no CLIP weights for ViT-B-32")):
+        with pytest.raises(MerlionError) as err:
+            make_encoder(cfg.model_copy(update={"runtime": "onnx", "cache_dir": str(tmp_path / "cache")}))
+        assert str(err.value).startswith(start) and "merlion models pull" in str(err.value)
+        assert "\n" not in str(err.value)
