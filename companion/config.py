@@ -59,7 +59,8 @@ class EncoderConfig(_Section):
     precision: Literal["auto", "fp32", "bf16", "fp16", "int8"] = "auto"
     """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp32 elsewhere; int8 (CLIP, CPU only, never auto)."""
     runtime: Literal["torch", "onnx"] = "torch"
-    """onnx: CLIP's image tower exported at start-up and run by ONNX Runtime in fp32 (CPU; see docs/encoders.md)."""
+    """onnx: CLIP's image tower exported once and run by ONNX Runtime in fp32, with no torch in the process (see
+    docs/encoders.md)."""
     providers: list[str] = Field(default_factory=list)
     """runtime onnx: ONNX Runtime execution providers, most preferred first (on a Jetson Orin
     [TensorrtExecutionProvider, CUDAExecutionProvider, CPUExecutionProvider]); empty: the CPU one."""
@@ -68,8 +69,8 @@ class EncoderConfig(_Section):
     input_size: int | None = Field(None, gt=0)
     """Frames are downscaled to this side before encoding (None: what the model wants)."""
     cache_dir: str | None = None
-    """Where exported ONNX image towers are kept between starts, so a later start never exports again
-    (None: ~/.cache/merlion)."""
+    """Where CLIP's exported ONNX image towers and query embeddings are kept between starts, so a later start
+    needs no torch for them (None: ~/.cache/merlion)."""
 
 
 TOPIC_NAME = r"^[a-z0-9][a-z0-9_-]{0,23}$"

@@ -343,6 +343,20 @@ class LiveCompanion:
             self.surface.event(f"{name} refused: {why}"[:50], st.WARNING)
         raise ValueError(detail or why)
 
+    def _embed_ahead(self, specs) -> None:
+        """Embed new queries before the keeper's lock is taken: with CLIP a text not yet cached is encoded by a
+        child process (seconds), which must not hold up the encode loop; set_topics then finds it cached."""
+        from companion.errors import MerlionError
+        from companion.vision.presampler import GENERIC_NEGATIVE
+
+        for spec in specs:
+            negatives = [n.strip() for n in spec.negatives if n.strip()]
+            if spec.positive.strip():
+                try:
+                    self.encoder.encode_texts([spec.positive.strip(), *(negatives or [GENERIC_NEGATIVE])])
+                except MerlionError:
+                    pass  # set_topics, under the lock, refuses it or falls back exactly as before
+
     def _check_enhance(self, on: bool) -> None:
         """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and
         say why on the surface, rather than accept a value that changes nothing."""
@@ -363,6 +377,7 @@ class LiveCompanion:
         from companion.vision.topics import TopicSpec
 
         specs = [TopicSpec(t.name, t.positive, tuple(t.negatives)) for t in topics]
+        self._embed_ahead(specs)
 
         def set_topics() -> list[SummaryEvent]:
             self._check_queries(specs)  # all or nothing: no topic changes if one query cannot be scored

@@ -4,12 +4,14 @@ Scores follow REFERENCE.md exactly: L2-normalised embeddings, softmax of 100 x c
 the positive's share (the fixed scale 100, not the model's learned logit scale). Preprocessing is read from the
 loaded model (size, mean/std, interpolation, resize mode), so it is always the one its weights were trained with;
 it runs in torch on uint8 frames (faster than PIL), and a test holds it to open_clip's own transform.
+
+This is ``runtime: torch``, and the loader the torch child process (``clip_child``) shares; ``runtime: onnx`` is
+``onnx_clip.OnnxClipEncoder``, which never imports torch. Query embeddings come from ``clip_texts`` in both.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -23,19 +25,21 @@ from PIL import Image
 from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
+from companion.vision.encoders.clip_cache import ClipCache, cache_root
+from companion.vision.encoders.clip_scores import positive_share
+from companion.vision.encoders.clip_texts import TextEmbeddings
+from companion.vision.encoders.heap_trim import release_freed_memory
+from companion.vision.encoders.mapped_cast import cast_dropping_file_pages, drop_file_pages
 from companion.vision.encoders.torch_runtime import (
     configure_threads,
     dtype_name,
     pick_device,
     pick_dtype,
-    release_freed_memory,
 )
 from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
 log = logging.getLogger(__name__)
 
-SCALE = 100.0
-"""REFERENCE.md: the reference implementation's fixed softmax scale."""
 
 
 class _DropRandomInitWarning(logging.Filter):
@@ -60,20 +64,32 @@ def read_state_dict(path: Path) -> dict[str, torch.Tensor]:
     return dict(ckpt)
 
 
-def quantize_image_tower(visual: torch.nn.Module) -> torch.nn.Module:
+def quantize_image_tower(visual: torch.nn.Module, checkpoint: Path | None = None) -> torch.nn.Module:
     """int8 weights and dynamically quantized activations for the image tower's nn.Linear layers (fbgemm/x86).
 
     On CPUs without bf16 units this is the one reduced precision that is faster than fp32; attention's fused
     in-projection stays fp32 (nn.MultiheadAttention keeps its own weights), as does the text tower, which runs
-    once per query change. Scores stay within 0.01 of fp32 (tested).
+    once per query change. Scores stay within 0.01 of fp32 (tested). Layer group by layer group, so that the
+    fp32 pages of a memory-mapped ``checkpoint`` each group was packed from are given back at once (the load
+    peak is the int8 tower plus one group, not plus the whole fp32 tower).
     """
     import warnings
 
     from torch.ao.quantization import quantize_dynamic
 
+    from companion.vision.encoders.mapped_cast import FilePages
+
+    pages = FilePages(checkpoint) if checkpoint is not None else None
+    parents = [m for m in visual.modules() if any(isinstance(c, torch.nn.Linear) for c in m.children())]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # torch announces the move of eager quantization to torchao
-        return quantize_dynamic(visual, {torch.nn.Linear}, dtype=torch.qint8, inplace=True)
+        for parent in parents:
+            packed_from = [c.weight.data for c in parent.children() if isinstance(c, torch.nn.Linear)]
+            quantize_dynamic(parent, {torch.nn.Linear}, dtype=torch.qint8, inplace=True)
+            if pages is not None:
+                for weight in packed_from:
+                    pages.drop(weight)
+    return visual
 
 
 TEXT_TOWER = ("transformer", "token_embedding", "positional_embedding", "ln_final", "text_projection", "attn_mask",
@@ -103,80 +119,6 @@ def detach_from_file(model: torch.nn.Module) -> None:
 def _causal_mask(n: int) -> torch.Tensor:
     """open_clip's text attention mask (a non-persistent buffer, so not in the checkpoint)."""
     return torch.empty(n, n).fill_(float("-inf")).triu_(1)
-
-
-class OnnxImageTower:
-    """The image tower exported to ONNX (in memory, no file) and run by ONNX Runtime on the CPU, in fp32.
-
-    Measured on the 2-core AVX2 build machine, same run: 1.4x (batch 8) to 2.7x (batch 1) the frames/s of torch's
-    fp32 tower with the same embeddings (cosine 1.000000), where torch's int8 gave 1.1-1.4x. Export costs some
-    seconds at start-up and the session holds its own copy of the tower's weights (~350 MB for ViT-B-32), so the
-    encoder drops torch's tower once the session is built.
-    """
-
-    def __init__(self, visual: torch.nn.Module, size: tuple[int, int], threads: int,
-                 providers: Sequence[str] = (), cache: Path | None = None) -> None:
-        import tempfile
-        import warnings
-
-        import onnxruntime as ort
-
-        providers = list(providers) or ["CPUExecutionProvider"]
-        available = ort.get_available_providers()
-        missing = [p for p in providers if p not in available]
-        if missing:  # checked before the export: a vehicle without CUDA learns it in one line, at once
-            raise UsageError(f"encoder.providers: {missing[0]} is not in this onnxruntime build "
-                             f"(available: {', '.join(available)})")
-        self.providers = providers
-
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        # idle ORT workers otherwise spin, taking the two cores from the decode thread and torch's text tower
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self.cached = cache is not None and cache.is_file()
-        if self.cached:  # exported by an earlier start: torch's tower is never read (no exporter peak)
-            self._session = ort.InferenceSession(str(cache), opts, providers=providers)
-            return
-        # through a file, not bytes in memory: a BytesIO and its getvalue() copy held two more copies of the
-        # tower's weights at the peak (~700 MB for ViT-B-32)
-        if cache is not None:
-            cache.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix="merlion-onnx-", dir=cache.parent if cache else None) as tmp:
-            path = Path(tmp) / "image_tower.onnx"
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
-                torch.onnx.export(visual, (torch.zeros(1, 3, *size),), str(path), input_names=["image"],
-                                  output_names=["embedding"],
-                                  dynamic_axes={"image": {0: "n"}, "embedding": {0: "n"}},
-                                  opset_version=17, dynamo=False)
-            release_freed_memory()
-            self._session = ort.InferenceSession(str(path), opts, providers=providers)
-            if cache is not None:
-                os.replace(path, cache)  # whole or absent: a start cut short leaves no half file
-
-    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        out = self._session.run(None, {"image": batch.contiguous().numpy()})[0]
-        return torch.from_numpy(out)
-
-
-def onnx_cache_path(weights: Path, model: str, size: tuple[int, int], root: str | Path | None = None) -> Path | None:
-    """Where the exported image tower of these weights is kept between starts, or None (a folder of weights).
-
-    Keyed by the weights file's path, size and mtime, the architecture, input size and torch/open_clip versions,
-    so replaced weights or an upgraded exporter export afresh. ``root`` is ``encoder.cache_dir`` (None:
-    ``~/.cache/merlion``); the towers go in its ``onnx`` folder.
-    """
-    import hashlib
-
-    if not weights.is_file():
-        return None
-    st = weights.stat()
-    key = "|".join(map(str, (weights.resolve(), st.st_size, st.st_mtime_ns, model, size, torch.__version__,
-                             open_clip.__version__)))
-    root = Path(root).expanduser() if root else Path.home() / ".cache" / "merlion"
-    return Path(root) / "onnx" / f"{model}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.onnx"
 
 
 def _as_pair(size: int | Sequence[int]) -> tuple[int, int]:
@@ -236,10 +178,107 @@ class ClipPreprocess:
         return (x / 255.0 - self.mean) / self.std
 
 
+def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: torch.device | None = None,
+              dtype: torch.dtype = torch.float32, *, int8: bool = False) -> torch.nn.Module:
+    """The model with one tower only ("image" or "text"): the other is dropped before it is ever read.
+
+    The image model lives as long as a torch encoder; a text model is loaded only by the child process that
+    encodes queries missing from the cache (``clip_child``), so the text tower's ~254 MB (ViT-B-32 fp32) is never
+    resident beside the running image tower. A file that does not load is a one-line MerlionError.
+    """
+    path = weights.path
+    try:
+        if path.is_dir() or path.suffix in (".npz", ".npy", ".safetensors"):
+            model = _load_via_open_clip(weights, model_name)
+        else:
+            model = _load_lean(weights, model_name)
+    except Exception as err:  # torch/open_clip raise many kinds for a bad or mismatched file
+        reason = " ".join(str(err).split())[:160]
+        raise MerlionError(f"CLIP weights {path} do not load into {model_name}: {reason}") from None
+    if tower == "image":
+        drop_text_tower(model)
+    else:
+        del model.visual
+    device = device or torch.device("cpu")
+    if device.type == "cpu" and dtype != torch.float32:  # never both the mapped fp32 pages and the cast copy
+        model = cast_dropping_file_pages(model.eval(), dtype, path)
+    else:
+        model = model.eval().to(device=device, dtype=dtype)
+    if int8 and tower == "image":
+        for module in model.visual.modules():  # the packed int8 layers keep the fp32 bias tensor itself: a view
+            if isinstance(module, torch.nn.Linear) and module.bias is not None:  # of the file would pin it
+                module.bias.data = module.bias.data.clone()
+        model.visual = quantize_image_tower(model.visual, path)
+        detach_from_file(model)  # the fp32 tower's mapped pages go with the mapping
+        release_freed_memory()
+        drop_file_pages(path)  # whatever still maps the file (nothing, once the above is done) keeps no pages
+    return model
+
+
+def _load_via_open_clip(weights: ResolvedWeights, model_name: str) -> torch.nn.Module:
+    """open_clip's own loader (Hugging Face folders, big_vision .npz, safetensors): holds two copies at peak."""
+    path = weights.path
+    name = f"local-dir:{path}" if path.is_dir() else model_name
+    kwargs: dict = {"device": "cpu", "precision": "fp32"}
+    if not path.is_dir():
+        kwargs["pretrained"] = str(path)
+    if weights.preprocess:
+        kwargs["force_preprocess_cfg"] = weights.preprocess
+    return open_clip.create_model(name, pretrained_text=False, **kwargs)
+
+
+def _load_lean(weights: ResolvedWeights, model_name: str) -> torch.nn.Module:
+    """One copy of the weights at peak: the checkpoint is memory-mapped and its tensors become the model's.
+
+    open_clip's loader reads the whole checkpoint into memory and copies it into a freshly built model, so
+    ViT-B-32 fp32 peaked at ~1.9 GB. Here the file's pages are mapped (read on first use, shared with the
+    page cache) and ``assign=True`` hands them to the model, freeing the random initial weights.
+    """
+    kwargs: dict = {"device": "meta", "precision": "fp32"}
+    if weights.preprocess:
+        kwargs["force_preprocess_cfg"] = weights.preprocess
+    quiet = _DropRandomInitWarning()
+    logging.getLogger().addFilter(quiet)  # open_clip warns "initialized randomly": the weights come next
+    try:  # on the meta device: no random initial weights are ever allocated (~600 MB for ViT-B-32)
+        with torch.device("meta"):
+            model = open_clip.create_model(model_name, pretrained=None, pretrained_text=False, **kwargs)
+    finally:
+        logging.getLogger().removeFilter(quiet)
+    state = read_state_dict(weights.path)
+    state = open_clip_factory.convert_state_dict(model, state)
+    if "positional_embedding" in state and not hasattr(model, "positional_embedding"):
+        state = open_clip_factory.convert_to_custom_text_state_dict(state)
+    for key in ("logit_scale", "logit_bias"):
+        mine = getattr(model, key, None)
+        if key in state and mine is not None and mine.ndim != state[key].ndim:
+            state[key] = state[key].reshape(mine.shape)
+    if "logit_bias" not in state and getattr(model, "logit_bias", None) is not None:
+        state["logit_bias"] = torch.zeros_like(state["logit_scale"])
+    state.pop("text.transformer.embeddings.position_ids", None)
+    open_clip_factory.resize_pos_embed(state, model)
+    open_clip_factory.resize_text_pos_embed(state, model)
+    model.load_state_dict(state, strict=True, assign=True)
+    for module in model.modules():  # non-persistent buffers are not in the file: build them for real
+        for key, buf in list(module._buffers.items()):
+            if buf is not None and buf.is_meta:
+                if key != "attn_mask":
+                    raise ValueError(f"buffer {key} is not in the checkpoint")
+                module._buffers[key] = _causal_mask(buf.shape[0])
+    return model
+
+
 class ClipEncoder(Encoder):
-    """Image and text towers of an open_clip model at the configured precision, batched, in inference mode."""
+    """Image and text towers of an open_clip model at the configured precision, batched, in inference mode.
+
+    ``runtime: onnx`` is another class (``onnx_clip.OnnxClipEncoder``, which ``make_encoder`` picks): it runs
+    without torch in the process.
+    """
 
     def __init__(self, cfg: EncoderConfig, *, resolved: ResolvedWeights | None = None) -> None:
+        if cfg.runtime != "torch":
+            raise ValueError("ClipEncoder runs torch; make_encoder builds runtime onnx's OnnxClipEncoder")
+        if cfg.providers:
+            raise UsageError("encoder.providers: set only with encoder.runtime onnx")
         configure_threads()
         self.name = f"clip:{cfg.model}"
         self._cfg = cfg
@@ -249,104 +288,18 @@ class ClipEncoder(Encoder):
         if self._int8 and self._device.type != "cpu":
             raise UsageError("encoder.precision: int8 runs on the CPU only (use fp16 on CUDA)")
         self._dtype = torch.float32 if self._int8 else pick_dtype(cfg.precision, self._device)
-        self._text_cache: dict[str, np.ndarray] = {}
         self._model = self._load("image")
         pcfg = open_clip.get_model_preprocess_cfg(self._model)
         self._dim = int(getattr(self._model.visual, "output_dim", 0)) or None
         self.preprocess = ClipPreprocess(pcfg)
-        self._onnx: OnnxImageTower | None = None
-        if cfg.runtime == "onnx":
-            if self._device.type != "cpu" or self._dtype != torch.float32 or self._int8:
-                raise UsageError(f"encoder.runtime onnx runs fp32 on the CPU only (precision {self.precision}, "
-                                 f"device {self._device}): use precision fp32 or runtime torch")
-            self._onnx = OnnxImageTower(self._model.visual, self.preprocess.size, torch.get_num_threads(),
-                                        cfg.providers, cache=onnx_cache_path(self._weights.path, cfg.model,
-                                                                             self.preprocess.size, cfg.cache_dir))
-            del self._model.visual  # the session holds its own copy: never keep both
-            detach_from_file(self._model)
-            release_freed_memory()
-        elif cfg.providers:
-            raise UsageError("encoder.providers: set only with encoder.runtime onnx")
-        self._tokenizer = open_clip.get_tokenizer(cfg.model)
+        self._texts = TextEmbeddings(ClipCache(cache_root(cfg.cache_dir), self._weights.path, cfg.model),
+                                     self._weights)
         self._batch = cfg.batch
         log.info("CLIP %s loaded from %s (%s) on %s, %s", cfg.model, self._weights.path, self._weights.source,
                  self._device, self.precision)
 
     def _load(self, tower: str) -> torch.nn.Module:
-        """The model with one tower only ("image" or "text"): the other is dropped before it is ever read.
-
-        The image model lives as long as the encoder; a text model is loaded only to encode queries missing from
-        the cache and freed at once (with its file mapping), so the text tower's ~254 MB (ViT-B-32 fp32) is
-        never resident beside the running image tower for long.
-        """
-        path = self._weights.path
-        try:
-            if path.is_dir() or path.suffix in (".npz", ".npy", ".safetensors"):
-                model = self._load_via_open_clip(path)
-            else:
-                model = self._load_lean(path)
-        except Exception as err:  # torch/open_clip raise many kinds for a bad or mismatched file
-            reason = " ".join(str(err).split())[:160]
-            raise MerlionError(f"CLIP weights {path} do not load into {self._cfg.model}: {reason}") from None
-        if tower == "image":
-            drop_text_tower(model)
-        else:
-            del model.visual
-        model = model.eval().to(device=self._device, dtype=self._dtype)
-        if self._int8 and tower == "image":
-            model.visual = quantize_image_tower(model.visual)
-            detach_from_file(model)  # the fp32 tower's mapped pages go with the mapping
-            release_freed_memory()
-        return model
-
-    def _load_via_open_clip(self, path: Path) -> torch.nn.Module:
-        """open_clip's own loader (Hugging Face folders, big_vision .npz, safetensors): holds two copies at peak."""
-        model_name = f"local-dir:{path}" if path.is_dir() else self._cfg.model
-        kwargs: dict = {"device": "cpu", "precision": "fp32"}
-        if not path.is_dir():
-            kwargs["pretrained"] = str(path)
-        if self._weights.preprocess:
-            kwargs["force_preprocess_cfg"] = self._weights.preprocess
-        return open_clip.create_model(model_name, pretrained_text=False, **kwargs)
-
-    def _load_lean(self, path: Path) -> torch.nn.Module:
-        """One copy of the weights at peak: the checkpoint is memory-mapped and its tensors become the model's.
-
-        open_clip's loader reads the whole checkpoint into memory and copies it into a freshly built model, so
-        ViT-B-32 fp32 peaked at ~1.9 GB. Here the file's pages are mapped (read on first use, shared with the
-        page cache) and ``assign=True`` hands them to the model, freeing the random initial weights.
-        """
-        kwargs: dict = {"device": "meta", "precision": "fp32"}
-        if self._weights.preprocess:
-            kwargs["force_preprocess_cfg"] = self._weights.preprocess
-        quiet = _DropRandomInitWarning()
-        logging.getLogger().addFilter(quiet)  # open_clip warns "initialized randomly": the weights come next
-        try:  # on the meta device: no random initial weights are ever allocated (~600 MB for ViT-B-32)
-            with torch.device("meta"):
-                model = open_clip.create_model(self._cfg.model, pretrained=None, pretrained_text=False, **kwargs)
-        finally:
-            logging.getLogger().removeFilter(quiet)
-        state = read_state_dict(path)
-        state = open_clip_factory.convert_state_dict(model, state)
-        if "positional_embedding" in state and not hasattr(model, "positional_embedding"):
-            state = open_clip_factory.convert_to_custom_text_state_dict(state)
-        for key in ("logit_scale", "logit_bias"):
-            mine = getattr(model, key, None)
-            if key in state and mine is not None and mine.ndim != state[key].ndim:
-                state[key] = state[key].reshape(mine.shape)
-        if "logit_bias" not in state and getattr(model, "logit_bias", None) is not None:
-            state["logit_bias"] = torch.zeros_like(state["logit_scale"])
-        state.pop("text.transformer.embeddings.position_ids", None)
-        open_clip_factory.resize_pos_embed(state, model)
-        open_clip_factory.resize_text_pos_embed(state, model)
-        model.load_state_dict(state, strict=True, assign=True)
-        for module in model.modules():  # non-persistent buffers are not in the file: build them for real
-            for key, buf in list(module._buffers.items()):
-                if buf is not None and buf.is_meta:
-                    if key != "attn_mask":
-                        raise ValueError(f"buffer {key} is not in the checkpoint")
-                    module._buffers[key] = _causal_mask(buf.shape[0])
-        return model
+        return load_clip(self._weights, self._cfg.model, tower, self._device, self._dtype, int8=self._int8)
 
     @property
     def precision(self) -> str:
@@ -357,10 +310,7 @@ class ClipEncoder(Encoder):
         """The paper's path: open_clip's own PIL transform on each full frame, then the model, no batching tricks
         (the baseline ``merlion bench pipeline`` compares against)."""
         batch = torch.stack([self.preprocess.reference(img) for img in images])
-        if self._onnx is not None:  # the torch image tower is not kept beside the session
-            emb = self._onnx(batch)
-        else:
-            emb = self._model.encode_image(batch.to(self._device, self._dtype))
+        emb = self._model.encode_image(batch.to(self._device, self._dtype))
         return F.normalize(emb.float(), dim=-1).cpu().numpy().astype(np.float32, copy=False)
 
     @property
@@ -373,10 +323,7 @@ class ClipEncoder(Encoder):
         out = []
         for start in range(0, len(images), self._batch):
             batch = torch.stack([self.preprocess(img) for img in images[start:start + self._batch]])
-            if self._onnx is not None:
-                emb = self._onnx(batch)
-            else:
-                emb = self._model.encode_image(batch.to(self._device, self._dtype))
+            emb = self._model.encode_image(batch.to(self._device, self._dtype))
             out.append(F.normalize(emb.float(), dim=-1).cpu().numpy())
         if not out:
             return np.zeros((0, self._embed_dim()), dtype=np.float32)
@@ -387,33 +334,24 @@ class ClipEncoder(Encoder):
 
     @property
     def holds_text_tower(self) -> bool:
-        """False once loaded: the text tower lives only while queries missing from the cache are encoded."""
+        """Always False: the text tower only ever runs in the child process that encodes new queries."""
         return any(hasattr(self._model, name) for name in TEXT_TOWER)
 
-    @torch.inference_mode()
     def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
-        """Embeddings from the cache (keyed by query text); missing ones load the text tower, encode, free it."""
-        missing = [t for t in dict.fromkeys(texts) if t not in self._text_cache]
-        if missing:
-            model = self._load("text")
-            try:
-                tokens = self._tokenizer(missing).to(self._device)
-                emb = F.normalize(model.encode_text(tokens).float(), dim=-1).cpu().numpy()
-            finally:
-                del model
-                release_freed_memory()
-            self._text_cache.update(zip(missing, emb.astype(np.float32), strict=True))
-            log.debug("encoded %d queries with a text tower loaded from %s and freed again", len(missing),
-                      self._weights.path)
+        """From memory, the disk cache, or a torch child process (``clip_texts``): the text tower is never loaded
+        in this process, so a query change adds nothing to its peak."""
         if not texts:
             return np.zeros((0, self._embed_dim()), dtype=np.float32)
-        return np.stack([self._text_cache[t] for t in texts]).astype(np.float32, copy=False)
+        found = self._texts.get(texts)
+        return np.stack([found[t] for t in texts]).astype(np.float32, copy=False)
+
+    @property
+    def child_peaks_mb(self) -> dict[str, float]:
+        """Peak RSS of the torch child processes that encoded queries (transient, so reported apart)."""
+        return {"texts": self._texts.child_peak_mb} if self._texts.child_peak_mb else {}
 
     def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
-        logits = SCALE * (image_embeddings.astype(np.float64) @ text_embeddings.astype(np.float64).T)
-        logits -= logits.max(axis=1, keepdims=True)
-        p = np.exp(logits)
-        return (p[:, 0] / p.sum(axis=1)).astype(np.float32)
+        return positive_share(image_embeddings, text_embeddings)
 
     def sampler_features(self, image_embeddings: np.ndarray) -> np.ndarray:
         return image_embeddings
@@ -421,6 +359,5 @@ class ClipEncoder(Encoder):
     def describe(self) -> dict:
         return {"name": self.name, "model": self._cfg.model, "weights": str(self._weights.path),
                 "weights_source": self._weights.source, "precision": self.precision,
-                "runtime": "onnx" if self._onnx is not None else "torch",
-                **({"providers": self._onnx.providers} if self._onnx is not None else {}),
+                "runtime": "torch",
                 "device": str(self._device), "input_size": list(self.input_size)}

@@ -17,6 +17,13 @@ log = logging.getLogger(__name__)
 def make_encoder(cfg: EncoderConfig) -> Encoder:
     """The encoder ``cfg.name`` asks for (auto | clip | imagenet | visual); MerlionError when it cannot load."""
     name = cfg.name
+    if name == "auto" and cfg.runtime == "onnx" and not cfg.weights:
+        # torch-free: a tag a child process found on an earlier start
+        from companion.vision.encoders.onnx_clip import recorded_weights
+
+        if recorded_weights(cfg) is not None:
+            log.warning("encoder auto: using CLIP %s (weights found offline on an earlier start)", cfg.model)
+            name = "clip"
     if name == "auto":
         from companion.vision.encoders.weights import (
             clip_weights_available,  # imports open_clip: only when needed
@@ -30,6 +37,10 @@ def make_encoder(cfg: EncoderConfig) -> Encoder:
             log.warning("encoder auto: using the packaged imagenet encoder (EfficientNet-Lite0), because %s",
                         why_not)
             name = "imagenet"
+    if name == "clip" and cfg.runtime == "onnx":
+        from companion.vision.encoders.onnx_clip import OnnxClipEncoder  # never imports torch
+
+        return OnnxClipEncoder(cfg)
     if name == "clip":
         from companion.vision.encoders.clip import ClipEncoder
 

@@ -74,23 +74,3 @@ def configure_threads() -> None:
     except RuntimeError:
         pass  # already set once parallel work started; the intra-op setting is the one that matters
     _threads_set = True
-
-
-def release_freed_memory() -> None:
-    """Collect, then hand the C heap's free pages back to the OS (glibc's malloc_trim).
-
-    Freeing a tower or an ONNX export's buffers leaves hundreds of MB in glibc's heap that RSS keeps counting;
-    the companion's 1 GB budget is RSS. Elsewhere (musl, macOS) only the collection happens.
-    """
-    import ctypes
-    import ctypes.util
-    import gc
-
-    gc.collect()
-    name = ctypes.util.find_library("c")
-    try:
-        trim = ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):
-        trim = None
-    if trim is not None:
-        trim(0)

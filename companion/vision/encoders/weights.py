@@ -4,6 +4,8 @@ The vehicle has no network, so nothing here downloads at run time: ``resolve_cli
 caches open_clip itself would fill (the Hugging Face hub cache for ``hf_hub`` tags, ``~/.cache/clip`` for URL
 tags). ``pull`` is the one place that downloads, run on a machine with a network (``merlion models pull``); the
 files it leaves in the cache are then found offline, or copied onto the vehicle and passed as ``--weights``.
+open_clip (and with it torch) is imported only where a tag must be looked up, so a ``--weights`` file resolves in
+a process that never imports torch (``runtime: onnx``).
 """
 
 from __future__ import annotations
@@ -14,8 +16,6 @@ import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import urlparse
-
-import open_clip
 
 from companion.errors import MerlionError, UsageError
 
@@ -43,6 +43,8 @@ def how_to_get(model: str, tag: str | None) -> str:
 
 def pretrained_cfg(model: str, tag: str) -> dict:
     """open_clip's record for (architecture, tag); a tag it does not know is a usage error naming the valid ones."""
+    import open_clip  # here, not at the top: a --weights file resolves without torch (runtime onnx)
+
     if model not in open_clip.list_models():
         raise UsageError(f"encoder.model: unknown open_clip architecture {model!r} "
                          f"(e.g. ViT-B-32, ViT-B-16, MobileCLIP2-S0; `merlion models list --all` lists them)")
@@ -112,6 +114,8 @@ def clip_weights_available(model: str, weights: str | None, tag: str | None) -> 
 
 def list_cached() -> list[tuple[str, str, Path]]:
     """Every (architecture, tag, file) open_clip knows whose checkpoint is already cached locally."""
+    import open_clip
+
     out = []
     for model, tag in open_clip.list_pretrained():
         try:
@@ -154,6 +158,8 @@ def pull(model: str, tag: str, cache_dir: str | None = None) -> Path:
     open_clip checks the SHA-256 of URL checkpoints; loading the state dict into the architecture verifies the
     rest (a truncated or wrong file fails there). No network: a one-line MerlionError, not a traceback.
     """
+    import open_clip
+
     cfg = pretrained_cfg(model, tag)
     _check_reachable(_download_host(cfg), model, tag)
     log.info("downloading %s (%s) ...", model, tag)

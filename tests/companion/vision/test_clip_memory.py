@@ -1,12 +1,11 @@
 """CLIP's memory rules (issue 14 item 4): the text tower is freed once queries are encoded and re-loaded from the
-weights file only for queries not in the cache; the ONNX runtime keeps no torch copy of the image tower.
+weights file only for queries not in the cache. (The ONNX runtime, which holds no torch at all, is tested in
+test_onnx_clip.py.)
 
 Real open_clip architectures with random weights saved to a checkpoint, loaded through the vehicle's code.
 """
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import open_clip
@@ -20,10 +19,13 @@ SMALL = "ViT-S-32-alt"
 QUERIES = ["a coral reef", "sand", "open water"]
 
 
-@pytest.fixture(autouse=True)
-def _onnx_cache_in_tmp(tmp_path, monkeypatch):
-    """Exported ONNX towers are cached between starts: keep the tests' exports out of the user's cache."""
-    monkeypatch.setenv("HOME", str(tmp_path))  # the default encoder.cache_dir is ~/.cache/merlion
+@pytest.fixture(autouse=True, scope="module")
+def _cache_in_tmp(tmp_path_factory):
+    """Query embeddings are cached between starts: keep the tests' out of the user's cache (one per module, so
+    the queries several tests ask are encoded by one child process)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("HOME", str(tmp_path_factory.mktemp("home")))  # the default encoder.cache_dir, ~/.cache/merlion
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -52,51 +54,72 @@ def test_no_text_tower_is_held_after_loading_nor_after_encoding_queries(ckpt, pr
     assert enc.encode_images([np.zeros((120, 160, 3), np.uint8)]).shape == (1, enc._dim)
 
 
-def test_query_change_reloads_the_text_tower_and_matches_a_fresh_encoder_and_open_clip(ckpt):
+def test_queries_are_encoded_in_a_child_once_then_come_from_the_disk_cache(ckpt, tmp_path):
     path, net = ckpt
-    enc = _encoder(path)
-    loads = []
-    real_load = enc._load
-    enc._load = lambda tower: loads.append(tower) or real_load(tower)  # counts calls, loads for real
+    cfg = EncoderConfig(name="clip", model=SMALL, weights=path, precision="fp32", cache_dir=str(tmp_path))
+    enc = ClipEncoder(cfg)
     first = enc.encode_texts(QUERIES)
-    changed = enc.encode_texts(["a shipwreck", "sand"])
-    assert loads == ["text", "text"]
-    again = enc.encode_texts(QUERIES[::-1])  # all cached: no reload
-    assert loads == ["text", "text"]
+    assert enc._texts.children == 1 and enc.child_peaks_mb["texts"] > 0
+    changed = enc.encode_texts(["a shipwreck", "sand"])  # a query change: only the new text needs the child
+    assert enc._texts.children == 2
+    again = enc.encode_texts(QUERIES[::-1])  # all known: no child
+    assert enc._texts.children == 2
     np.testing.assert_array_equal(again, first[::-1])
     np.testing.assert_array_equal(changed[1], first[1])  # "sand" came from the cache
+    assert not enc.holds_text_tower and _text_params(enc) == []
 
-    fresh = _encoder(path).encode_texts(["a shipwreck", "sand"])
-    np.testing.assert_allclose(changed, fresh, atol=1e-6)  # batch composition moves the last bits only
-    with torch.inference_mode():
+    restarted = ClipEncoder(cfg)  # a later start reads them all from the disk cache
+    np.testing.assert_array_equal(restarted.encode_texts(["a shipwreck", *QUERIES]),
+                                  np.concatenate([changed[:1], first]))
+    assert restarted._texts.children == 0
+    with torch.inference_mode():  # and they are open_clip's own text embeddings
         tokens = open_clip.get_tokenizer(SMALL)(["a shipwreck", "sand"])
         ref = torch.nn.functional.normalize(net.encode_text(tokens), dim=-1).numpy()
     np.testing.assert_allclose(changed, ref, atol=1e-5)
-    assert not enc.holds_text_tower
 
 
-def test_onnx_encoder_holds_no_torch_image_tower_and_gives_the_torch_embeddings(ckpt):
-    path, _ = ckpt
-    onnx = _encoder(path, runtime="onnx")
-    assert not hasattr(onnx._model, "visual")
-    assert [n for n, _ in onnx._model.named_parameters()] == ["logit_scale"]
-    frames = [np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8) for _ in range(3)]
-    torch_emb = _encoder(path).encode_images(frames)
-    np.testing.assert_allclose(onnx.encode_images(frames), torch_emb, atol=1e-4)
-    np.testing.assert_allclose(onnx.encode_images_reference(frames[:1]), torch_emb[:1], atol=1e-3)
-    assert onnx.encode_texts(QUERIES).shape == (3, torch_emb.shape[1])
+def test_a_cast_of_mapped_weights_gives_back_their_file_pages_and_equals_a_plain_cast(ckpt):
+    from pathlib import Path
+
+    from companion.vision.encoders.clip import read_state_dict
+    from companion.vision.encoders.mapped_cast import cast_dropping_file_pages
+
+    path, net = ckpt
+    mapped = open_clip.create_model(SMALL, pretrained=None, device="meta")
+    mapped.load_state_dict(read_state_dict(Path(path)), strict=False, assign=True)  # tensors in the mapped file
+    mapped.visual = cast_dropping_file_pages(mapped.visual, torch.bfloat16, Path(path))
+    plain = {k: v.to(torch.bfloat16) for k, v in net.visual.state_dict().items()}
+    got = mapped.visual.state_dict()
+    assert got.keys() == plain.keys()
+    for key, want in plain.items():
+        assert got[key].dtype == torch.bfloat16 and torch.equal(got[key], want), key
+    assert _resident_kb_of(path) < 0.05 * Path(path).stat().st_size / 1024  # every fp32 page read was given back
+    cast = mapped.text_projection  # the text tower was not cast: still fp32, still read from the file
+    assert cast.dtype == torch.float32 and torch.equal(cast, net.text_projection)
 
 
-def test_the_exported_tower_is_cached_so_a_second_start_never_reads_torch_s_tower(ckpt, tmp_path, monkeypatch):
-    monkeypatch.setenv("HOME", str(tmp_path))
-    path, _ = ckpt
-    first = _encoder(path, runtime="onnx")
-    assert not first._onnx.cached
-    assert [p.suffix for p in (tmp_path / ".cache" / "merlion" / "onnx").iterdir()] == [".onnx"]  # no temporary left behind
-    second = _encoder(path, runtime="onnx")
-    assert second._onnx.cached
-    frames = [np.random.default_rng(1).integers(0, 255, (96, 128, 3), dtype=np.uint8) for _ in range(2)]
-    np.testing.assert_array_equal(second.encode_images(frames), first.encode_images(frames))
-    other = tmp_path / "other.pt"  # other weights (here: the same bytes, another file) export afresh
-    other.write_bytes(Path(path).read_bytes())
-    assert not _encoder(str(other), runtime="onnx")._onnx.cached
+def _resident_kb_of(path: str) -> int:
+    """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
+    import os
+
+    target, inside, total = os.path.realpath(path), False, 0
+    with open("/proc/self/smaps", encoding="utf-8") as smaps:
+        for line in smaps:
+            head = line.split()
+            if "-" in head[0] and len(head) >= 5 and not head[0].endswith(":"):
+                inside = len(head) == 6 and os.path.realpath(head[5]) == target
+            elif inside and head[0] == "Rss:":
+                total += int(head[1])
+    return total
+
+
+def test_an_int8_tower_leaves_none_of_the_checkpoint_resident(ckpt, tmp_path):
+    """Quantization reads the fp32 pages and something in the quantized tower keeps the mapping alive: the pages
+    are given back (and nothing reads them again while frames are encoded)."""
+    from pathlib import Path
+
+    own = tmp_path / "own.pt"  # a file no other encoder of this test process maps
+    own.write_bytes(Path(ckpt[0]).read_bytes())
+    enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="int8"))
+    enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
+    assert _resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
