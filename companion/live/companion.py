@@ -149,8 +149,11 @@ class LiveCompanion:
             raw = RawGate(self.encoder, [TopicSpec.from_config(t) for t in cfg.queries.topic_list()],
                           cfg.queries.tau_ss)
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
+            from companion.vision.gate import FrameGate
+
+            gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)  # ahead of the raw scoring
             self.selective = SelectiveStage(self.pipeline, raw, enhancer, queue_size=cfg.enhance.queue,
-                                            lock=self.keeper.lock)
+                                            lock=self.keeper.lock, gate=gate)
         else:
             self.pipeline = Pipeline.from_config(cfg, self.encoder, first_image_index=resume.next_image_index)
             self.keeper = self._make_keeper()
@@ -294,8 +297,6 @@ class LiveCompanion:
         """A MERL_* change from the surface, applied by the keeper between two batches (ValueError refuses it)."""
         if name == "MERL_ENHANCE":
             self._check_enhance(bool(value))
-        if name == "MERL_GATE" and self.selective is not None:
-            self._refuse(name, "the frame gate does not run with enhance.mode selective")
         if name in ("MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_ENHANCE", "MERL_GATE"):
             self.keeper.change(lambda: self._tune(name, value))
             log.info("parameter %s set to %g", name, value)
@@ -317,8 +318,9 @@ class LiveCompanion:
         elif name == "MERL_K":
             return self.pipeline.set_k(int(value))
         elif name == "MERL_GATE":  # 0: off; otherwise the difference threshold in grey levels
-            self.pipeline.gate.mode = "difference" if value > 0 else "none"
-            self.pipeline.gate.threshold = max(0.0, float(value))
+            gate = sel.gate if sel is not None else self.pipeline.gate  # selective: the gate before raw scoring
+            gate.mode = "difference" if value > 0 else "none"
+            gate.threshold = max(0.0, float(value))
         elif name == "MERL_ENHANCE":
             if sel is not None:
                 sel.on = bool(value)

@@ -23,6 +23,7 @@ from companion.live.queues import DropOldestQueue
 from companion.live.raw_gate import RawGate
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
+from companion.vision.gate import FrameGate
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,8 @@ class Candidate:
 class SelectiveStage:
     """The split pipeline: ``score`` on the inference thread, ``EnhanceWorker`` for the rest."""
 
-    def __init__(self, pipeline, raw: RawGate, enhancer, *, queue_size: int, lock: threading.Lock) -> None:
+    def __init__(self, pipeline, raw: RawGate, enhancer, *, queue_size: int, lock: threading.Lock,
+                 gate: FrameGate | None = None) -> None:
         self.pipeline = pipeline
         """Built with enhancement off and its pre-sampler gate at tau_ses: it scores ss_e and samples."""
         self.raw = raw
@@ -55,21 +57,39 @@ class SelectiveStage:
         """Frames the raw gate scored (under the lock, so it can be read beside the encoder's count)."""
         self.on = True
         """MERL_ENHANCE from the surface: off sends frames straight to the pipeline (gate back at tau_ss)."""
+        self.gate = gate if gate is not None else FrameGate("none")
+        """The frame gate (config ``gate:``, MERL_GATE) ahead of the raw scoring, enhancer on or off: the
+        pipeline behind it samples sparse, already chosen candidates and gates nothing itself."""
 
-    def score(self, frames: list[Frame], poses: list | None) -> list[tuple[Frame, float, bool]]:
-        """Best ss_t of each frame over the topics; a frame above any topic's tau_ss is queued for the enhancer
-        (the oldest waiting one may go), one encoder pass for every topic."""
+    def admit(self, frames: list[Frame]) -> list[np.ndarray | None]:
+        """The encoder's copy of each frame the gate lets through, None for a frame it skips."""
+        small = [self.pipeline.prepare(f.image) for f in frames]
+        if not self.gate.on:
+            self.gate.seen += len(frames)
+            self.gate.encoded += len(frames)
+            return list(small)
+        keep = self.gate.admit_batch(small, [f.time_s for f in frames])
+        return [s if k else None for s, k in zip(small, keep, strict=True)]
+
+    def score(self, frames: list[Frame], poses: list | None) -> list[tuple[Frame, float, bool, bool]]:
+        """(frame, best ss_t over the topics, passed, encoded) per frame: the gate goes first, then one encoder
+        pass for every topic; a frame above any topic's tau_ss is queued for the enhancer (the oldest waiting one
+        may go). A frame the gate skips is seen, never scored (NaN) and never a candidate."""
+        prepared = self.admit(frames)
+        go = [i for i, p in enumerate(prepared) if p is not None]
+        out = [(frame, float("nan"), False, False) for frame in frames]
+        if not go:
+            return out
         with self.lock:
-            small = [self.pipeline.prepare(f.image) for f in frames]
-            emb = self.pipeline.encoder.encode_images(small)
+            emb = self.pipeline.encoder.encode_images([prepared[i] for i in go])
             scores, passed = self.raw.score(emb)
-            self.scored += len(frames)
-        out = []
-        for i, frame in enumerate(frames):
-            if passed[i]:
-                self.queue.put(Candidate(frame, float(scores[i]), poses[i] if poses is not None else None,
-                                         passed[i]))
-            out.append((frame, float(scores[i]), bool(passed[i])))
+            self.scored += len(go)
+        for row, i in enumerate(go):
+            frame = frames[i]
+            if passed[row]:
+                self.queue.put(Candidate(frame, float(scores[row]), poses[i] if poses is not None else None,
+                                         passed[row]))
+            out[i] = (frame, float(scores[row]), bool(passed[row]), True)
         return out
 
 

@@ -120,7 +120,12 @@ class InferenceLoop(threading.Thread):
         if self.selective is not None and self.selective.on:
             self._score_for_enhancer(frames, poses)
             return
-        outcome = self.keeper.change(lambda: self.pipeline.process(frames, poses=poses), lambda o: o.events)
+        if self.selective is not None:  # enhancer off: straight to the pipeline, behind the stage's frame gate
+            prepared = self.selective.admit(frames)
+            outcome = self.keeper.change(lambda: self.pipeline.process(frames, prepared, poses, gated=True),
+                                         lambda o: o.events)
+        else:
+            outcome = self.keeper.change(lambda: self.pipeline.process(frames, poses=poses), lambda o: o.events)
         now = time.monotonic()
         c = self.counters
         for result in outcome.results:
@@ -142,7 +147,10 @@ class InferenceLoop(threading.Thread):
         """MERLION-E: score here, enhance and sample on the enhancer's worker."""
         now = time.monotonic()
         c = self.counters
-        for _frame, score, passed in self.selective.score(frames, poses):
+        for _frame, score, passed, encoded in self.selective.score(frames, poses):
+            if not encoded:
+                c.frames_skipped += 1
+                continue
             c.frames_scored += 1
             c.frames_passed += int(passed)
             c.last_score = score

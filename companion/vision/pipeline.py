@@ -299,8 +299,8 @@ class Pipeline:
         """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
 
         The gate goes first: only the frames it admits are encoded; the others get ``encoded=False`` results.
-        ``gated``: the caller already ran this pipeline's gate (``FrameFeed(gate=pipeline.gate)`` in its decode
-        thread) and ``prepared[i] is None`` marks the frames it skipped.
+        ``gated``: the caller already ran a frame gate (``FrameFeed(gate=pipeline.gate)`` in its decode thread, or
+        the live selective stage's) and ``prepared[i] is None`` marks the frames it skipped.
         ``only``: per frame, the names of the topics it may enter (a gate the caller ran before, e.g. the live
         companion's tau_ss gate ahead of its enhancer); None: every topic.
         """
@@ -308,14 +308,14 @@ class Pipeline:
         if n == 0:
             return BatchOutcome([], [])
         self.counts["frames"] += n
-        if not self.gate.on:
-            self.gate.seen += n
-            self.gate.encoded += n
-            return self._process_encoded(frames, prepared, poses, only)
-        if gated:
+        if gated:  # an outside gate (the decode thread's, the live selective stage's) already chose
             if prepared is None:
                 raise ValueError("gated=True needs the prepared images (None marks a skipped frame)")
             keep = np.array([p is not None for p in prepared], dtype=bool)
+        elif not self.gate.on:
+            self.gate.seen += n
+            self.gate.encoded += n
+            return self._process_encoded(frames, prepared, poses, only)
         else:
             with self.clock.stage("gate", n):
                 views = prepared if prepared is not None else [f.image for f in frames]

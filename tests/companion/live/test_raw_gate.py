@@ -59,9 +59,10 @@ def test_every_topic_is_scored_on_one_embedding_and_a_frame_goes_on_for_any(enco
     assert len(set(want)) >= 3, want  # frames passing one topic, the other, both or none: the case is real
     queued = stage.queue.get_batch(len(frames), timeout=0.1)
     assert [c.topics for c in queued] == [w for w in want if w]
-    assert [passed for _f, _s, passed in out] == [bool(w) for w in want]
+    assert [passed for _f, _s, passed, _e in out] == [bool(w) for w in want]
+    assert all(encoded for *_rest, encoded in out)  # no frame gate given: every frame scored
     best = np.maximum(scores["fish"], scores["coral"])
-    np.testing.assert_allclose([s for _f, s, _p in out], best, rtol=1e-5)
+    np.testing.assert_allclose([s for _f, s, _p, _e in out], best, rtol=1e-5)
 
 
 def test_the_gate_follows_query_changes_and_tau_for_every_topic(encoder) -> None:
