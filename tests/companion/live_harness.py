@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import yaml
+from pymavlink import mavftp
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tests.conftest import REPO
@@ -223,3 +224,24 @@ def write_clip(path: Path, frames: int = 20) -> Path:
         writer.write(frame.image)
     writer.release()
     return path
+
+
+def ground_ftp(gcs) -> mavftp.MAVFTP:
+    """A pymavlink mavftp client of the ground station, with retry times fit for a busy loopback hub."""
+    values = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5, "burst_read_size": 239,
+              "write_size": 80, "write_qsize": 5, "idle_detection_time": 1.5, "read_retry_time": 0.6,
+              "retry_time": 0.4}
+    return mavftp.MAVFTP(gcs, 1, 100, settings=mavftp.MAVFTPSettings([(k, type(v), v) for k, v in values.items()]))
+
+
+def ftp_get_json(client: mavftp.MAVFTP, remote: str, local: Path) -> dict:
+    """A JSON file fetched over MAVLink FTP, asked again when a reply is lost."""
+    for _ in range(5):  # a reply can be lost on a busy hub; a ground station asks again
+        local.unlink(missing_ok=True)
+        client.cmd_get([remote, str(local)])
+        if client.process_ftp_reply("OpenFileRO", timeout=15).error_code == mavftp.FtpError.Success:
+            try:
+                return json.loads(local.read_text())
+            except (OSError, ValueError):
+                continue
+    raise AssertionError(f"could not fetch {remote}")

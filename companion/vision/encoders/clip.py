@@ -26,6 +26,7 @@ from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.clip_cache import ClipCache, cache_root
+from companion.vision.encoders.clip_pixels import as_pair, resize_shape
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
 from companion.vision.encoders.heap_trim import release_freed_memory
@@ -121,13 +122,6 @@ def _causal_mask(n: int) -> torch.Tensor:
     return torch.empty(n, n).fill_(float("-inf")).triu_(1)
 
 
-def _as_pair(size: int | Sequence[int]) -> tuple[int, int]:
-    """open_clip sizes are an int or (height, width)."""
-    if isinstance(size, int):
-        return size, size
-    return int(size[0]), int(size[1])
-
-
 class ClipPreprocess:
     """open_clip's eval transform, done in torch on BGR uint8 arrays.
 
@@ -136,7 +130,7 @@ class ClipPreprocess:
     """
 
     def __init__(self, cfg: dict) -> None:
-        self.size = _as_pair(cfg.get("size", 224))
+        self.size = as_pair(cfg.get("size", 224))
         self.mode = cfg.get("resize_mode", "shortest")
         self.interpolation = cfg.get("interpolation", "bicubic")
         self.mean = torch.tensor(cfg.get("mean", open_clip.OPENAI_DATASET_MEAN), dtype=torch.float32).view(3, 1, 1)
@@ -162,12 +156,7 @@ class ClipPreprocess:
         x = torch.from_numpy(np.ascontiguousarray(bgr[:, :, ::-1])).permute(2, 0, 1).float()[None]
         h, w = bgr.shape[:2]
         th, tw = self.size
-        if self.mode == "squash":
-            new_h, new_w = th, tw
-        elif h <= w:  # torchvision: the short side becomes `size`, the long side is truncated, not rounded
-            new_h, new_w = th, int(th * w / h)
-        else:
-            new_h, new_w = int(tw * h / w), tw
+        new_h, new_w = resize_shape(h, w, self.size, self.mode)
         if (new_h, new_w) != (h, w):
             x = F.interpolate(x, size=(new_h, new_w), mode=self.interpolation, align_corners=False,
                               antialias=True)

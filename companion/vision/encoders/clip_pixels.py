@@ -31,6 +31,17 @@ def as_pair(size: int | Sequence[int]) -> tuple[int, int]:
     return int(size[0]), int(size[1])
 
 
+def resize_shape(h: int, w: int, size: tuple[int, int], mode: str) -> tuple[int, int]:
+    """(height, width) a frame is resized to before the centre crop, as torchvision's Resize computes it: the
+    short side becomes the input side and the long side is truncated, not rounded ("squash": the input size)."""
+    th, tw = size
+    if mode == "squash":
+        return th, tw
+    if h <= w:
+        return th, int(th * w / h)
+    return int(tw * h / w), tw
+
+
 class NumpyClipPreprocess:
     """The "shortest" (square input) and "squash" resize modes of open_clip's eval transform."""
 
@@ -53,12 +64,7 @@ class NumpyClipPreprocess:
         """RGB uint8 (h, w, 3) at the model's size: resized as torchvision's Resize, then centre-cropped."""
         h, w = bgr.shape[:2]
         th, tw = self.size
-        if self.mode == "squash":
-            new_h, new_w = th, tw
-        elif h <= w:  # torchvision: the short side becomes `size`, the long side is truncated, not rounded
-            new_h, new_w = th, int(th * w / h)
-        else:
-            new_h, new_w = int(tw * h / w), tw
+        new_h, new_w = resize_shape(h, w, self.size, self.mode)
         rgb = np.ascontiguousarray(bgr[:, :, ::-1])
         if (new_h, new_w) != (h, w):
             rgb = np.asarray(Image.fromarray(rgb).resize((new_w, new_h), self.resample))

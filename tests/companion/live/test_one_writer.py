@@ -15,51 +15,20 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 from pymavlink import mavftp, mavutil
 
-from companion.live.udp_hub import UdpHub
 from companion.storage.atomic_write import TMP_PREFIX
-from tests.companion.live_harness import Companion, Listener, store_summary, wait_until, write_config
-from vehicle.sim.vehicle import SimVehicle
+from tests.companion.live_harness import (
+    Companion,
+    Listener,
+    ftp_get_json,
+    ground_ftp,
+    store_summary,
+    wait_until,
+    write_config,
+)
 
 KEEPER = "/store/summary.json"
-
-
-@pytest.fixture
-def dive():
-    """The hub (the vehicle's router), the simulated ArduSub, a listener and a ground station, all on it."""
-    listener = Listener()
-    hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
-    sim = SimVehicle(hub.url)
-    sim.start()
-    gcs = mavutil.mavlink_connection(f"udpout:{hub.host}:{hub.port}", source_system=255, source_component=190,
-                                     dialect="ardupilotmega")
-    gcs.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-    yield hub, gcs, listener
-    gcs.close()
-    sim.stop()
-    hub.stop()
-    listener.close()
-
-
-def _ftp(gcs) -> mavftp.MAVFTP:
-    values = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5, "burst_read_size": 239,
-              "write_size": 80, "write_qsize": 5, "idle_detection_time": 1.5, "read_retry_time": 0.6,
-              "retry_time": 0.4}
-    return mavftp.MAVFTP(gcs, 1, 100, settings=mavftp.MAVFTPSettings([(k, type(v), v) for k, v in values.items()]))
-
-
-def _get_json(client: mavftp.MAVFTP, remote: str, local: Path) -> dict:
-    for _ in range(5):  # a reply can be lost on a busy hub; a ground station asks again
-        local.unlink(missing_ok=True)
-        client.cmd_get([remote, str(local)])
-        if client.process_ftp_reply("OpenFileRO", timeout=15).error_code == mavftp.FtpError.Success:
-            try:
-                return json.loads(local.read_text())
-            except (OSError, ValueError):
-                continue
-    raise AssertionError(f"could not fetch {remote}")
 
 
 def _set_param(gcs, listener: Listener, name: str, value: float, integer: bool, expect: float | None = None):
@@ -107,14 +76,14 @@ def test_store_equals_summary_after_every_change_from_the_surface(tmp_path: Path
     companion = Companion("--config", str(cfg))
     companion.wait_for("companion running")
     wait_until(lambda: len(store_summary(store).get("summary", [])) >= 3, 60, "three summary frames on disk")
-    client = _ftp(gcs)
+    client = ground_ftp(gcs)
     local = tmp_path / "keeper.json"
     queries = tmp_path / "queries.txt"
     queries.write_text("underwater image of rocks\nunderwater image of open water\n")
     changes = [("MERL_K", 4), ("MERL_TAU_SS", 0.0), ("queries", None), ("MERL_ENHANCE", 0), ("MERL_K", 10),
                ("MERL_ENHANCE", 1), ("MERL_TAU_SS", 0.4), ("MERL_K", 3)]
     for name, value in changes:
-        before = _get_json(client, KEEPER, local)["applied"]
+        before = ftp_get_json(client, KEEPER, local)["applied"]
         if name == "queries":
             client.cmd_put([str(queries), "/config/queries.txt"])
             assert client.process_ftp_reply("put", timeout=15).error_code == mavftp.FtpError.Success
@@ -124,8 +93,8 @@ def test_store_equals_summary_after_every_change_from_the_surface(tmp_path: Path
         if name == "MERL_K":
             wait_until(lambda v=value: len(store_summary(store).get("summary", [])) <= v, 10, f"K={value} on disk")
         # frames keep flowing: wait for at least one more event after the change, then compare
-        wait_until(lambda b=before: _get_json(client, KEEPER, local)["applied"] > b, 30, f"an event after {name}")
-        keeper = _get_json(client, KEEPER, local)
+        wait_until(lambda b=before: ftp_get_json(client, KEEPER, local)["applied"] > b, 30, f"an event after {name}")
+        keeper = ftp_get_json(client, KEEPER, local)
         check_in_step(store, keeper)
         if name == "MERL_K":
             assert len(keeper["summary"]) <= value

@@ -16,11 +16,16 @@ import re
 from pathlib import Path
 
 import pytest
-from pymavlink import mavftp, mavutil
+from pymavlink import mavftp
 
-from companion.live.udp_hub import UdpHub
-from tests.companion.live_harness import Companion, Listener, store_summary, wait_until, write_config
-from vehicle.sim.vehicle import SimVehicle
+from tests.companion.live_harness import (
+    Companion,
+    ftp_get_json,
+    ground_ftp,
+    store_summary,
+    wait_until,
+    write_config,
+)
 
 K = 2
 TOPICS = [
@@ -44,42 +49,6 @@ def video(shared_data: Path) -> Path:
     if not path.exists():
         pytest.skip(f"survey video absent: {path}")
     return path
-
-
-@pytest.fixture
-def dive():
-    """The hub (the vehicle's router), the simulated ArduSub, a listener and a ground station, all on it."""
-    listener = Listener()
-    hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
-    sim = SimVehicle(hub.url)
-    sim.start()
-    gcs = mavutil.mavlink_connection(f"udpout:{hub.host}:{hub.port}", source_system=255, source_component=190,
-                                     dialect="ardupilotmega")
-    gcs.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-    yield hub, gcs, listener
-    gcs.close()
-    sim.stop()
-    hub.stop()
-    listener.close()
-
-
-def _ftp(gcs) -> mavftp.MAVFTP:
-    values = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5, "burst_read_size": 239,
-              "write_size": 80, "write_qsize": 5, "idle_detection_time": 1.5, "read_retry_time": 0.6,
-              "retry_time": 0.4}
-    return mavftp.MAVFTP(gcs, 1, 100, settings=mavftp.MAVFTPSettings([(k, type(v), v) for k, v in values.items()]))
-
-
-def _get_json(client: mavftp.MAVFTP, remote: str, local: Path) -> dict:
-    for _ in range(5):  # a reply can be lost on a busy hub; a ground station asks again
-        local.unlink(missing_ok=True)
-        client.cmd_get([remote, str(local)])
-        if client.process_ftp_reply("OpenFileRO", timeout=15).error_code == mavftp.FtpError.Success:
-            try:
-                return json.loads(local.read_text())
-            except (OSError, ValueError):
-                continue
-    raise AssertionError(f"could not fetch {remote}")
 
 
 def _by_topic(store: Path) -> dict[str, list[int]]:
@@ -110,8 +79,8 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     wait_until(lambda: all(len(_by_topic(store).get(t, [])) >= 2 for t in ("fish", "coral")), 40,
                "two frames of each topic stored")
 
-    client = _ftp(gcs)
-    index = _get_json(client, "/summary/index.json", tmp_path / "index.json")
+    client = ground_ftp(gcs)
+    index = ftp_get_json(client, "/summary/index.json", tmp_path / "index.json")
     assert [t["name"] for t in index["topics"]] == ["fish", "coral"]
     assert index["topics"][0]["positive"] == "underwater image with fish"
     assert all(1 <= t["held"] <= K for t in index["topics"]), index["topics"]
@@ -120,7 +89,7 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     assert all(written[item["image_index"]] == item["topic"] for item in index["summary"])  # store == wire
     listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and re.match(r"Summary \+#\d+ coral ss=", str(m.text)),
                       10, "a new frame's STATUSTEXT naming its topic")
-    keeper = _get_json(client, "/store/summary.json", tmp_path / "keeper.json")
+    keeper = ftp_get_json(client, "/store/summary.json", tmp_path / "keeper.json")
     assert set(keeper["topics"]) == {"fish", "coral"} and all(len(v) <= K for v in keeper["topics"].values())
     assert keeper["mismatches"] == 0
     counted = keeper["encoder"]
@@ -141,7 +110,7 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
                "a new frame after the restart")
 
     # a topic the packaged encoder cannot score: the whole file is refused, nothing changes
-    client = _ftp(gcs)
+    client = ground_ftp(gcs)
     upload = tmp_path / "queries.txt"
     upload.write_text(UPLOAD + "[kelp]\nunderwater image of kelp\nunderwater image of sand\n")
     for _ in range(3):  # the first request may reach the hub before it knows where the companion is
@@ -152,7 +121,7 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Queries refused: kelp" in str(m.text), 5,
                       "the refusal's reason")
     again.wait_for("refused", 5)
-    index = _get_json(client, "/summary/index.json", tmp_path / "index.json")
+    index = ftp_get_json(client, "/summary/index.json", tmp_path / "index.json")
     assert [t["name"] for t in index["topics"]] == ["fish", "coral"]
 
     # a ground station uploads two topics: fish stays, coral goes, wreck comes
@@ -164,7 +133,7 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Topics set: fish, wreck" in str(m.text), 15,
                       "the companion's acknowledgement")
     again.wait_for("topics set: fish=", 10)
-    index = _get_json(client, "/summary/index.json", tmp_path / "index.json")
+    index = ftp_get_json(client, "/summary/index.json", tmp_path / "index.json")
     assert [t["name"] for t in index["topics"]] == ["fish", "wreck"]
     assert {item["topic"] for item in index["summary"]} <= {"fish", "wreck"}
     assert "coral" not in _by_topic(store)
