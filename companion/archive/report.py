@@ -18,8 +18,10 @@ from pathlib import Path
 from companion.evaluation.plots import plot_depth, plot_scores
 from companion.storage.atomic_write import atomic_write
 
-INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "query",
-                "score", "file")
+INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
+                "file", "query")
+"""``topic`` is the topic's name (``queries.name``, "main", with one topic); ``query``, last so that readers by
+column position keep working, its positive query."""
 
 
 def _load(out_dir: Path, name: str) -> tuple[dict, dict, list[tuple[float, float]]]:

@@ -23,6 +23,8 @@ def put(over: Overrides, section: str, key: str, value: Any) -> None:
 def put_queries_and_encoder(over: Overrides, args: argparse.Namespace) -> None:
     """--query/--negative (or --topic) and --encoder with its options (those the command defines)."""
     put(over, "queries", "positive", args.query)
+    if args.query is not None and not getattr(args, "topic", None):
+        put(over, "queries", "topics", [])  # the command line's one query replaces topics a config file lists
     if args.negative is not None:
         put(over, "queries", "negatives", args.negative)
     elif args.query is not None:

@@ -345,20 +345,6 @@ class LiveCompanion:
             self.surface.event(f"{name} refused: {why}"[:50], st.WARNING)
         raise ValueError(detail or why)
 
-    def _embed_ahead(self, specs) -> None:
-        """Embed new queries before the keeper's lock is taken: with CLIP a text not yet cached is encoded by a
-        child process (seconds), which must not hold up the encode loop; set_topics then finds it cached."""
-        from companion.errors import MerlionError
-        from companion.vision.presampler import GENERIC_NEGATIVE
-
-        for spec in specs:
-            negatives = [n.strip() for n in spec.negatives if n.strip()]
-            if spec.positive.strip():
-                try:
-                    self.encoder.encode_texts([spec.positive.strip(), *(negatives or [GENERIC_NEGATIVE])])
-                except MerlionError:
-                    pass  # set_topics, under the lock, refuses it or falls back exactly as before
-
     def _check_enhance(self, on: bool) -> None:
         """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and
         say why on the surface, rather than accept a value that changes nothing."""
@@ -379,10 +365,12 @@ class LiveCompanion:
         from companion.vision.topics import TopicSpec
 
         specs = [TopicSpec(t.name, t.positive, tuple(t.negatives)) for t in topics]
-        self._embed_ahead(specs)
+        # all or nothing, before the keeper's lock: a query the encoder cannot score refuses the file with no
+        # topic changed, and a CLIP text not yet cached is encoded now (a child process, seconds) rather than
+        # while the inference loop waits; under the lock the texts are then in memory
+        self._check_queries(specs)
 
         def set_topics() -> list[SummaryEvent]:
-            self._check_queries(specs)  # all or nothing: no topic changes if one query cannot be scored
             events = self.pipeline.set_topics(specs)
             if self.selective is not None:  # the raw gate follows every topic, kept, new or dropped
                 self.selective.raw.set_topics(specs)
@@ -408,10 +396,16 @@ class LiveCompanion:
         """Refuse (ValueError, and why on the surface) queries the encoder cannot score, e.g. a concept the
         packaged encoder does not know, before any topic changes."""
         from companion.errors import MerlionError
+        from companion.vision.presampler import GENERIC_NEGATIVE
 
         for spec in specs:
             try:
                 self.encoder.encode_texts([spec.positive, *spec.negatives])
+                if not [n for n in spec.negatives if n.strip()]:
+                    try:  # the pre-sampler's own negative then: embedded now too, if the encoder can
+                        self.encoder.encode_texts([GENERIC_NEGATIVE])
+                    except MerlionError:
+                        pass  # the packaged encoder scores the positive alone
             except MerlionError as err:
                 if self.surface is not None:
                     from vehicle.camera import status as st
@@ -469,14 +463,17 @@ class LiveCompanion:
 
     def _topic_of(self, index: int) -> str | None:
         """The topic a summary frame belongs to: the one holding it, else its sidecar's (a frame stored before
-        topics: the default topic); None when the store does not have it."""
+        topics: the default topic, ``queries.name``); None when the store does not have it."""
         held = self.pipeline.topic_of(index)
         if held is not None:
             return held.name
         sidecar = self.store.sidecar(index)
         if sidecar is None:
             return None
-        return str(sidecar.get("topic") or self.pipeline.topics[0].name)
+        if sidecar.get("topic"):
+            return str(sidecar["topic"])
+        names = [t.name for t in self.pipeline.topics]  # stored before topics: as Pipeline.restore places it
+        return self.pipeline.default_topic if self.pipeline.default_topic in names else names[0]
 
     def _apply_marks(self, like: list[int], unlike: list[int]) -> None:
         """Embed the marked frames' stored images and switch each topic's pre-sampler(s) to the combined score.

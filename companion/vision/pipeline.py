@@ -124,7 +124,8 @@ class Pipeline:
 
     def __init__(self, encoder: Encoder, topics: Sequence[Topic], *,
                  enhancer: Enhancer | None = None, enhance_mode: str = "none", tau_ses: float = 0.7,
-                 first_image_index: int = 0, gate: FrameGate | None = None) -> None:
+                 first_image_index: int = 0, gate: FrameGate | None = None, default_tau_ss: float | None = None,
+                 default_topic: str | None = None) -> None:
         check_names([t.name for t in topics])
         if enhance_mode not in ENHANCE_MODES:
             raise UsageError(f"enhance.mode: {enhance_mode!r} is not one of {', '.join(ENHANCE_MODES)}")
@@ -134,6 +135,10 @@ class Pipeline:
         self.topics: list[Topic] = list(topics)
         """The topics followed, the default (first) one first."""
         self._sampler_args = (topics[0].sampler.k, topics[0].sampler.distance, topics[0].sampler.threshold)
+        self.default_tau_ss = topics[0].presampler.tau_ss if default_tau_ss is None else default_tau_ss
+        """tau_ss of a topic without its own (``queries.tau_ss``, then MERL_TAU_SS): a topic added live takes it."""
+        self.default_topic = topics[0].name if default_topic is None else default_topic
+        """``queries.name``: the topic of frames stored before topics existed (they carry none)."""
         self.enhancer = enhancer
         self.enhance_mode = enhance_mode
         self.tau_ses = tau_ses
@@ -157,7 +162,8 @@ class Pipeline:
 
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
         gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
-        return cls(encoder, topics, enhancer=enhancer, enhance_mode=cfg.enhance.mode,
+        return cls(encoder, topics, default_tau_ss=cfg.queries.tau_ss, default_topic=cfg.queries.name,
+                   enhancer=enhancer, enhance_mode=cfg.enhance.mode,
                    tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate)
 
     # ----- topics -------------------------------------------------------------------------------------------
@@ -199,7 +205,7 @@ class Pipeline:
         for spec in specs:
             topic = old.pop(spec.name, None)
             if topic is None:
-                topic = Topic(spec.name, PreSampler(self.encoder, spec.positive, spec.negatives, self.tau_ss),
+                topic = Topic(spec.name, PreSampler(self.encoder, spec.positive, spec.negatives, self.default_tau_ss),
                               InformativeSampler(*self._sampler_args))
             else:
                 topic.presampler.set_queries(spec.positive, spec.negatives)
@@ -219,9 +225,10 @@ class Pipeline:
 
     @tau_ss.setter
     def tau_ss(self, value: float) -> None:
-        """Every topic's threshold (live MERL_TAU_SS)."""
+        """Every topic's threshold (live MERL_TAU_SS), and that of topics added later."""
         for topic in self.topics:
             topic.presampler.tau_ss = value
+        self.default_tau_ss = self.topics[0].presampler.tau_ss  # as the pre-sampler read it (40 -> 0.4)
 
     @property
     def tau_ses(self) -> float:
@@ -254,14 +261,16 @@ class Pipeline:
         """Resume with stored summary frames (their features and image indices); new indices continue above them.
 
         Each frame goes back to its topic's summary; a frame with no topic (stored by an earlier version) belongs
-        to the default (first) topic, and a frame of a topic no longer followed is reported removed.
+        to the default topic (``queries.name``; the first topic when that one is not followed), and a frame of a
+        topic no longer followed is reported removed.
         """
         frames = sorted(frames, key=lambda f: f.image_index)
         names = {t.name for t in self.topics}
+        untagged = self.default_topic if self.default_topic in names else self.topics[0].name
         dropped = []
         by_topic: dict[str, list[SummaryFrame]] = {t.name: [] for t in self.topics}
         for frame in frames:
-            name = frame.topic or self.topics[0].name
+            name = frame.topic or untagged
             if name in names:
                 frame.topic = name
                 by_topic[name].append(frame)

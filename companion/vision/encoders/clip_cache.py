@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 from importlib import metadata
 from pathlib import Path
 
@@ -24,8 +25,16 @@ log = logging.getLogger(__name__)
 
 
 def cache_root(cache_dir: str | Path | None) -> Path:
-    """``encoder.cache_dir``, or ``~/.cache/merlion`` when unset."""
-    return Path(cache_dir).expanduser() if cache_dir else Path.home() / ".cache" / "merlion"
+    """``encoder.cache_dir``; unset: the cache directory systemd gives the service (``CacheDirectory=``, in
+    ``$CACHE_DIRECTORY``: the service user has no writable home), else ``$XDG_CACHE_HOME/merlion``, else
+    ``~/.cache/merlion``."""
+    if cache_dir:
+        return Path(cache_dir).expanduser()
+    given = os.environ.get("CACHE_DIRECTORY", "").split(":")[0]
+    if given:
+        return Path(given)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return Path(xdg) / "merlion" if xdg else Path.home() / ".cache" / "merlion"
 
 
 def _version(dist: str) -> str:
@@ -83,10 +92,18 @@ class ClipCache:
                     log.warning("ignoring unreadable cached text embedding %s: %s", path, err)
         return found
 
-    def put_text(self, text: str, embedding: np.ndarray) -> None:
+    def put_text(self, text: str, embedding: np.ndarray) -> bool:
+        """Keep one embedding for later starts; False (logged) when the cache cannot be written: the embedding
+        still serves this run, which gets it from the child's answer."""
         import io
 
-        self.text_dir.mkdir(parents=True, exist_ok=True)
-        buf = io.BytesIO()
-        np.save(buf, np.asarray(embedding, dtype=np.float32), allow_pickle=False)
-        atomic_write(self._text_file(text), buf.getvalue())
+        try:
+            self.text_dir.mkdir(parents=True, exist_ok=True)
+            buf = io.BytesIO()
+            np.save(buf, np.asarray(embedding, dtype=np.float32), allow_pickle=False)
+            atomic_write(self._text_file(text), buf.getvalue())
+        except OSError as err:
+            log.warning("CLIP query embedding not cached in %s (%s); set encoder.cache_dir to a writable folder",
+                        self.text_dir, err.strerror or err)
+            return False
+        return True

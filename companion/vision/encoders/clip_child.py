@@ -26,7 +26,11 @@ from companion.vision.encoders.peak_rss import peak_rss_mb
 log = logging.getLogger(__name__)
 
 
-def run_clip_child(request: dict, what: str) -> dict:
+CHILD_TIMEOUT_S = 900.0
+"""Longest a child may take (an export of a large tower on a slow CPU takes minutes): a hung one is killed."""
+
+
+def run_clip_child(request: dict, what: str, *, timeout_s: float = CHILD_TIMEOUT_S) -> dict:
     """Run the child on ``request`` and return its answer; its one-line error becomes a MerlionError.
 
     ``what`` says what it was for, in the log and the error ("export the image tower", "encode 2 queries").
@@ -38,9 +42,17 @@ def run_clip_child(request: dict, what: str) -> dict:
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH", "")) if p)
     start = time.monotonic()
     log.info("CLIP: starting a torch child process to %s", what)
-    proc = subprocess.run([sys.executable, "-m", "companion.vision.encoders.clip_child"], input=json.dumps(request),
-                          capture_output=True, text=True, env=env, check=False)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "companion.vision.encoders.clip_child"],
+                              input=json.dumps(request), capture_output=True, text=True, env=env, check=False,
+                              timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise MerlionError(f"CLIP {request.get('model')}: could not {what}: the torch child process did not "
+                           f"finish within {timeout_s:.0f} s and was killed") from None
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    if proc.returncode < 0:  # killed (the OOM killer, most likely): its last stderr line is not the cause
+        raise MerlionError(f"CLIP {request.get('model')}: could not {what}: the torch child process was killed "
+                           f"by signal {-proc.returncode} (out of memory?)")
     if proc.returncode != 0:
         reason = lines[-1].strip() if lines else f"exit status {proc.returncode}"
         raise MerlionError(f"CLIP {request.get('model')}: could not {what}: {reason}")
@@ -116,6 +128,8 @@ def _serve(request: dict) -> dict:
         for text, row in zip(texts, emb, strict=True):
             cache.put_text(text, row)
         answer["encoded"] = len(texts)
+        # also in the answer: a cache that cannot be written (a read-only home) must not stop the queries
+        answer["embeddings"] = {text: [float(v) for v in row] for text, row in zip(texts, emb, strict=True)}
     return answer
 
 

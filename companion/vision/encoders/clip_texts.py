@@ -54,7 +54,9 @@ class TextEmbeddings:
                                         f"encode {len(missing)} queries")
                 self.child_peak_mb = max(self.child_peak_mb, float(answer["peak_rss_mb"]))
                 self.children += 1
-                self._memory.update(self._cache.texts(missing))
+                for text, row in (answer.get("embeddings") or {}).items():
+                    self._memory[text] = np.asarray(row, dtype=np.float32)
+                self._memory.update(self._cache.texts([t for t in missing if t not in self._memory]))
                 lost = [t for t in missing if t not in self._memory]
                 if lost:
                     raise MerlionError(f"CLIP {self._cache.model}: the child process left no embedding for "

@@ -123,3 +123,31 @@ def test_an_int8_tower_leaves_none_of_the_checkpoint_resident(ckpt, tmp_path):
     enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="int8"))
     enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
     assert _resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
+
+
+def test_queries_are_served_when_the_cache_cannot_be_written(ckpt, tmp_path):
+    """The service user has no writable home (ProtectHome, no home at all): the child's answer carries the
+    embeddings, so the queries work and only the cache for later starts is missing (warned)."""
+    path, net = ckpt
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder would go: nothing can be created below it\n")
+    enc = _encoder(path, cache_dir=str(blocker / "merlion"))
+    got = enc.encode_texts(["a kelp forest", "sand"])
+    assert enc._texts.children == 1
+    with torch.inference_mode():
+        tokens = open_clip.get_tokenizer(SMALL)(["a kelp forest", "sand"])
+        ref = torch.nn.functional.normalize(net.encode_text(tokens), dim=-1).numpy()
+    np.testing.assert_allclose(got, ref, atol=1e-5)
+    np.testing.assert_array_equal(enc.encode_texts(["sand"]), got[1:])  # from memory: no second child
+    assert enc._texts.children == 1
+
+
+def test_the_cache_goes_where_systemd_or_xdg_says(monkeypatch, tmp_path):
+    from companion.vision.encoders.clip_cache import cache_root
+
+    monkeypatch.setenv("CACHE_DIRECTORY", f"{tmp_path}/svc:/other")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_root(None) == tmp_path / "svc"  # the unit's CacheDirectory=merlion
+    assert cache_root(str(tmp_path / "mine")) == tmp_path / "mine"  # encoder.cache_dir wins
+    monkeypatch.delenv("CACHE_DIRECTORY")
+    assert cache_root(None) == tmp_path / "xdg" / "merlion"

@@ -211,3 +211,49 @@ def test_score_command_gives_each_topic_from_one_pass(tmp_path):
         assert set(row["topics"]) == {"fish", "coral"}
         assert row["topics"]["fish"] == pytest.approx(one["score"], abs=1e-6)  # the default query is fish's
         assert row["score"] == pytest.approx(max(row["topics"].values()), abs=1e-6)
+
+
+def test_a_topic_added_live_takes_the_shared_threshold_as_after_a_restart(encoder):
+    """A topic without its own tau_ss gets queries.tau_ss (then MERL_TAU_SS), never the first topic's own."""
+    pipe = make(encoder, [{**FISH, "tau_ss": 0.9}, CORAL], tau=0.4)
+    assert [t.presampler.tau_ss for t in pipe.topics] == [0.9, 0.4]
+    pipe.set_topics([TopicSpec("fish", FISH["positive"], tuple(FISH["negatives"])),
+                     TopicSpec("wreck", "underwater image of a wreck")])
+    assert pipe.topic("fish").presampler.tau_ss == 0.9 and pipe.topic("wreck").presampler.tau_ss == 0.4
+    restarted = make(encoder, [{**FISH, "tau_ss": 0.9}, {"name": "wreck", "positive": "underwater image of a wreck"}],
+                     tau=0.4)
+    assert restarted.topic("wreck").presampler.tau_ss == pipe.topic("wreck").presampler.tau_ss
+    pipe.tau_ss = 30  # MERL_TAU_SS, as a percentage: every topic, and the next one added
+    pipe.set_topics([*(TopicSpec(t.name, t.presampler.positive, tuple(t.presampler.negatives)) for t in pipe.topics),
+                     TopicSpec("crab", "underwater image of a crab")])
+    assert [t.presampler.tau_ss for t in pipe.topics] == [0.3, 0.3, 0.3]
+
+
+def test_frames_stored_before_topics_go_to_the_default_topic_wherever_it_is_listed(two_topics, encoder):
+    source = two_topics[0]
+    old = [type(f)(**{**f.__dict__, "topic": ""}) for f in source.topic("fish").summary]  # no topic on disk
+    cfg = Config.model_validate({"sampler": {"k": 3}, "gate": {"mode": "none"}, "queries": {
+        "name": "main", "topics": [CORAL, {**FISH, "name": "main"}]}})
+    pipe = Pipeline.from_config(cfg, encoder)
+    assert pipe.restore(old) == []
+    assert [f.image_index for f in pipe.topic("main").summary] == [f.image_index for f in old]
+    assert pipe.topic("coral").summary == []
+
+
+def test_the_command_line_query_replaces_the_topics_a_config_lists(tmp_path):
+    import argparse
+
+    from companion.commands.overrides import put_queries_and_encoder
+    from companion.config import load_config
+
+    config = tmp_path / "vehicle.yaml"
+    config.write_text(json.dumps({"queries": {"topics": [FISH, CORAL]}}))
+    args = argparse.Namespace(query="a shipwreck", negative=None, encoder=None, topic=None)
+    over: dict = {}
+    put_queries_and_encoder(over, args)
+    cfg = load_config(config, overrides=over, environ={})
+    assert [(t.name, t.positive) for t in cfg.queries.topic_list()] == [("main", "a shipwreck")]
+    args.topic = [{"name": "wreck", "positive": "a shipwreck", "negatives": []}]  # --topic: topics again
+    over = {}
+    put_queries_and_encoder(over, args)
+    assert [t.name for t in load_config(config, overrides=over, environ={}).queries.topic_list()] == ["wreck"]
