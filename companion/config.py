@@ -70,7 +70,8 @@ class EncoderConfig(_Section):
     """Frames are downscaled to this side before encoding (None: what the model wants)."""
     cache_dir: str | None = None
     """Where CLIP's exported ONNX image towers and query embeddings are kept between starts, so a later start
-    needs no torch for them (None: ~/.cache/merlion)."""
+    needs no torch for them (None: the service's CacheDirectory, /var/cache/merlion under the shipped unit, else
+    $XDG_CACHE_HOME/merlion or ~/.cache/merlion). Unwritable: queries still work, later starts encode them again."""
 
 
 TOPIC_NAME = r"^[a-z0-9][a-z0-9_-]{0,23}$"
