@@ -151,3 +151,22 @@ def test_the_cache_goes_where_systemd_or_xdg_says(monkeypatch, tmp_path):
     assert cache_root(str(tmp_path / "mine")) == tmp_path / "mine"  # encoder.cache_dir wins
     monkeypatch.delenv("CACHE_DIRECTORY")
     assert cache_root(None) == tmp_path / "xdg" / "merlion"
+
+
+def test_weights_replaced_at_the_same_path_get_a_fresh_cache(tmp_path):
+    """A checkpoint overwritten in place (new weights, same name) must never be served the old tower or the old
+    query embeddings: the key follows the file's size and modification time."""
+    import os
+
+    from companion.vision.encoders.clip_cache import ClipCache
+
+    weights = tmp_path / "clip.pt"
+    weights.write_bytes(b"old weights")
+    old = ClipCache(tmp_path / "cache", weights, SMALL)
+    old.put_text("sand", np.ones(4, np.float32))
+    stat = weights.stat()
+    weights.write_bytes(b"new weights")  # same size: only the time tells them apart
+    os.utime(weights, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000))
+    new = ClipCache(tmp_path / "cache", weights, SMALL)
+    assert new.onnx_path != old.onnx_path and new.text_dir != old.text_dir
+    assert new.texts(["sand"]) == {} and "sand" in old.texts(["sand"])
