@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import yaml
-from pymavlink import mavftp
+from pymavlink import mavftp, mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tests.conftest import REPO
@@ -245,3 +245,19 @@ def ftp_get_json(client: mavftp.MAVFTP, remote: str, local: Path) -> dict:
             except (OSError, ValueError):
                 continue
     raise AssertionError(f"could not fetch {remote}")
+
+
+def set_param(gcs, listener: Listener, name: str, value: float, integer: bool, expect: float | None = None):
+    """PARAM_SET until the companion answers with ``expect`` (default: ``value``); returns that PARAM_VALUE."""
+    kind = mavutil.mavlink.MAV_PARAM_TYPE_INT32 if integer else mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+    want = value if expect is None else expect
+    start = len(listener.messages)
+    for _ in range(5):  # the first one may reach the hub before it knows where the companion is
+        gcs.mav.param_set_send(1, 100, name.encode(), float(value), kind)
+        try:
+            return listener.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name
+                                     and abs(m.param_value - want) < 1e-6 and m in listener.messages[start:], 5,
+                                     f"{name} echo")
+        except AssertionError:
+            continue
+    raise AssertionError(f"{name}={value} never answered with {want}")

@@ -15,36 +15,20 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pymavlink import mavftp, mavutil
+from pymavlink import mavftp
 
 from companion.storage.atomic_write import TMP_PREFIX
 from tests.companion.live_harness import (
     Companion,
-    Listener,
     ftp_get_json,
     ground_ftp,
+    set_param,
     store_summary,
     wait_until,
     write_config,
 )
 
 KEEPER = "/store/summary.json"
-
-
-def _set_param(gcs, listener: Listener, name: str, value: float, integer: bool, expect: float | None = None):
-    """PARAM_SET until the companion answers with ``expect`` (default: ``value``); returns that PARAM_VALUE."""
-    kind = mavutil.mavlink.MAV_PARAM_TYPE_INT32 if integer else mavutil.mavlink.MAV_PARAM_TYPE_REAL32
-    want = value if expect is None else expect
-    start = len(listener.messages)
-    for _ in range(5):  # the first one may reach the hub before it knows where the companion is
-        gcs.mav.param_set_send(1, 100, name.encode(), float(value), kind)
-        try:
-            return listener.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name
-                                     and abs(m.param_value - want) < 1e-6 and m in listener.messages[start:], 5,
-                                     f"{name} echo")
-        except AssertionError:
-            continue
-    raise AssertionError(f"{name}={value} never answered with {want}")
 
 
 def check_in_step(store: Path, keeper: dict) -> None:
@@ -89,7 +73,7 @@ def test_store_equals_summary_after_every_change_from_the_surface(tmp_path: Path
             assert client.process_ftp_reply("put", timeout=15).error_code == mavftp.FtpError.Success
             companion.wait_for("queries set: 'underwater image of rocks'")
         else:
-            _set_param(gcs, listener, name, value, integer=name != "MERL_TAU_SS")
+            set_param(gcs, listener, name, value, integer=name != "MERL_TAU_SS")
         if name == "MERL_K":
             wait_until(lambda v=value: len(store_summary(store).get("summary", [])) <= v, 10, f"K={value} on disk")
         # frames keep flowing: wait for at least one more event after the change, then compare

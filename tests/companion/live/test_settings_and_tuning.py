@@ -18,8 +18,7 @@ from pymavlink import mavutil
 
 from companion.storage.params_file import FILE_VERSION
 from companion.storage.store import FORMAT_VERSION
-from tests.companion.live.test_one_writer import _set_param, dive  # noqa: F401 - dive is a fixture
-from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
+from tests.companion.live_harness import Companion, set_param, store_summary, wait_until, write_config
 from tests.conftest import run_merlion
 
 
@@ -54,7 +53,7 @@ def test_an_older_params_file_is_migrated_and_its_values_applied(tmp_path: Path,
     gcs.mav.param_request_read_send(1, 100, b"MERL_K", -1)
     assert listener.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MERL_K", 10,
                              "MERL_K").param_value == 3
-    _set_param(gcs, listener, "MERL_K", 4, integer=True)  # the next save writes the current version
+    set_param(gcs, listener, "MERL_K", 4, integer=True)  # the next save writes the current version
     wait_until(lambda: json.loads((store / "params.json").read_text())["version"] == FILE_VERSION, 10,
                "params.json saved in the current version")
     assert companion.terminate() == 0, companion.output
@@ -74,7 +73,7 @@ def test_merl_enhance_is_refused_with_a_reason_when_no_enhancer_is_loaded(tmp_pa
     companion = Companion("--config", str(cfg))
     companion.wait_for("companion running")
     assert json.loads((store / "params.json").read_text())["params"]["MERL_ENHANCE"] == 0, "saved as in force"
-    _set_param(gcs, listener, "MERL_ENHANCE", 1, integer=True, expect=0)  # a refused value is not taken
+    set_param(gcs, listener, "MERL_ENHANCE", 1, integer=True, expect=0)  # a refused value is not taken
     text = listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "MERL_ENHANCE" in m.text, 10, "the reason")
     assert text.text == "MERL_ENHANCE refused: enhance.mode is none"
     assert text.severity == mavutil.mavlink.MAV_SEVERITY_WARNING
@@ -101,9 +100,9 @@ def test_merl_enhance_switches_enhancement_in_mode_always(tmp_path: Path, dive) 
     companion = Companion("--config", str(cfg))
     companion.wait_for("companion running")
     wait_until(lambda: newest_enhanced() is True, 60, "an enhanced frame stored")
-    _set_param(gcs, listener, "MERL_ENHANCE", 0, integer=True)
+    set_param(gcs, listener, "MERL_ENHANCE", 0, integer=True)
     wait_until(lambda: newest_enhanced() is False, 60, "a frame stored as captured")
-    _set_param(gcs, listener, "MERL_ENHANCE", 1, integer=True)
+    set_param(gcs, listener, "MERL_ENHANCE", 1, integer=True)
     wait_until(lambda: newest_enhanced() is True, 60, "an enhanced frame again")
     assert companion.terminate() == 0, companion.output
     assert "refused" not in companion.output
