@@ -281,7 +281,8 @@ class ClipEncoder(Encoder):
         pcfg = open_clip.get_model_preprocess_cfg(self._model)
         self._dim = int(getattr(self._model.visual, "output_dim", 0)) or None
         self.preprocess = ClipPreprocess(pcfg)
-        self._texts = TextEmbeddings(ClipCache(cache_root(cfg.cache_dir), self._weights.path, cfg.model),
+        self._texts = TextEmbeddings(ClipCache(cache_root(cfg.cache_dir), self._weights.path, cfg.model,
+                                               self._weights.preprocess),
                                      self._weights)
         self._batch = cfg.batch
         log.info("CLIP %s loaded from %s (%s) on %s, %s", cfg.model, self._weights.path, self._weights.source,

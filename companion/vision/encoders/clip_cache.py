@@ -54,8 +54,13 @@ def weights_identity(path: Path) -> str:
 class ClipCache:
     """The cached artefacts of one (weights, architecture) pair under ``root``."""
 
-    def __init__(self, root: Path, weights: Path, model: str) -> None:
-        key = "|".join((weights_identity(weights), model, _version("torch"), _version("open_clip_torch")))
+    def __init__(self, root: Path, weights: Path, model: str, preprocess: dict | None = None) -> None:
+        """``preprocess``: a pretrained tag's overrides of the architecture's preprocessing (mean, std, ...): the
+        same file reached through a tag that declares others must not get the other's tower manifest."""
+        parts = [weights_identity(weights), model, _version("torch"), _version("open_clip_torch")]
+        if preprocess:  # absent for a plain file: caches made before this keep their key
+            parts.append(json.dumps(preprocess, sort_keys=True))
+        key = "|".join(parts)
         digest = hashlib.sha256(key.encode()).hexdigest()[:16]
         self.root = root
         self.model = model

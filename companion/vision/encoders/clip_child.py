@@ -101,7 +101,7 @@ def _serve(request: dict) -> dict:
                                   preprocess=known.get("preprocess") or {})
     else:
         weights = resolve_clip_weights(model_name, request.get("weights"), request.get("pretrained"))
-    cache = ClipCache(cache_root(request.get("cache_dir")), weights.path, model_name)
+    cache = ClipCache(cache_root(request.get("cache_dir")), weights.path, model_name, weights.preprocess)
     answer: dict = {"weights": str(weights.path), "source": weights.source, "preprocess": weights.preprocess,
                     "exported": False, "encoded": 0}
     if request.get("export") and not cache.has_tower():

@@ -83,7 +83,7 @@ class OnnxClipEncoder(Encoder):
 
         self._exported = False
         self._weights = self._resolve()
-        self._cache = ClipCache(self._root, self._weights.path, cfg.model)
+        self._cache = ClipCache(self._root, self._weights.path, cfg.model, self._weights.preprocess)
         if not self._cache.has_tower():
             self._child({"export": True, **resolved_request(self._weights)}, "export the image tower to ONNX")
         self.cached = not self._exported

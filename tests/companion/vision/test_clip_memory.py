@@ -170,3 +170,16 @@ def test_weights_replaced_at_the_same_path_get_a_fresh_cache(tmp_path):
     new = ClipCache(tmp_path / "cache", weights, SMALL)
     assert new.onnx_path != old.onnx_path and new.text_dir != old.text_dir
     assert new.texts(["sand"]) == {} and "sand" in old.texts(["sand"])
+
+
+def test_a_tag_declaring_other_preprocessing_gets_its_own_cache_for_the_same_file(tmp_path):
+    from companion.vision.encoders.clip_cache import ClipCache
+
+    weights = tmp_path / "clip.pt"
+    weights.write_bytes(b"weights")
+    plain = ClipCache(tmp_path / "cache", weights, SMALL)
+    tagged = ClipCache(tmp_path / "cache", weights, SMALL, {"mean": [0.5, 0.5, 0.5], "std": [0.5, 0.5, 0.5]})
+    again = ClipCache(tmp_path / "cache", weights, SMALL, {"std": (0.5, 0.5, 0.5), "mean": (0.5, 0.5, 0.5)})
+    assert tagged.manifest_path != plain.manifest_path and tagged.text_dir != plain.text_dir
+    assert again.manifest_path == tagged.manifest_path  # the same overrides, whatever their order or JSON form
+    assert ClipCache(tmp_path / "cache", weights, SMALL, {}).manifest_path == plain.manifest_path
