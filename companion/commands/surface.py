@@ -8,7 +8,8 @@ import signal
 import socket
 import threading
 
-from companion.errors import MerlionError, UsageError
+from companion.commands.arg_checks import check_station_ids, companion_ids, require_positive
+from companion.errors import MerlionError
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
 from companion.topside.web import WebServer
@@ -16,16 +17,6 @@ from vehicle.link.connection import parse_connection
 from vehicle.link.signing import load_key
 
 log = logging.getLogger("merlion.surface")
-
-
-def _ids(text: str) -> tuple[int, int]:
-    try:
-        system, component = (int(p) for p in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected SYSTEM:COMPONENT such as 1:100, got {text!r}") from None
-    if not (1 <= system <= 255 and 1 <= component <= 255):
-        raise argparse.ArgumentTypeError(f"ids must be 1-255, got {text!r}")
-    return system, component
 
 
 def register(add_command) -> None:
@@ -38,7 +29,7 @@ def register(add_command) -> None:
     p.add_argument("--web-host", default="127.0.0.1", help="address the page listens on (default 127.0.0.1, this "
                    "machine only; 0.0.0.0 for every interface: changes still need the printed URL's token)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests, demos)")
-    p.add_argument("--companion", type=_ids, metavar="SYS:COMP",
+    p.add_argument("--companion", type=companion_ids, metavar="SYS:COMP",
                    help="the companion's ids (default: the camera component that sends captures)")
     p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254, never "
                                                              "255: that is the pilot's GCS)")
@@ -52,14 +43,9 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not 1 <= args.system_id <= 254:
-        raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the pilot's ground station)")
-    if not 1 <= args.component_id <= 255:
-        raise UsageError(f"--component-id {args.component_id}: must be 1-255")
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: must be positive")
-    if args.push_timeout <= 0:
-        raise UsageError(f"--push-timeout {args.push_timeout}: must be positive")
+    check_station_ids(args.system_id, args.component_id)
+    require_positive("--duration", args.duration)
+    require_positive("--push-timeout", args.push_timeout)
     check_port_free(args.connect)
     if args.signing_key:  # before the gallery folder is made
         load_key(args.signing_key)

@@ -7,7 +7,7 @@ import logging
 
 from pymavlink import mavutil
 
-from companion.commands.surface import _ids
+from companion.commands.arg_checks import check_station_ids, companion_ids, require_positive
 from companion.errors import UsageError
 from companion.topside.marks_upload import upload_marks
 from vehicle.link.signing import load_key
@@ -23,7 +23,7 @@ def register(add_command) -> None:
     p.add_argument("--unlike", type=int, action="append", default=[], metavar="INDEX",
                    help="image index of a frame not wanted (repeatable)")
     p.add_argument("--clear", action="store_true", help="remove every mark (score by the query alone)")
-    p.add_argument("--companion", type=_ids, default=(1, 100), metavar="SYS:COMP",
+    p.add_argument("--companion", type=companion_ids, default=(1, 100), metavar="SYS:COMP",
                    help="the companion's ids (default 1:100)")
     p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254)")
     p.add_argument("--component-id", type=int, default=191, help="this tool's MAVLink component id (default 191)")
@@ -40,10 +40,8 @@ def run(args: argparse.Namespace) -> int:
     bad = [i for i in args.like + args.unlike if i < 0]
     if bad:
         raise UsageError(f"surface-mark: image index {bad[0]} is negative")
-    if not 1 <= args.system_id <= 254:
-        raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the pilot's ground station)")
-    if args.timeout <= 0:
-        raise UsageError(f"--timeout {args.timeout}: must be positive")
+    check_station_ids(args.system_id, args.component_id)
+    require_positive("--timeout", args.timeout)
     key = load_key(args.signing_key) if args.signing_key else None
     conn = mavutil.mavlink_connection(args.connect, source_system=args.system_id,
                                       source_component=args.component_id, dialect="ardupilotmega")

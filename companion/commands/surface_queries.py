@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 
+from companion.commands.arg_checks import check_station_ids, companion_ids, require_positive
 from companion.commands.overrides import topic_option
-from companion.commands.surface import _ids
 from companion.config import MavlinkConfig
 from companion.errors import MerlionError, UsageError
 from companion.topside.queries_upload import queries_from_file, queries_from_options, upload_queries
@@ -27,7 +27,7 @@ def register(add_command) -> None:
                         "--topic 'fish=underwater image with fish;underwater image without fish'")
     p.add_argument("--connect", default="udpout:127.0.0.1:14550",
                    help="pymavlink connection string to the vehicle's MAVLink router (default udpout:127.0.0.1:14550)")
-    p.add_argument("--companion", type=_ids, default=(1, 100), metavar="SYS:COMP",
+    p.add_argument("--companion", type=companion_ids, default=(1, 100), metavar="SYS:COMP",
                    help="the companion's ids (default 1:100)")
     p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254)")
     p.add_argument("--component-id", type=int, default=192, help="this tool's MAVLink component id (default 192)")
@@ -39,12 +39,8 @@ def register(add_command) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.file is not None and (args.query is not None or args.topic or args.negative):
         raise UsageError(f"surface-queries: give FILE ({args.file}) or --query/--topic, not both")
-    if not 1 <= args.system_id <= 254:
-        raise UsageError(f"--system-id {args.system_id}: must be 1-254 (255 is the pilot's ground station)")
-    if not 1 <= args.component_id <= 255:
-        raise UsageError(f"--component-id {args.component_id}: must be 1-255")
-    if args.timeout <= 0:
-        raise UsageError(f"--timeout {args.timeout}: must be positive")
+    check_station_ids(args.system_id, args.component_id)
+    require_positive("--timeout", args.timeout)
     if args.file is not None:
         data = queries_from_file(args.file)
     else:
