@@ -176,9 +176,6 @@ class OnnxClipEncoder(Encoder):
     def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         return positive_share(image_embeddings, text_embeddings)
 
-    def sampler_features(self, image_embeddings: np.ndarray) -> np.ndarray:
-        return image_embeddings
-
     def describe(self) -> dict:
         return {"name": self.name, "model": self._cfg.model, "weights": str(self._weights.path),
                 "weights_source": self._weights.source, "precision": self.precision, "runtime": "onnx",
