@@ -126,7 +126,7 @@ class LiveCompanion:
         factory = self.options.make_encoder
         if factory is None:
             from companion.vision.encoders.factory import make_encoder as factory
-        from companion.live.counted_encoder import CountedEncoder
+        from companion.vision.encoders.counted import CountedEncoder
 
         self.encoder = CountedEncoder(factory(self.cfg.encoder))  # counted: one pass serves every topic
         cfg = self.cfg

@@ -54,9 +54,9 @@ def test_merl_gate_is_the_threshold_and_zero_means_off():
 def test_selective_enhancement_is_gated_too_enhancer_on_or_off(tmp_path):
     """enhance.mode selective: the gate runs ahead of the raw scoring (only admitted frames are encoded and can
     become candidates) and, with MERL_ENHANCE 0, ahead of the pipeline the frames then go straight to."""
-    from companion.live.counted_encoder import CountedEncoder
     from companion.live.enhance_worker import SelectiveStage
     from companion.live.raw_gate import RawGate
+    from companion.vision.encoders.counted import CountedEncoder
     from companion.vision.gate import FrameGate
     from companion.vision.topics import TopicSpec
 

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from companion.config import Config, EncoderConfig
-from companion.live.counted_encoder import CountedEncoder
 from companion.live.enhance_worker import SelectiveStage
 from companion.live.raw_gate import RawGate
 from companion.sources.video import VideoSource
+from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.encoders.visual import VisualEncoder
 from companion.vision.pipeline import Pipeline

@@ -14,6 +14,7 @@ import pytest
 from companion.config import Config, EncoderConfig, build_config
 from companion.errors import UsageError
 from companion.sources.video import VideoSource
+from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.pipeline import Pipeline
 from companion.vision.topics import TopicSpec
@@ -21,23 +22,6 @@ from tests.conftest import run_merlion, shared_file
 
 FISH = {"name": "fish", "positive": "underwater image with fish", "negatives": ["underwater image without fish"]}
 CORAL = {"name": "coral", "positive": "underwater image of a coral reef", "negatives": []}
-
-
-class CountingEncoder:
-    """The packaged encoder, counting the images handed to it (one call per batch, one image per frame)."""
-
-    def __init__(self, inner) -> None:
-        self.inner = inner
-        self.calls = 0
-        self.images = 0
-
-    def encode_images(self, images):
-        self.calls += 1
-        self.images += len(images)
-        return self.inner.encode_images(images)
-
-    def __getattr__(self, name):
-        return getattr(self.inner, name)
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +55,7 @@ def held_frames(pipe, name):
 
 @pytest.fixture(scope="module")
 def two_topics(encoder, frames):
-    counting = CountingEncoder(encoder)
+    counting = CountedEncoder(encoder)
     pipe = make(counting, [FISH, CORAL])
     results, events = run(pipe, frames)
     return pipe, results, events, counting

@@ -1,4 +1,4 @@
-"""The live companion's encoder, counting the images it encodes.
+"""An encoder that counts the images it encodes (the live companion's, and tests').
 
 The encoder is the expensive part of a frame's way through the companion, and several topics are served by one
 pass of it (issue 13 item 4). Counting at the encoder itself, rather than trusting what the pipeline says it
