@@ -19,15 +19,6 @@ SMALL = "ViT-S-32-alt"
 QUERIES = ["a coral reef", "sand", "open water"]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _cache_in_tmp(tmp_path_factory):
-    """Query embeddings are cached between starts: keep the tests' out of the user's cache (one per module, so
-    the queries several tests ask are encoded by one child process)."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("HOME", str(tmp_path_factory.mktemp("home")))  # the default encoder.cache_dir, ~/.cache/merlion
-        yield
-
-
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory) -> tuple[str, torch.nn.Module]:
     torch.manual_seed(1)

@@ -30,15 +30,6 @@ from tests.conftest import free_tcp_port, run_merlion, shared_file
 SMALL = "ViT-S-32-alt"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _cache_in_tmp(tmp_path_factory):
-    """Query embeddings are cached between starts: keep the tests' out of the user's cache (one per module, so
-    the queries several tests ask are encoded by one child process)."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("HOME", str(tmp_path_factory.mktemp("home")))  # the default encoder.cache_dir, ~/.cache/merlion
-        yield
-
-
 def _save_random(model: str, path) -> tuple[str, torch.nn.Module]:
     torch.manual_seed(0)
     net = open_clip.create_model(model, pretrained=None)
@@ -62,15 +53,6 @@ def small_fp32(small_ckpt) -> ClipEncoder:
 @pytest.fixture(scope="module")
 def b32(tmp_path_factory) -> tuple[str, torch.nn.Module]:
     return _save_random("ViT-B-32", tmp_path_factory.mktemp("clip") / "vit_b32.pt")
-
-
-@pytest.fixture(scope="module")
-def images() -> list[np.ndarray]:
-    """Real frames of several shapes: 4:3, near-square, 16:9, portrait, and one smaller than the model input."""
-    suim = cv2.imread(str(shared_file("suim/images/f_r_1965_.jpg")))
-    square = cv2.imread(str(shared_file("suim/images/d_r_47_.jpg")))
-    wide = cv2.imread(str(shared_file("aquarium_fish/frames/000001.jpg")))
-    return [suim, square, wide, np.ascontiguousarray(wide[:, 300:600]), cv2.resize(suim, (160, 120))]
 
 
 def _spread_queries(encoder: ClipEncoder, images: list[np.ndarray]) -> np.ndarray:

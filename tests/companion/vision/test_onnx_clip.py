@@ -31,14 +31,6 @@ QUERIES = ["underwater image with fish", "underwater image without fish"]
 REPO = Path(__file__).resolve().parents[3]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _cache_in_tmp(tmp_path_factory):
-    """Encoders built with the default encoder.cache_dir (~/.cache/merlion) write into a temporary HOME."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("HOME", str(tmp_path_factory.mktemp("home")))
-        yield
-
-
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory) -> str:
     torch.manual_seed(3)
@@ -74,15 +66,6 @@ def open_clip_texts(ckpt: str, texts: list[str]) -> np.ndarray:
     with torch.inference_mode():
         emb = net.encode_text(open_clip.get_tokenizer(SMALL)(texts))
     return torch.nn.functional.normalize(emb, dim=-1).numpy()
-
-
-@pytest.fixture(scope="module")
-def images() -> list[np.ndarray]:
-    """Real frames of several shapes: 4:3, near-square, 16:9, portrait, and one smaller than the model input."""
-    suim = cv2.imread(str(shared_file("suim/images/f_r_1965_.jpg")))
-    square = cv2.imread(str(shared_file("suim/images/d_r_47_.jpg")))
-    wide = cv2.imread(str(shared_file("aquarium_fish/frames/000001.jpg")))
-    return [suim, square, wide, np.ascontiguousarray(wide[:, 300:600]), cv2.resize(suim, (160, 120))]
 
 
 def test_numpy_preprocessing_equals_open_clip_s_transform(images):
