@@ -8,19 +8,13 @@ runs it end to end against a real `merlion run` and a real `merlion surface`.
 
 from __future__ import annotations
 
-import json
-import os
-import re
-import subprocess
-import sys
-import urllib.request
-
 import pytest
 
 from companion.config import SurfaceConfig
 from companion.live.udp_hub import UdpHub
 from tests.companion.live_harness import FAST_SOURCE, Companion, wait_until, write_config
-from tests.conftest import REPO, free_udp_port, run_merlion
+from tests.companion.topside.live_page import page_state, surface_with_page
+from tests.conftest import free_udp_port, run_merlion
 from tests.vehicle.surface_env import companion_link
 from vehicle.camera.downlink import QUERIES_PATH, Downlink
 from vehicle.protocol.queries import QueryTopic
@@ -167,39 +161,27 @@ def test_topics_from_the_surface_reach_a_live_companion_and_the_surface_tool(tmp
     gallery lists them, with frames of each topic in its summary."""
     web_port = free_udp_port()
     hub = UdpHub(outputs=[("127.0.0.1", web_port)]).start()
-    tool = None
     try:
         cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(tmp_path / "store")},
                            sampler={"k": 2}, source={"uri": FAST_SOURCE, "fps": 10, "realtime": True, "loop": True},
                            surface={"ftp_writable": True, "budget_bytes_per_s": 40000})
         companion = Companion("--config", str(cfg))
         companion.wait_for("companion running")
-        tool = subprocess.Popen(
-            [sys.executable, "-m", "companion", "surface", "--connect", f"udpin:127.0.0.1:{web_port}", "--out",
-             str(tmp_path / "gallery"), "--web", "0", "--duration", "120"],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
-        match = re.search(r"live page at http://127\.0\.0\.1:(\d+)/", tool.stdout.readline())
-        assert match
-        done = run_merlion("surface-queries", "--connect", hub.url, "--timeout", "30",
-                           "--topic", "fish=underwater image with fish;underwater image without fish",
-                           "--topic", "coral=underwater image of a coral reef;underwater image of sand", timeout=90)
-        assert done.returncode == 0, done.stderr
-        assert done.stdout.strip() == "merlion surface-queries: 1:100 says: Topics set: fish, coral"
-        companion.wait_for("topics set: fish=")
+        with surface_with_page(tmp_path / "gallery", web_port, duration=120) as tool:
+            done = run_merlion("surface-queries", "--connect", hub.url, "--timeout", "30",
+                               "--topic", "fish=underwater image with fish;underwater image without fish",
+                               "--topic", "coral=underwater image of a coral reef;underwater image of sand",
+                               timeout=90)
+            assert done.returncode == 0, done.stderr
+            assert done.stdout.strip() == "merlion surface-queries: 1:100 says: Topics set: fish, coral"
+            companion.wait_for("topics set: fish=")
 
-        def state() -> dict:
-            with urllib.request.urlopen(f"http://127.0.0.1:{match.group(1)}/api/state", timeout=5) as r:
-                return json.load(r)
+            def both_topics() -> bool:
+                s = page_state(tool.web)
+                return ([t["name"] for t in s["topics"]] == ["fish", "coral"]
+                        and {f["topic"] for f in s["summary"]} == {"fish", "coral"})
 
-        def both_topics() -> bool:
-            s = state()
-            return ([t["name"] for t in s["topics"]] == ["fish", "coral"]
-                    and {f["topic"] for f in s["summary"]} == {"fish", "coral"})
-
-        wait_until(both_topics, 60, "the surface tool's summary holding frames of both topics")
-        assert companion.terminate() == 0, companion.output
+            wait_until(both_topics, 60, "the surface tool's summary holding frames of both topics")
+            assert companion.terminate() == 0, companion.output
     finally:
-        if tool is not None:
-            tool.terminate()
-            tool.wait(30)
         hub.stop()

@@ -8,23 +8,18 @@ Where Chromium is installed, the buttons on the cards are clicked as an operator
 from __future__ import annotations
 
 import json
-import os
-import re
-import subprocess
-import sys
 import urllib.error
 import urllib.request
 
 import pytest
 
-from companion.config import MavlinkConfig, SurfaceConfig
+from companion.config import SurfaceConfig
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.companion.topside.browser import Page, chromium_or_skip
-from tests.conftest import REPO, free_udp_port, run_merlion
+from tests.companion.topside.live_page import companion_downlink, page_state, surface_with_page
+from tests.conftest import free_udp_port, run_merlion
 from tests.waiting import wait_until
-from vehicle.camera.downlink import Downlink
-from vehicle.link.connection import MavLink
 
 
 def _post(url: str, body: dict, token: str | None) -> tuple[int, dict]:
@@ -39,29 +34,14 @@ def _post(url: str, body: dict, token: str | None) -> tuple[int, dict]:
         return err.code, json.loads(err.read() or b"{}")
 
 
-def _state(port: int) -> dict:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as r:
-        return json.load(r)
-
-
 @pytest.fixture
 def surface_and_companion(tmp_path):
     """`merlion surface --web 0` and a companion Downlink holding frames 5 and 6; yields (page url, web port,
     marks the companion accepted)."""
     port = free_udp_port()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "companion", "surface", "--connect", f"udpin:127.0.0.1:{port}", "--out",
-         str(tmp_path / "gallery"), "--web", "0", "--duration", "90"],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ),
-    )
-    link = surface = None
-    try:
-        line = proc.stdout.readline()
-        match = re.search(r"live page at (http://127\.0\.0\.1:(\d+)/\?token=(\S+))", line)
-        assert match, line
-        link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
-        link.start()
-        surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=20000, ftp_writable=True))
+    with surface_with_page(tmp_path / "gallery", port) as shown, \
+            companion_downlink(port, SurfaceConfig(budget_bytes_per_s=20000, ftp_writable=True),
+                               start=False) as surface:
         accepted: list[tuple[list[int], list[int]]] = []
 
         def on_marks(like: list[int], unlike: list[int]) -> None:
@@ -71,19 +51,12 @@ def surface_and_companion(tmp_path):
 
         surface.on_marks_changed(on_marks)
         surface.start()
-        web = int(match.group(2))
-        assert wait_until(lambda: _state(web)["companion"]["id"] == [1, 100], 15)
+        web = shown.web
+        assert wait_until(lambda: page_state(web)["companion"]["id"] == [1, 100], 15)
         surface.publish(SummaryEvent("added", summary_frame(5), summary=[5]))
         surface.publish(SummaryEvent("added", summary_frame(6), summary=[5, 6]))
-        assert wait_until(lambda: [f["image_index"] for f in _state(web)["summary"]] == [6, 5], 30)
-        yield match.group(1), web, match.group(3), accepted
-    finally:
-        if surface is not None:
-            surface.stop()
-        if link is not None:
-            link.stop()
-        proc.terminate()
-        proc.wait(30)
+        assert wait_until(lambda: [f["image_index"] for f in page_state(web)["summary"]] == [6, 5], 30)
+        yield shown.url, web, shown.token, accepted
 
 
 def test_a_post_marks_frames_on_the_companion_and_needs_the_token(surface_and_companion):
@@ -101,7 +74,7 @@ def test_a_post_marks_frames_on_the_companion_and_needs_the_token(surface_and_co
     assert status == 400 and "marks not set: refused" in answer["error"], answer
     status, answer = _post(url, {"index": 5, "kind": "maybe"}, token)
     assert status == 400 and "expected like, unlike or none" in answer["error"]
-    assert _state(web)["marks"] == {"like": [6], "unlike": [5]}
+    assert page_state(web)["marks"] == {"like": [6], "unlike": [5]}
     status, answer = _post(url, {"index": 6, "kind": "none"}, token)
     assert status == 200 and accepted[-1] == ([], [5])
 

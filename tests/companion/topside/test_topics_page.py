@@ -9,31 +9,20 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import re
-import subprocess
-import sys
-import urllib.request
 
-from companion.config import MavlinkConfig, SurfaceConfig
+from companion.config import SurfaceConfig
 from companion.topside.offline_page import write_offline_page
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.companion.topside.browser import Page, chromium_or_skip
-from tests.conftest import REPO, free_udp_port
+from tests.companion.topside.live_page import companion_downlink, page_state, surface_with_page
+from tests.conftest import free_udp_port
 from tests.waiting import wait_until
-from vehicle.camera.downlink import Downlink
-from vehicle.link.connection import MavLink
 from vehicle.protocol.queries import QueryTopic
 
 FISH = QueryTopic("fish", "underwater image with fish", ("underwater image without fish",))
 CORAL = QueryTopic("coral", "underwater image of a coral reef", ("underwater image of sand",))
 SECTION = "document.querySelector('#gallery section.topic[data-topic=\"{}\"]')"
-
-
-def _state(port: int) -> dict:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as r:
-        return json.load(r)
 
 
 def _cards(page: Page, topic: str) -> list[str]:
@@ -48,33 +37,21 @@ def test_two_topics_show_as_two_sections_and_a_new_capture_lands_in_its_own(tmp_
     chromium_or_skip()
     port = free_udp_port()
     out = tmp_path / "gallery"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "companion", "surface", "--connect", f"udpin:127.0.0.1:{port}", "--out", str(out),
-         "--web", "0", "--duration", "90"],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ),
-    )
-    link = surface = None
-    try:
-        line = proc.stdout.readline()
-        match = re.search(r"live page at (http://127\.0\.0\.1:(\d+)/\?token=\S+)", line)
-        assert match, line
-        page_url, web = match.group(1), int(match.group(2))
-        link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
-        link.start()
-        surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=20000), queries=[FISH, CORAL])
-        surface.start()
-        assert wait_until(lambda: _state(web)["companion"]["id"] == [1, 100], 15)
+    with surface_with_page(out, port) as shown, \
+            companion_downlink(port, SurfaceConfig(budget_bytes_per_s=20000), queries=[FISH, CORAL]) as surface:
+        proc, page_url, web = shown.proc, shown.url, shown.web
+        assert wait_until(lambda: page_state(web)["companion"]["id"] == [1, 100], 15)
         surface.publish(SummaryEvent("added", _frame(5, "fish", 10.0), summary=[5]))
         surface.publish(SummaryEvent("added", _frame(6, "coral", 11.0), summary=[5, 6]))
         surface.publish(SummaryEvent("added", _frame(7, "fish", 12.0), summary=[5, 6, 7]))
 
         def ready() -> bool:
-            s = _state(web)
+            s = page_state(web)
             return ([t["name"] for t in s["topics"]] == ["fish", "coral"]
                     and {f["image_index"]: f["topic"] for f in s["summary"]} == {5: "fish", 6: "coral", 7: "fish"}
                     and all(f["thumbnail"] for f in s["summary"]))
 
-        assert wait_until(ready, 30), _state(web)
+        assert wait_until(ready, 30), page_state(web)
         with Page(page_url) as page:
             assert page.wait_for("document.querySelectorAll('#gallery section.topic').length == 2"
                                  " && document.querySelectorAll('#gallery figure.frame img').length == 3")
@@ -89,24 +66,16 @@ def test_two_topics_show_as_two_sections_and_a_new_capture_lands_in_its_own(tmp_
             page.evaluate("window.notReloaded = true")
             surface.publish(SummaryEvent("added", _frame(8, "coral", 13.0), summary=[5, 6, 7, 8]))
             assert page.wait_for(f"{SECTION.format('coral')}.querySelector('figure.frame[data-index=\"8\"] img')"
-                                 " !== null", 30), _state(web)
+                                 " !== null", 30), page_state(web)
             assert _cards(page, "coral") == ["8", "6"] and _cards(page, "fish") == ["7", "5"]
             surface.publish(SummaryEvent("added", _frame(9, "fish", 14.0), summary=[5, 6, 7, 8, 9]))
             assert page.wait_for(f"{SECTION.format('fish')}.querySelector('figure.frame[data-index=\"9\"] img')"
-                                 " !== null", 30), _state(web)
+                                 " !== null", 30), page_state(web)
             assert page.evaluate("window.notReloaded === true")
             # the marks buttons are still on every card (they teach the marked frame's topic on board)
             assert page.evaluate("document.querySelectorAll('#gallery figure.frame button.mark.like').length") == 5
         proc.terminate()
         stdout, _ = proc.communicate(timeout=30)
-    finally:
-        if surface is not None:
-            surface.stop()
-        if link is not None:
-            link.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert "5 frames in the summary (fish 3, coral 2), 5 with thumbnails" in stdout, stdout
     doc = json.loads((out / "gallery.json").read_text())
     assert [t["name"] for t in doc["topics"]] == ["fish", "coral"]

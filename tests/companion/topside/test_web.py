@@ -8,58 +8,38 @@ import os
 import re
 import signal
 import socket
-import subprocess
-import sys
 import urllib.error
 import urllib.request
 
 import pytest
 
-from companion.config import MavlinkConfig, SurfaceConfig
+from companion.config import SurfaceConfig
 from companion.vision.events import SummaryEvent
 from tests.companion.surface_peer import summary_frame
 from tests.companion.topside.browser import Page, chromium_or_skip
-from tests.conftest import REPO, free_udp_port, run_merlion
+from tests.companion.topside.live_page import companion_downlink, page_state, surface_with_page
+from tests.conftest import free_udp_port, run_merlion
 from tests.waiting import wait_until
 from vehicle.camera import status as st
-from vehicle.camera.downlink import Downlink
-from vehicle.link.connection import MavLink
 
 DIVE = "5e1f0c2a"
-
-
-def _state(port: int) -> dict:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as r:
-        return json.load(r)
 
 
 def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
     chromium_or_skip()
     port = free_udp_port()
     out = tmp_path / "gallery"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "companion", "surface", "--connect", f"udpin:127.0.0.1:{port}", "--out", str(out),
-         "--web", "0", "--web-host", "127.0.0.1", "--duration", "120", "--push-timeout", "3"],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ),
-    )
-    link = surface = None
-    try:
-        line = proc.stdout.readline()
-        match = re.search(r"live page at (http://127\.0\.0\.1:(\d+)/\?token=\S+)", line)
-        assert match, line + proc.stderr.read() if proc.poll() is not None else line
-        page_url, web = match.group(1), int(match.group(2))
-        # the real companion side: its MAVLink link and Downlink
-        link = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="companion")
-        link.start()
-        surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=6000), dive=DIVE)  # 3x the default: a quicker full frame
-        surface.start()
+    # the real companion side, its MAVLink link and Downlink: 3x the default budget, for a quicker full frame
+    with surface_with_page(out, port, "--web-host", "127.0.0.1", "--push-timeout", "3", duration=120) as shown, \
+            companion_downlink(port, SurfaceConfig(budget_bytes_per_s=6000), dive=DIVE) as surface:
+        proc, page_url, web = shown.proc, shown.url, shown.web
         frames = {5: summary_frame(5, depth=21.4, yaw_deg=135, score=0.88),
                   6: summary_frame(6, depth=22.6, yaw_deg=270, score=0.77),
                   7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66),
                   8: summary_frame(8, depth=24.2, yaw_deg=45, score=0.71)}
         frames[8] = dataclasses.replace(frames[8], pose=dataclasses.replace(frames[8].pose, lat=1.26440,
                                                                              lon=103.82220))
-        assert wait_until(lambda: _state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
+        assert wait_until(lambda: page_state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
         surface.publish(SummaryEvent("added", frames[5], summary=[5]))
         surface.publish(SummaryEvent("added", frames[6], summary=[5, 6]))
         surface.publish(SummaryEvent("added", frames[7], summary=[5, 6, 7]))
@@ -68,14 +48,14 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         surface.event("Camera lost, retrying", st.WARNING)
 
         def ready() -> bool:
-            s = _state(web)
+            s = page_state(web)
             return [f["image_index"] for f in s["summary"]] == [6, 5] and all(
                 f["thumbnail"] and f["score"] is not None for f in s["summary"])
 
-        assert wait_until(ready, 30), _state(web)
+        assert wait_until(ready, 30), page_state(web)
         # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
-        assert wait_until(lambda: _state(web)["link"]["verified"] >= 2, 20), _state(web)["link"]
-        assert _state(web)["link"]["mismatched"] == 0
+        assert wait_until(lambda: page_state(web)["link"]["verified"] >= 2, 20), page_state(web)["link"]
+        assert page_state(web)["link"]["mismatched"] == 0
         with Page(page_url) as page:
             # thumbnails really decode in the browser, newest first, each with its depth tag and dive
             loaded = ("[...document.querySelectorAll('#gallery figure.frame img')]"
@@ -134,14 +114,6 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
                 urllib.request.urlopen(f"http://127.0.0.1:{web}/{bad}", timeout=5)
         proc.send_signal(signal.SIGTERM)
         stdout, stderr = proc.communicate(timeout=20)
-    finally:
-        if surface is not None:
-            surface.stop()
-        if link is not None:
-            link.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, stderr
     assert "3 frames in the summary, 3 with thumbnails" in stdout
     assert json.loads((out / "gallery.json").read_text())["summary"] == [5, 6, 8]
