@@ -8,7 +8,8 @@ import signal
 import socket
 import threading
 
-from companion.commands.arg_checks import check_station_ids, companion_ids, require_positive
+from companion.commands.arg_checks import require_positive
+from companion.commands.station_options import check_station_ids, companion_ids
 from companion.errors import MerlionError
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool

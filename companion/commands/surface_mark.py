@@ -7,7 +7,7 @@ import logging
 
 from pymavlink import mavutil
 
-from companion.commands.arg_checks import check_station_ids, companion_ids, require_positive
+from companion.commands.station_options import add_station_options, check_station_options
 from companion.errors import UsageError
 from companion.topside.marks_upload import upload_marks
 from vehicle.link.signing import load_key
@@ -16,19 +16,12 @@ from vehicle.link.signing import load_key
 def register(add_command) -> None:
     p = add_command("surface-mark", "send the operator's marks (image indices of summary frames) to the companion: "
                     "later frames are kept by the query and the marked examples together")
-    p.add_argument("--connect", default="udpout:127.0.0.1:14550",
-                   help="pymavlink connection string to the vehicle's MAVLink router (default udpout:127.0.0.1:14550)")
     p.add_argument("--like", type=int, action="append", default=[], metavar="INDEX",
                    help="image index of a frame to find more of (repeatable)")
     p.add_argument("--unlike", type=int, action="append", default=[], metavar="INDEX",
                    help="image index of a frame not wanted (repeatable)")
     p.add_argument("--clear", action="store_true", help="remove every mark (score by the query alone)")
-    p.add_argument("--companion", type=companion_ids, default=(1, 100), metavar="SYS:COMP",
-                   help="the companion's ids (default 1:100)")
-    p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254)")
-    p.add_argument("--component-id", type=int, default=191, help="this tool's MAVLink component id (default 191)")
-    p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="give up after S seconds (default 15)")
-    p.add_argument("--signing-key", metavar="FILE", help="MAVLink 2 signing key, as for merlion surface")
+    add_station_options(p, component_id=191)
     p.set_defaults(func=run)
 
 
@@ -40,8 +33,7 @@ def run(args: argparse.Namespace) -> int:
     bad = [i for i in args.like + args.unlike if i < 0]
     if bad:
         raise UsageError(f"surface-mark: image index {bad[0]} is negative")
-    check_station_ids(args.system_id, args.component_id)
-    require_positive("--timeout", args.timeout)
+    check_station_options(args)
     key = load_key(args.signing_key) if args.signing_key else None
     conn = mavutil.mavlink_connection(args.connect, source_system=args.system_id,
                                       source_component=args.component_id, dialect="ardupilotmega")

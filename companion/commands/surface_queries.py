@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 
-from companion.commands.arg_checks import check_station_ids, companion_ids, require_positive
 from companion.commands.overrides import topic_option
+from companion.commands.station_options import add_station_options, check_station_options
 from companion.config import MavlinkConfig
 from companion.errors import MerlionError, UsageError
 from companion.topside.queries_upload import queries_from_file, queries_from_options, upload_queries
@@ -25,22 +25,14 @@ def register(add_command) -> None:
     p.add_argument("--topic", metavar="NAME=POSITIVE;NEGATIVE...", action="append", type=topic_option, default=[],
                    help="a topic to follow among several (repeatable), e.g. "
                         "--topic 'fish=underwater image with fish;underwater image without fish'")
-    p.add_argument("--connect", default="udpout:127.0.0.1:14550",
-                   help="pymavlink connection string to the vehicle's MAVLink router (default udpout:127.0.0.1:14550)")
-    p.add_argument("--companion", type=companion_ids, default=(1, 100), metavar="SYS:COMP",
-                   help="the companion's ids (default 1:100)")
-    p.add_argument("--system-id", type=int, default=254, help="this tool's MAVLink system id (default 254)")
-    p.add_argument("--component-id", type=int, default=192, help="this tool's MAVLink component id (default 192)")
-    p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="give up after S seconds (default 15)")
-    p.add_argument("--signing-key", metavar="FILE", help="MAVLink 2 signing key, as for merlion surface")
+    add_station_options(p, component_id=192)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.file is not None and (args.query is not None or args.topic or args.negative):
         raise UsageError(f"surface-queries: give FILE ({args.file}) or --query/--topic, not both")
-    check_station_ids(args.system_id, args.component_id)
-    require_positive("--timeout", args.timeout)
+    check_station_options(args)
     if args.file is not None:
         data = queries_from_file(args.file)
     else:
