@@ -470,10 +470,7 @@ class LiveCompanion:
         sidecar = self.store.sidecar(index)
         if sidecar is None:
             return None
-        if sidecar.get("topic"):
-            return str(sidecar["topic"])
-        names = [t.name for t in self.pipeline.topics]  # stored before topics: as Pipeline.restore places it
-        return self.pipeline.default_topic if self.pipeline.default_topic in names else names[0]
+        return str(sidecar.get("topic") or self.pipeline.untagged_topic())
 
     def _apply_marks(self, like: list[int], unlike: list[int]) -> None:
         """Embed the marked frames' stored images and switch each topic's pre-sampler(s) to the combined score.

@@ -195,6 +195,12 @@ class Pipeline:
                 return topic
         return None
 
+    def untagged_topic(self) -> str:
+        """Where a frame stored before topics existed (it names none) belongs: the default topic
+        (``queries.name``) while it is followed, else the first topic."""
+        names = [t.name for t in self.topics]
+        return self.default_topic if self.default_topic in names else names[0]
+
     def set_topics(self, specs: Sequence[TopicSpec]) -> list[SummaryEvent]:
         """Follow these topics from now on: a kept name keeps its summary (its queries and threshold may change),
         a new name starts empty, and the frames of a topic no longer listed leave the summary (the events say so).
@@ -266,7 +272,7 @@ class Pipeline:
         """
         frames = sorted(frames, key=lambda f: f.image_index)
         names = {t.name for t in self.topics}
-        untagged = self.default_topic if self.default_topic in names else self.topics[0].name
+        untagged = self.untagged_topic()
         dropped = []
         by_topic: dict[str, list[SummaryFrame]] = {t.name: [] for t in self.topics}
         for frame in frames:
