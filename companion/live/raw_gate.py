@@ -15,7 +15,7 @@ import numpy as np
 
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
-from companion.vision.topics import TopicSpec, check_names
+from companion.vision.topics import TopicSpec, check_names, follow, score_matrix
 
 
 class RawGate:
@@ -34,16 +34,9 @@ class RawGate:
     def set_topics(self, specs: Sequence[TopicSpec]) -> None:
         """Follow these topics: a kept name keeps its pre-sampler (and marks) under its new queries."""
         check_names([s.name for s in specs])
-        old, self.presamplers = self.presamplers, {}
-        for spec in specs:
-            kept = old.get(spec.name)
-            if kept is None:
-                kept = PreSampler(self.encoder, spec.positive, spec.negatives, self.default_tau)
-            else:
-                kept.set_queries(spec.positive, spec.negatives)
-            if spec.tau_ss is not None:
-                kept.tau_ss = spec.tau_ss
-            self.presamplers[spec.name] = kept
+        old = self.presamplers
+        self.presamplers = {spec.name: follow(spec, old.get(spec.name), self.encoder, self.default_tau)
+                            for spec in specs}
 
     @property
     def tau_ss(self) -> float:
@@ -62,12 +55,6 @@ class RawGate:
 
     def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]]]:
         """Each frame's best ss_t over the topics, and the names of the topics it passed for (empty: none)."""
-        n = len(embeddings)
-        best = np.full(n, -np.inf, dtype=np.float32) if n else np.zeros(0, dtype=np.float32)
-        passed: list[list[str]] = [[] for _ in range(n)]
-        for name, presampler in self.presamplers.items():
-            scores = presampler.scores(embeddings)
-            best = np.maximum(best, scores)
-            for i in np.flatnonzero(presampler.passes(scores)):
-                passed[i].append(name)
-        return best, [tuple(p) for p in passed]
+        scores, passed = score_matrix(list(self.presamplers.values()), embeddings)
+        names = self.names
+        return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed]

@@ -42,7 +42,7 @@ from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.gate import FrameGate
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
-from companion.vision.topics import Topic, TopicSpec, check_names, score_matrix
+from companion.vision.topics import Topic, TopicSpec, check_names, follow, score_matrix
 from vehicle.autopilot.pose import Pose
 
 ENHANCE_MODES = ("none", "always", "selective")
@@ -211,12 +211,10 @@ class Pipeline:
         for spec in specs:
             topic = old.pop(spec.name, None)
             if topic is None:
-                topic = Topic(spec.name, PreSampler(self.encoder, spec.positive, spec.negatives, self.default_tau_ss),
+                topic = Topic(spec.name, follow(spec, None, self.encoder, self.default_tau_ss),
                               InformativeSampler(*self._sampler_args))
             else:
-                topic.presampler.set_queries(spec.positive, spec.negatives)
-            if spec.tau_ss is not None:
-                topic.presampler.tau_ss = spec.tau_ss
+                follow(spec, topic.presampler, self.encoder, self.default_tau_ss)
             topics.append(topic)
         self.topics = topics
         gone = [frame for topic in old.values() for frame in topic.summary]
@@ -366,7 +364,7 @@ class Pipeline:
         emb = self._encode(prepared, "encode")
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
-            scores, passed = score_matrix(self.topics, emb)
+            scores, passed = score_matrix([t.presampler for t in self.topics], emb)
             if only is not None:
                 passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
                                    dtype=bool).reshape(passed.shape)

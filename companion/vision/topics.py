@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.errors import UsageError
+from companion.vision.encoders.base import Encoder
 from companion.vision.events import SummaryFrame
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
@@ -58,12 +59,24 @@ def check_names(names: Sequence[str]) -> None:
         raise UsageError(f"queries: topic name {twice[0]!r} is used twice")
 
 
-def score_matrix(topics: Sequence[Topic], embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, T) scores and (N, T) pass masks of every topic on one batch of embeddings."""
+def score_matrix(presamplers: Sequence[PreSampler], embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, T) scores and (N, T) pass masks of every topic's pre-sampler on one batch of embeddings."""
     n = len(embeddings)
-    scores = np.zeros((n, len(topics)), dtype=np.float32)
-    passed = np.zeros((n, len(topics)), dtype=bool)
-    for t, topic in enumerate(topics):
-        scores[:, t] = topic.presampler.scores(embeddings)
-        passed[:, t] = topic.presampler.passes(scores[:, t])
+    scores = np.zeros((n, len(presamplers)), dtype=np.float32)
+    passed = np.zeros((n, len(presamplers)), dtype=bool)
+    for t, presampler in enumerate(presamplers):
+        scores[:, t] = presampler.scores(embeddings)
+        passed[:, t] = presampler.passes(scores[:, t])
     return scores, passed
+
+
+def follow(spec: TopicSpec, kept: PreSampler | None, encoder: Encoder, default_tau_ss: float) -> PreSampler:
+    """The pre-sampler of ``spec`` from now on: a kept topic's own (its marks stay) under the new queries, or a
+    new one at the shared threshold; the spec's own tau_ss, if it has one, wins."""
+    if kept is None:
+        kept = PreSampler(encoder, spec.positive, spec.negatives, default_tau_ss)
+    else:
+        kept.set_queries(spec.positive, spec.negatives)
+    if spec.tau_ss is not None:
+        kept.tau_ss = spec.tau_ss
+    return kept
