@@ -46,6 +46,10 @@ class SourceConfig(_Section):
     retry_max_s: float = Field(30.0, gt=0)
 
 
+Precision = Literal["auto", "fp32", "fp16-weights", "bf16", "fp16", "int8"]
+"""Encoder precisions (``typing.get_args`` gives the command-line choices)."""
+
+
 class EncoderConfig(_Section):
     name: Literal["auto", "clip", "imagenet", "visual"] = "auto"
     """auto: CLIP when its weights are available offline, else the packaged ImageNet encoder (said loudly)."""
@@ -56,8 +60,9 @@ class EncoderConfig(_Section):
     weights: str | None = None
     """A local CLIP checkpoint file; wins over `pretrained`."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    precision: Literal["auto", "fp32", "bf16", "fp16", "int8"] = "auto"
-    """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp32 elsewhere; int8 (CLIP, CPU only, never auto)."""
+    precision: Precision = "auto"
+    """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp16-weights elsewhere (fp32 arithmetic on weights
+    stored in fp16: half the memory of fp32 at its speed); int8 (CLIP, CPU only, never auto)."""
     runtime: Literal["torch", "onnx"] = "torch"
     """onnx: CLIP's image tower exported once and run by ONNX Runtime in fp32, with no torch in the process (see
     docs/encoders.md)."""

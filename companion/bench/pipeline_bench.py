@@ -9,9 +9,11 @@ One run measures, on the same frames of one source:
 - encoder only: the same downscaled frames through ``encode_images`` at the same batch size, frames/s;
 - the sampler alone at K = 6 and K = 64: milliseconds per offered frame over a long seeded stream of features
   with the encoder's dimension (a real dive has too few frames to fill K = 64 many times over);
-- the peak resident memory of the process: after the encoder was built (``load_peak_rss_mb``), over the run
-  (``peak_rss_mb``, the kernel's VmHWM), and resident at the end (``steady_rss_mb``); the peaks of the encoder's
-  short-lived torch child processes (ONNX runtime) apart, in ``child_peak_rss_mb``;
+- the peak resident memory of the process: after the encoder was built (``load_peak_rss_mb``), over loading and
+  the end-to-end run (``peak_rss_mb``, the kernel's VmHWM), and resident after that run (``steady_rss_mb``),
+  all read before the encoder-only pass, which holds ``frames`` decoded frames that the companion never holds
+  (it grew the peak with ``--frames``: +44 MB from 16 to 64 frames); the peaks of the encoder's short-lived
+  torch child processes apart, in ``child_peak_rss_mb``;
 - the paper's own per-frame loop as the baseline (``paper_frames`` frames): read a frame, open_clip's own PIL
   transform on the full frame, the model at batch 1 in fp32, score, sampler, no decode thread. Our end-to-end
   rate divided by it is ``speedup_vs_paper_loop``: a ratio measured in the same run on the same machine, so it
@@ -124,7 +126,7 @@ class PipelineBench:
             ("sampler K=6", f"{self.sampler_ms_k6:.3f} ms/frame"),
             ("sampler K=64", f"{self.sampler_ms_k64:.3f} ms/frame"),
             ("peak RSS", f"{self.peak_rss_mb:.0f} MB ({self.load_peak_rss_mb:.0f} MB peak after loading the "
-                         f"encoder, {self.rss_end_mb:.0f} MB resident at the end)"
+                         f"encoder, {self.rss_end_mb:.0f} MB resident after the run)"
                          + "".join(f"; {k} child {v:.0f} MB" for k, v in (self.child_peak_rss_mb or {}).items())),
             ("stages", ", ".join(f"{k} {v:.2f}" for k, v in self.stage_ms.items()) + " ms/frame"),
             ("decode thread", f"{self.decode_ms:.2f} ms/frame"),
@@ -224,6 +226,17 @@ def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *,
             1000.0 * (time.process_time() - cpu_start) / done)
 
 
+def _decoded(cfg: Config, pipeline: Pipeline, frames: int) -> list[np.ndarray]:
+    """The first ``frames`` frames of the (looped) source, downscaled as the pipeline feeds its encoder."""
+    prepared: list[np.ndarray] = []
+    with FrameFeed(open_source(cfg.source), pipeline.prepare, limit=frames) as feed:
+        for chunk in feed.batches(frames):
+            prepared.extend(small for _, small in chunk)
+            if len(prepared) >= frames:
+                break
+    return prepared[:frames]
+
+
 def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = None, paper_frames: int = 32,
                    progress: bool = False) -> PipelineBench:
     """Run the measurements; ``cfg`` gives the source, encoder, batch, queries and sampler settings.
@@ -239,15 +252,7 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     looped = _looped(cfg)
     pipeline = Pipeline.from_config(looped, encoder)
 
-    # the frames, decoded once, for the warm-up and the encoder-only run
-    prepared = []
-    with FrameFeed(open_source(looped.source), pipeline.prepare, limit=frames) as feed:
-        for chunk in feed.batches(batch):
-            prepared.extend(small for _, small in chunk)
-            if len(prepared) >= frames:
-                break
-    prepared = prepared[:frames]
-    encoder.encode_images(prepared[:batch])  # warm-up: first-call allocations and kernel selection
+    encoder.encode_images(_decoded(looped, pipeline, batch))  # warm-up: first-call allocations, kernel choice
 
     cpu = {}
     cpu_start = time.process_time()
@@ -270,7 +275,9 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     end_to_end = encoded / elapsed if encoded else 0.0
     cpu["end_to_end"] = 1000.0 * (time.process_time() - cpu_start) / max(1, encoded)
     cpu["video"] = 1000.0 * (time.process_time() - cpu_start) / max(1, done)
+    run_peak, run_rss = peak_rss_mb(), rss_now_mb()
 
+    prepared = _decoded(looped, pipeline, frames)  # the same frames, held for the encoder alone
     cpu_start = time.process_time()
     start = time.perf_counter()
     dims = 0
@@ -287,7 +294,7 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
         gate=cfg.gate.model_dump(),
         sampler_ms_k6=sampler_ms_per_frame(6, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
         sampler_ms_k64=sampler_ms_per_frame(64, dim, distance=cfg.sampler.distance, threshold=cfg.sampler.threshold),
-        peak_rss_mb=peak_rss_mb(), load_peak_rss_mb=load_peak, rss_end_mb=rss_now_mb(),
+        peak_rss_mb=run_peak, load_peak_rss_mb=load_peak, rss_end_mb=run_rss,
         stage_ms=pipeline.clock.ms_per_item(), decode_ms=decode_ms, passed=passed, cpu_ms=cpu,
         child_peak_rss_mb=dict(getattr(encoder, "child_peaks_mb", {})),
     )

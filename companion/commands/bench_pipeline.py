@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import get_args
+
+from companion.config import Precision
 
 
 def register(add_command) -> None:
@@ -16,7 +19,7 @@ def register(add_command) -> None:
     p.add_argument("--model", help="open_clip architecture for clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
     p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
-    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16", "int8"], help="encoder precision")
+    p.add_argument("--precision", choices=get_args(Precision), help="encoder precision")
     p.add_argument("--runtime", choices=["torch", "onnx"], help="CLIP image tower runtime (default torch)")
     p.add_argument("--frames", type=int, default=256, help="frames to push through (default 256)")
     p.add_argument("--paper-frames", type=int, default=32,

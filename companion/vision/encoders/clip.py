@@ -29,13 +29,14 @@ from companion.vision.encoders.clip_cache import ClipCache, cache_root
 from companion.vision.encoders.clip_pixels import as_pair, resize_shape
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
+from companion.vision.encoders.half_weights import store_weights_in_fp16
 from companion.vision.encoders.heap_trim import release_freed_memory
 from companion.vision.encoders.mapped_cast import cast_dropping_file_pages, drop_file_pages
 from companion.vision.encoders.torch_runtime import (
+    compute_dtype,
     configure_threads,
-    dtype_name,
     pick_device,
-    pick_dtype,
+    pick_precision,
 )
 from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
@@ -168,8 +169,9 @@ class ClipPreprocess:
 
 
 def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: torch.device | None = None,
-              dtype: torch.dtype = torch.float32, *, int8: bool = False) -> torch.nn.Module:
-    """The model with one tower only ("image" or "text"): the other is dropped before it is ever read.
+              precision: str = "fp32") -> torch.nn.Module:
+    """The model with one tower only ("image" or "text"), at a precision ``pick_precision`` returned; the other
+    tower is dropped before it is ever read.
 
     The image model lives as long as a torch encoder; a text model is loaded only by the child process that
     encodes queries missing from the cache (``clip_child``), so the text tower's ~254 MB (ViT-B-32 fp32) is never
@@ -189,11 +191,14 @@ def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: tor
     else:
         del model.visual
     device = device or torch.device("cpu")
-    if device.type == "cpu" and dtype != torch.float32:  # never both the mapped fp32 pages and the cast copy
+    dtype = compute_dtype(precision)
+    if precision == "fp16-weights":  # each fp32 tensor's mapped pages given back as its fp16 copy is made
+        store_weights_in_fp16(model.eval(), path)  # (CPU only: pick_precision refuses it on CUDA)
+    elif device.type == "cpu" and dtype != torch.float32:  # never both the mapped fp32 pages and the cast copy
         model = cast_dropping_file_pages(model.eval(), dtype, path)
     else:
         model = model.eval().to(device=device, dtype=dtype)
-    if int8 and tower == "image":
+    if precision == "int8" and tower == "image":
         for module in model.visual.modules():  # the packed int8 layers keep the fp32 bias tensor itself: a view
             if isinstance(module, torch.nn.Linear) and module.bias is not None:  # of the file would pin it
                 module.bias.data = module.bias.data.clone()
@@ -273,10 +278,8 @@ class ClipEncoder(Encoder):
         self._cfg = cfg
         self._weights = resolved or resolve_clip_weights(cfg.model, cfg.weights, cfg.pretrained)
         self._device = pick_device(cfg.device)
-        self._int8 = cfg.precision == "int8"
-        if self._int8 and self._device.type != "cpu":
-            raise UsageError("encoder.precision: int8 runs on the CPU only (use fp16 on CUDA)")
-        self._dtype = torch.float32 if self._int8 else pick_dtype(cfg.precision, self._device)
+        self._precision = pick_precision(cfg.precision, self._device)
+        self._dtype = compute_dtype(self._precision)
         self._model = self._load("image")
         pcfg = open_clip.get_model_preprocess_cfg(self._model)
         self._dim = int(getattr(self._model.visual, "output_dim", 0)) or None
@@ -289,11 +292,11 @@ class ClipEncoder(Encoder):
                  self._device, self.precision)
 
     def _load(self, tower: str) -> torch.nn.Module:
-        return load_clip(self._weights, self._cfg.model, tower, self._device, self._dtype, int8=self._int8)
+        return load_clip(self._weights, self._cfg.model, tower, self._device, self._precision)
 
     @property
     def precision(self) -> str:
-        return "int8" if self._int8 else dtype_name(self._dtype)
+        return self._precision
 
     @torch.inference_mode()
     def encode_images_reference(self, images: Sequence[np.ndarray]) -> np.ndarray:

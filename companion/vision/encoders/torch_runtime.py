@@ -17,7 +17,9 @@ from companion.errors import UsageError
 
 log = logging.getLogger(__name__)
 
-_DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+PRECISIONS = {"fp32": torch.float32, "fp16-weights": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16,
+              "int8": torch.float32}
+"""Each explicit precision and the dtype its layers compute in (int8 and fp16-weights only store in less)."""
 _threads_set = False
 
 
@@ -44,20 +46,27 @@ def pick_device(device: str) -> torch.device:
     return torch.device(device)
 
 
-def pick_dtype(precision: str, device: torch.device) -> torch.dtype:
-    """auto: fp16 on CUDA, bf16 on CPUs with native bf16, fp32 elsewhere (emulated bf16 is slower than fp32)."""
+def pick_precision(precision: str, device: torch.device) -> str:
+    """What ``auto`` means where the encoder runs; an explicit precision is checked against the device.
+
+    auto: fp16 on CUDA; on the CPU bf16 where it has native bf16 units, else ``fp16-weights`` (fp32 arithmetic
+    on weights stored in fp16: fp32's speed and near its numerics in half the tower's memory; plain fp32 would
+    put ViT-B-32 over the 1 GB budget, and emulated bf16 is slower than fp32).
+    """
     if precision == "auto":
         if device.type == "cuda":
-            return torch.float16
-        return torch.bfloat16 if cpu_has_native_bf16() else torch.float32
-    try:
-        return _DTYPES[precision]
-    except KeyError:
-        raise UsageError(f"encoder.precision: unknown value {precision!r} (auto, fp32, bf16, fp16)") from None
+            return "fp16"
+        return "bf16" if cpu_has_native_bf16() else "fp16-weights"
+    if precision not in PRECISIONS:
+        raise UsageError(f"encoder.precision: unknown value {precision!r} ({', '.join(('auto', *PRECISIONS))})")
+    if precision in ("int8", "fp16-weights") and device.type != "cpu":
+        raise UsageError(f"encoder.precision: {precision} runs on the CPU only (use fp16 on CUDA)")
+    return precision
 
 
-def dtype_name(dtype: torch.dtype) -> str:
-    return {v: k for k, v in _DTYPES.items()}[dtype]
+def compute_dtype(precision: str) -> torch.dtype:
+    """The dtype the layers compute in (and the frames are fed in) for a precision ``pick_precision`` returned."""
+    return PRECISIONS[precision]
 
 
 def configure_threads() -> None:

@@ -24,7 +24,7 @@ from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.vision.encoders.clip import ClipEncoder
 from companion.vision.encoders.factory import make_encoder
-from companion.vision.encoders.torch_runtime import cpu_has_native_bf16, pick_dtype
+from companion.vision.encoders.torch_runtime import cpu_has_native_bf16
 from tests.conftest import free_tcp_port, run_merlion, shared_file
 
 SMALL = "ViT-S-32-alt"
@@ -121,7 +121,7 @@ def test_vit_b32_through_the_cli_agrees_with_open_clip_itself(b32, images, tmp_p
     np.testing.assert_allclose(cli_scores, want, atol=0.01)
 
 
-@pytest.mark.parametrize("precision", ["bf16", "fp16", "int8"])
+@pytest.mark.parametrize("precision", ["fp16-weights", "bf16", "fp16", "int8"])
 def test_reduced_precision_keeps_scores_within_0_01(small_ckpt, small_fp32, images, precision):
     ref = small_fp32
     low = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision=precision))
@@ -163,12 +163,13 @@ def test_a_checkpoint_of_another_architecture_is_a_one_line_error(small_ckpt):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("precision", "bound"), [("fp32", 0.85), ("bf16", 0.45), ("int8", 0.7)])
+@pytest.mark.parametrize(("precision", "bound"), [("fp32", 0.85), ("fp16-weights", 0.45), ("bf16", 0.45),
+                                                  ("int8", 0.7)])
 def test_loading_holds_one_copy_of_the_weights(tmp_path, precision, bound):
     """open_clip's loader held checkpoint and model at once (~2x the file); the mmap'd load of the image tower
     alone (the text tower is never read at load) stays well under the file's size (image tower ~58% of it). In
-    bf16 the fp32 pages are given back as each tensor is cast: the peak is the bf16 tower (measured 0.34 of the
-    file with the first batch), where holding both was ~0.88; in int8, as each layer group is packed (0.59, was
+    bf16 and fp16-weights the fp32 pages are given back as each tensor is cast: the peak is the 16-bit tower
+    (measured 0.34 of the file with the first batch), where holding both was ~0.88; in int8, as each layer group is packed (0.59, was
     ~0.96). fp32 measured 0.64. Peaks are VmHWM: ru_maxrss starts at pytest's own RSS, inherited across exec,
     which hid every peak below it."""
     torch.manual_seed(0)
@@ -256,10 +257,8 @@ def test_offline_pull_fails_in_one_line(tmp_path):
     assert not (tmp_path / "dl").exists() or not any((tmp_path / "dl").iterdir())
 
 
-def test_precision_auto_follows_the_cpu():
-    assert pick_dtype("auto", torch.device("cuda")) == torch.float16
-    want = torch.bfloat16 if cpu_has_native_bf16() else torch.float32
-    assert pick_dtype("auto", torch.device("cpu")) == want
+def test_native_bf16_is_read_from_the_cpu_flags():
+    """(What ``auto`` makes of it: test_half_weights.py.)"""
     assert cpu_has_native_bf16("flags\t: fpu sse avx2 amx_bf16 amx_tile\n")
     assert cpu_has_native_bf16("flags\t: fpu avx512f avx512_bf16\n")
     assert not cpu_has_native_bf16("flags\t: fpu sse avx2 fma\n")

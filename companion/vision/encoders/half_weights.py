@@ -1,0 +1,125 @@
+"""fp32 arithmetic on weights kept in fp16: half the image tower's memory at fp32's speed on CPUs without bf16 units.
+
+On an AVX2-only CPU the reduced-precision paths do not pay: bf16 is emulated (about 2x slower than fp32) and int8
+reaches 1.1-1.4x, while fp32 holds ViT-B-32's image tower in 351 MB, which with torch's and open_clip's imports
+(~670 MB) puts the companion over its 1 GB budget. Here each large weight is stored in fp16 and upcast to fp32
+when its layer runs (a ``torch.nn.utils.parametrize`` parametrization, so every module type keeps its own forward,
+nn.MultiheadAttention's fused in-projection included). Only the storage rounds: activations, accumulations,
+LayerNorm and softmax stay fp32. The upcast is one layer's weight at a time (~7 MB for ViT-B-32), freed after use.
+
+fp16 keeps 11 significant bits, bf16 only 8: CLIP checkpoints trained in mixed precision (OpenAI's were released
+in fp16) lose nothing, others a relative 2^-12 per weight. A tensor that fp16 cannot hold (a value beyond its
+range, or a relative error above ``MAX_RELATIVE_ERROR`` from values in its subnormal range) stays in fp32.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from pathlib import Path
+
+import torch
+from torch.nn.utils import parametrize
+
+from companion.vision.encoders.mapped_cast import FilePages
+
+log = logging.getLogger(__name__)
+
+MIN_ELEMENTS = 65536
+"""Smaller tensors (biases, LayerNorm, class token) stay fp32: upcasting them on every call would cost more time
+than their memory is worth."""
+
+MAX_RELATIVE_ERROR = 1e-3
+"""Largest ||w16 - w|| / ||w|| kept in fp16 (fp16's rounding alone gives ~3e-4 at most)."""
+
+
+MAX_CALL_CACHE_BYTES = 32 << 20
+"""Most fp32 bytes of upcast weights one module call may hold at once (an attention layer of ViT-L is 16 MB)."""
+
+
+class UpcastToFloat32(torch.nn.Module):
+    """The parametrization: the stored fp16 tensor as the fp32 one the layer computes with."""
+
+    def forward(self, stored: torch.Tensor) -> torch.Tensor:
+        return stored.float()
+
+
+def _fits_fp16(weight: torch.Tensor, half: torch.Tensor) -> bool:
+    if not torch.isfinite(half).all():
+        return False
+    norm = torch.linalg.vector_norm(weight)
+    return bool(norm == 0 or torch.linalg.vector_norm(half.float() - weight) <= MAX_RELATIVE_ERROR * norm)
+
+
+def store_weights_in_fp16(module: torch.nn.Module, checkpoint: Path | None = None) -> int:
+    """Keep ``module``'s large parameters in fp16, computed with in fp32; every other float tensor becomes fp32.
+    Returns the bytes saved over fp32.
+
+    The pages of a memory-mapped ``checkpoint`` each tensor was read from are given back as it is converted, so
+    the load peak is the fp16 tower plus one tensor. A checkpoint saved in fp16 is taken as it is.
+    """
+    pages = FilePages(checkpoint) if checkpoint is not None else None
+    saved = kept = 0
+    with torch.no_grad():
+        for owner in list(module.modules()):
+            for store in (owner._parameters, owner._buffers):
+                for name, tensor in list(store.items()):
+                    if tensor is None or not tensor.is_floating_point():
+                        continue
+                    old = tensor.data
+                    if store is owner._parameters and old.numel() >= MIN_ELEMENTS:
+                        half = old if old.dtype == torch.float16 else old.to(torch.float16)
+                        if half is old or _fits_fp16(old.float(), half):
+                            tensor.data = half
+                            parametrize.register_parametrization(owner, name, UpcastToFloat32(), unsafe=True)
+                            saved += half.numel() * 2
+                        else:
+                            kept += 1
+                            tensor.data = old.float()
+                    elif old.dtype != torch.float32:
+                        tensor.data = old.float()
+                    if pages is not None and tensor.data is not old:
+                        pages.drop(old)
+                    del old
+    for owner in list(module.modules()):
+        if parametrize.is_parametrized(owner) and _upcast_bytes(owner) <= MAX_CALL_CACHE_BYTES:
+            _upcast_once_per_call(owner)
+    log.debug("fp16 storage: %d MB saved, %d tensors kept in fp32 (out of fp16's reach)", saved >> 20, kept)
+    return saved
+
+
+def _upcast_bytes(module: torch.nn.Module) -> int:
+    """fp32 bytes of the fp16-stored tensors in ``module`` and below."""
+    return sum(4 * owner.parametrizations[name].original.numel()
+               for owner in module.modules() if parametrize.is_parametrized(owner)
+               for name in owner.parametrizations)
+
+
+def _upcast_once_per_call(module: torch.nn.Module) -> None:
+    """Within one call of ``module``, each fp16-stored weight read during it is upcast once, then dropped.
+
+    A parametrized tensor is recomputed at every attribute read, and nn.MultiheadAttention reads its in- and
+    out-projection weights several times per call (its fast-path checks, then the kernel): ViT-B-32 upcast
+    687 MB of weights per forward instead of 352, 12% of the time. ``parametrize.cached`` holds each upcast
+    until the call returns, so only modules whose weights are small (``MAX_CALL_CACHE_BYTES``, an attention
+    layer, not the whole tower that owns the final projection) get it.
+    """
+    forward = module.forward
+
+    @functools.wraps(forward)
+    def forward_upcasting_once(*args, **kwargs):
+        with parametrize.cached():
+            return forward(*args, **kwargs)
+
+    module.forward = forward_upcasting_once
+
+
+def stored_in_fp16(module: torch.nn.Module) -> list[str]:
+    """Names of the parameters ``module`` keeps in fp16 storage (what the tests and ``describe`` look at)."""
+    names = []
+    for owner_name, owner in module.named_modules():
+        if parametrize.is_parametrized(owner):
+            for name in owner.parametrizations:
+                if owner.parametrizations[name].original.dtype == torch.float16:
+                    names.append(f"{owner_name}.{name}" if owner_name else name)
+    return names
