@@ -194,6 +194,7 @@ def load_clip(weights: ResolvedWeights, model_name: str, tower: str, device: tor
     dtype = compute_dtype(precision)
     if precision == "fp16-weights":  # each fp32 tensor's mapped pages given back as its fp16 copy is made
         store_weights_in_fp16(model.eval(), path)  # (CPU only: pick_precision refuses it on CUDA)
+        release_freed_memory()  # the conversion's freed slices, left in the C heap
     elif device.type == "cpu" and dtype != torch.float32:  # never both the mapped fp32 pages and the cast copy
         model = cast_dropping_file_pages(model.eval(), dtype, path)
     else:

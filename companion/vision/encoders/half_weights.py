@@ -1,4 +1,4 @@
-"""fp32 arithmetic on weights kept in fp16: half the image tower's memory at fp32's speed on CPUs without bf16 units.
+"""fp32 arithmetic on weights kept in fp16: half the image tower's memory, ~0.9x fp32's speed, for CPUs without bf16.
 
 On an AVX2-only CPU the reduced-precision paths do not pay: bf16 is emulated (about 2x slower than fp32) and int8
 reaches 1.1-1.4x, while fp32 holds ViT-B-32's image tower in 351 MB, which with torch's and open_clip's imports
@@ -29,6 +29,9 @@ MIN_ELEMENTS = 65536
 """Smaller tensors (biases, LayerNorm, class token) stay fp32: upcasting them on every call would cost more time
 than their memory is worth."""
 
+CHUNK = 1 << 20
+"""Elements converted at a time."""
+
 MAX_RELATIVE_ERROR = 1e-3
 """Largest ||w16 - w|| / ||w|| kept in fp16 (fp16's rounding alone gives ~3e-4 at most)."""
 
@@ -44,11 +47,21 @@ class UpcastToFloat32(torch.nn.Module):
         return stored.float()
 
 
-def _fits_fp16(weight: torch.Tensor, half: torch.Tensor) -> bool:
-    if not torch.isfinite(half).all():
-        return False
-    norm = torch.linalg.vector_norm(weight)
-    return bool(norm == 0 or torch.linalg.vector_norm(half.float() - weight) <= MAX_RELATIVE_ERROR * norm)
+def _to_fp16(weight: torch.Tensor) -> torch.Tensor | None:
+    """``weight`` in fp16, or None where fp16 cannot hold it. Converted and checked a slice at a time, so the
+    load's transient is a few MB, not two fp32 copies of the largest tensor."""
+    half = torch.empty(weight.shape, dtype=torch.float16)
+    src, dst = weight.reshape(-1), half.view(-1)
+    err = norm = 0.0
+    for start in range(0, src.numel(), CHUNK):
+        part = src[start:start + CHUNK].float()
+        dst[start:start + CHUNK].copy_(part)
+        back = dst[start:start + CHUNK].float()
+        if not torch.isfinite(back).all():
+            return None
+        err += float(torch.linalg.vector_norm(back - part)) ** 2
+        norm += float(torch.linalg.vector_norm(part)) ** 2
+    return half if err <= (MAX_RELATIVE_ERROR ** 2) * norm else None
 
 
 def store_weights_in_fp16(module: torch.nn.Module, checkpoint: Path | None = None) -> int:
@@ -68,8 +81,8 @@ def store_weights_in_fp16(module: torch.nn.Module, checkpoint: Path | None = Non
                         continue
                     old = tensor.data
                     if store is owner._parameters and old.numel() >= MIN_ELEMENTS:
-                        half = old if old.dtype == torch.float16 else old.to(torch.float16)
-                        if half is old or _fits_fp16(old.float(), half):
+                        half = old if old.dtype == torch.float16 else _to_fp16(old)
+                        if half is not None:
                             tensor.data = half
                             parametrize.register_parametrization(owner, name, UpcastToFloat32(), unsafe=True)
                             saved += half.numel() * 2
