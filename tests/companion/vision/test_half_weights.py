@@ -119,3 +119,17 @@ def test_each_stored_weight_is_upcast_about_once_per_forward(fp32_ckpt):
     attention = [n for n, m in visual.named_modules() if isinstance(m, torch.nn.MultiheadAttention)]
     assert attention and all(calls[f"{n}.parametrizations.in_proj_weight.0"] == 1 for n in attention)
     assert all(count == 1 for name, count in calls.items() if name != "parametrizations.proj.0"), calls
+
+
+def test_none_of_the_checkpoint_stays_resident_after_encoding(fp32_ckpt, tmp_path):
+    """The fp32 pages are given back as each weight is converted, and the small fp32 tensors are copied out of the
+    file: reading them at each forward mapped their page-cache folios again (84 MB of this 165 MB file)."""
+    from pathlib import Path
+
+    from tests.companion.vision.test_clip_memory import _resident_kb_of
+
+    own = tmp_path / "own.pt"  # a file no other encoder of this test process maps
+    own.write_bytes(Path(fp32_ckpt).read_bytes())
+    enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="fp16-weights"))
+    enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
+    assert _resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
