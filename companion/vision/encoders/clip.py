@@ -31,7 +31,7 @@ from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
 from companion.vision.encoders.half_weights import store_weights_in_fp16
 from companion.vision.encoders.heap_trim import release_freed_memory
-from companion.vision.encoders.mapped_cast import cast_dropping_file_pages, drop_file_pages
+from companion.vision.encoders.mapped_cast import cast_dropping_file_pages, drop_file_pages, module_tensors
 from companion.vision.encoders.torch_runtime import (
     compute_dtype,
     configure_threads,
@@ -81,16 +81,15 @@ def quantize_image_tower(visual: torch.nn.Module, checkpoint: Path | None = None
 
     from companion.vision.encoders.mapped_cast import FilePages
 
-    pages = FilePages(checkpoint) if checkpoint is not None else None
+    pages = FilePages(checkpoint)
     parents = [m for m in visual.modules() if any(isinstance(c, torch.nn.Linear) for c in m.children())]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # torch announces the move of eager quantization to torchao
         for parent in parents:
             packed_from = [c.weight.data for c in parent.children() if isinstance(c, torch.nn.Linear)]
             quantize_dynamic(parent, {torch.nn.Linear}, dtype=torch.qint8, inplace=True)
-            if pages is not None:
-                for weight in packed_from:
-                    pages.drop(weight)
+            for weight in packed_from:
+                pages.drop(weight)
     return visual
 
 
@@ -112,10 +111,8 @@ def detach_from_file(model: torch.nn.Module) -> None:
     All tensors of a memory-mapped checkpoint share one mapping: while one small tensor (logit_scale) lives, the
     pages the dropped towers once touched stay mapped and counted in RSS.
     """
-    for module in model.modules():
-        for _key, tensor in list(module._parameters.items()) + list(module._buffers.items()):
-            if tensor is not None:
-                tensor.data = tensor.data.clone()
+    for _owner, _name, tensor, _is_param in module_tensors(model):
+        tensor.data = tensor.data.clone()
 
 
 def _causal_mask(n: int) -> torch.Tensor:

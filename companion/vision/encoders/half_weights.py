@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 from torch.nn.utils import parametrize
 
-from companion.vision.encoders.mapped_cast import FilePages
+from companion.vision.encoders.mapped_cast import FilePages, module_tensors
 
 log = logging.getLogger(__name__)
 
@@ -74,29 +74,23 @@ def store_weights_in_fp16(module: torch.nn.Module, checkpoint: Path | None = Non
     and reading one small tensor at each forward mapped its whole folio, i.e. megabytes of the weights around it
     (84 MB of a 165 MB checkpoint were resident again after two frames).
     """
-    pages = FilePages(checkpoint) if checkpoint is not None else None
+    pages = FilePages(checkpoint)
     saved = kept = 0
     with torch.no_grad():
-        for owner in list(module.modules()):
-            for store in (owner._parameters, owner._buffers):
-                for name, tensor in list(store.items()):
-                    if tensor is None or not tensor.is_floating_point():
-                        continue
-                    old = tensor.data
-                    if store is owner._parameters and old.numel() >= MIN_ELEMENTS:
-                        half = old if old.dtype == torch.float16 else _to_fp16(old)
-                        if half is not None:
-                            tensor.data = half
-                            parametrize.register_parametrization(owner, name, UpcastToFloat32(), unsafe=True)
-                            saved += half.numel() * 2
-                        else:
-                            kept += 1
-                            tensor.data = old.to(torch.float32, copy=True)
-                    else:  # a copy, out of the file: see below
-                        tensor.data = old.to(torch.float32, copy=True)
-                    if pages is not None:
-                        pages.drop(old)
-                    del old
+        for owner, name, tensor, is_param in module_tensors(module):
+            if not tensor.is_floating_point():
+                continue
+            old = tensor.data
+            large = is_param and old.numel() >= MIN_ELEMENTS
+            half = (old if old.dtype == torch.float16 else _to_fp16(old)) if large else None
+            if half is not None:
+                pages.replace(tensor, half)  # (an fp16 checkpoint's tensor stays where it is, in the file)
+                parametrize.register_parametrization(owner, name, UpcastToFloat32(), unsafe=True)
+                saved += half.numel() * 2
+            else:
+                kept += int(large)  # a large weight out of fp16's reach
+                pages.replace(tensor, old.to(torch.float32, copy=True))  # a copy, out of the file: see above
+            del old
     for owner in list(module.modules()):
         if parametrize.is_parametrized(owner) and _upcast_bytes(owner) <= MAX_CALL_CACHE_BYTES:
             _upcast_once_per_call(owner)

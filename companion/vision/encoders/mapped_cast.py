@@ -16,6 +16,7 @@ import ctypes.util
 import logging
 import mmap
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import torch
@@ -41,11 +42,25 @@ def _mapped_ranges(path: Path) -> list[tuple[int, int]]:
     return ranges
 
 
-class FilePages:
-    """The checkpoint's mappings in this process, and the means to give a tensor's pages in them back."""
+def module_tensors(model: torch.nn.Module) -> Iterator[tuple[torch.nn.Module, str, torch.Tensor, bool]]:
+    """Every parameter and buffer of ``model`` and its submodules: (owner, name, tensor, is a parameter).
 
-    def __init__(self, path: Path) -> None:
-        self.ranges = _mapped_ranges(path)
+    Listed before anything is yielded, so a caller may replace tensors (or parametrize them) as it goes.
+    """
+    found = [(owner, name, tensor, store is owner._parameters)
+             for owner in model.modules() for store in (owner._parameters, owner._buffers)
+             for name, tensor in store.items() if tensor is not None]
+    yield from found
+
+
+class FilePages:
+    """The checkpoint's mappings in this process, and the means to give a tensor's pages in them back.
+
+    ``path`` None (a checkpoint that is not memory-mapped): nothing is ever dropped.
+    """
+
+    def __init__(self, path: Path | None) -> None:
+        self.ranges = _mapped_ranges(path) if path is not None else []
         name = ctypes.util.find_library("c")
         self._madvise = ctypes.CDLL(name, use_errno=True).madvise if name and self.ranges else None
         if self._madvise is not None:
@@ -66,20 +81,21 @@ class FilePages:
             if b > a and self._madvise(a, b - a, _MADV_DONTNEED) == 0:
                 self.dropped += b - a
 
+    def replace(self, tensor: torch.Tensor, new: torch.Tensor) -> None:
+        """``tensor.data = new``, then give back the pages of the bytes it held (unless ``new`` still uses them)."""
+        old = tensor.data
+        tensor.data = new
+        if new.data_ptr() != old.data_ptr():
+            self.drop(old)
+
 
 def cast_dropping_file_pages(model: torch.nn.Module, dtype: torch.dtype, checkpoint: Path) -> torch.nn.Module:
     """``model.to(dtype)`` for floating tensors, one at a time, giving back each one's mapped file pages."""
     dropper = FilePages(checkpoint)
     with torch.no_grad():
-        for module in model.modules():
-            for store in (module._parameters, module._buffers):
-                for tensor in list(store.values()):
-                    if tensor is None or not tensor.is_floating_point() or tensor.dtype == dtype:
-                        continue
-                    old = tensor.data
-                    tensor.data = old.to(dtype)
-                    dropper.drop(old)
-                    del old
+        for _owner, _name, tensor, _is_param in module_tensors(model):
+            if tensor.is_floating_point() and tensor.dtype != dtype:
+                dropper.replace(tensor, tensor.data.to(dtype))
     log.debug("cast to %s, %d MB of %s's pages given back", dtype, dropper.dropped >> 20, checkpoint)
     return model
 
