@@ -14,6 +14,7 @@ import torch
 
 from companion.config import EncoderConfig
 from companion.vision.encoders.clip import TEXT_TOWER, ClipEncoder
+from tests.companion.vision.helpers import resident_kb_of
 
 SMALL = "ViT-S-32-alt"
 QUERIES = ["a coral reef", "sand", "open water"]
@@ -84,24 +85,9 @@ def test_a_cast_of_mapped_weights_gives_back_their_file_pages_and_equals_a_plain
     assert got.keys() == plain.keys()
     for key, want in plain.items():
         assert got[key].dtype == torch.bfloat16 and torch.equal(got[key], want), key
-    assert _resident_kb_of(path) < 0.05 * Path(path).stat().st_size / 1024  # every fp32 page read was given back
+    assert resident_kb_of(path) < 0.05 * Path(path).stat().st_size / 1024  # every fp32 page read was given back
     cast = mapped.text_projection  # the text tower was not cast: still fp32, still read from the file
     assert cast.dtype == torch.float32 and torch.equal(cast, net.text_projection)
-
-
-def _resident_kb_of(path: str) -> int:
-    """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
-    import os
-
-    target, inside, total = os.path.realpath(path), False, 0
-    with open("/proc/self/smaps", encoding="utf-8") as smaps:
-        for line in smaps:
-            head = line.split()
-            if "-" in head[0] and len(head) >= 5 and not head[0].endswith(":"):
-                inside = len(head) == 6 and os.path.realpath(head[5]) == target
-            elif inside and head[0] == "Rss:":
-                total += int(head[1])
-    return total
 
 
 def test_an_int8_tower_leaves_none_of_the_checkpoint_resident(ckpt, tmp_path):
@@ -113,7 +99,7 @@ def test_an_int8_tower_leaves_none_of_the_checkpoint_resident(ckpt, tmp_path):
     own.write_bytes(Path(ckpt[0]).read_bytes())
     enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="int8"))
     enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
-    assert _resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
+    assert resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
 
 
 def test_queries_are_served_when_the_cache_cannot_be_written(ckpt, tmp_path):

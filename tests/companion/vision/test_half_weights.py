@@ -17,6 +17,7 @@ from companion.vision.encoders import torch_runtime
 from companion.vision.encoders.clip import ClipEncoder
 from companion.vision.encoders.half_weights import MIN_ELEMENTS, store_weights_in_fp16, stored_in_fp16
 from companion.vision.encoders.torch_runtime import pick_precision
+from tests.companion.vision.helpers import resident_kb_of
 
 SMALL = "ViT-S-32-alt"
 
@@ -126,10 +127,8 @@ def test_none_of_the_checkpoint_stays_resident_after_encoding(fp32_ckpt, tmp_pat
     file: reading them at each forward mapped their page-cache folios again (84 MB of this 165 MB file)."""
     from pathlib import Path
 
-    from tests.companion.vision.test_clip_memory import _resident_kb_of
-
     own = tmp_path / "own.pt"  # a file no other encoder of this test process maps
     own.write_bytes(Path(fp32_ckpt).read_bytes())
     enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="fp16-weights"))
     enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
-    assert _resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
+    assert resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024

@@ -11,6 +11,7 @@ from companion.sources.video import VideoSource
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.pipeline import Pipeline, downscale_for
+from tests.companion.vision.helpers import run
 from tests.conftest import shared_file
 
 
@@ -29,15 +30,6 @@ def make(encoder, k=3, tau=0.25, first=0, gate="none", **enhance):
     cfg = Config.model_validate({"sampler": {"k": k}, "queries": {"tau_ss": tau}, "enhance": enhance,
                                  "gate": {"mode": gate}})
     return Pipeline.from_config(cfg, encoder, first_image_index=first)
-
-
-def run(pipe, frames, batch=8):
-    results, events = [], []
-    for start in range(0, len(frames), batch):
-        out = pipe.process(frames[start:start + batch])
-        results += out.results
-        events += out.events
-    return results, events
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.pipeline import Pipeline
 from companion.vision.topics import TopicSpec
+from tests.companion.vision.helpers import run
 from tests.conftest import run_merlion, shared_file
 
 FISH = {"name": "fish", "positive": "underwater image with fish", "negatives": ["underwater image without fish"]}
@@ -38,15 +39,6 @@ def make(encoder, topics, k=3, tau=0.3, first=0):
     cfg = Config.model_validate({"sampler": {"k": k}, "queries": {"tau_ss": tau, "topics": topics},
                                  "gate": {"mode": "none"}})
     return Pipeline.from_config(cfg, encoder, first_image_index=first)
-
-
-def run(pipe, frames, batch=8):
-    results, events = [], []
-    for start in range(0, len(frames), batch):
-        out = pipe.process(frames[start:start + batch])
-        results += out.results
-        events += out.events
-    return results, events
 
 
 def held_frames(pipe, name):

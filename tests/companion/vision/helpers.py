@@ -1,0 +1,28 @@
+"""Small helpers the vision tests share (plain functions, imported; fixtures live in conftest.py)."""
+
+from __future__ import annotations
+
+import os
+
+
+def run(pipe, frames, batch=8):
+    """Frames through a Pipeline in batches: every FrameResult and event, in order."""
+    results, events = [], []
+    for start in range(0, len(frames), batch):
+        out = pipe.process(frames[start:start + batch])
+        results += out.results
+        events += out.events
+    return results, events
+
+
+def resident_kb_of(path: str) -> int:
+    """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
+    target, inside, total = os.path.realpath(path), False, 0
+    with open("/proc/self/smaps", encoding="utf-8") as smaps:
+        for line in smaps:
+            head = line.split()
+            if "-" in head[0] and len(head) >= 5 and not head[0].endswith(":"):
+                inside = len(head) == 6 and os.path.realpath(head[5]) == target
+            elif inside and head[0] == "Rss:":
+                total += int(head[1])
+    return total
