@@ -247,6 +247,19 @@ def ftp_get_json(client: mavftp.MAVFTP, remote: str, local: Path) -> dict:
     raise AssertionError(f"could not fetch {remote}")
 
 
+def ftp_put(client: mavftp.MAVFTP, local: Path, remote: str, done=None, tries: int = 3) -> None:
+    """Upload ``local`` over MAVLink FTP, sent again while ``done(reply)`` is false (default: the put succeeded).
+
+    The first request may reach the hub before it knows where the companion is. The caller checks the outcome
+    itself (a refusal has no NAK on the close: mavftp does not report it, so ``done`` may look elsewhere).
+    """
+    for _ in range(tries):
+        client.cmd_put([str(local), remote])
+        reply = client.process_ftp_reply("put", timeout=15)
+        if (done(reply) if done else reply.error_code == mavftp.FtpError.Success):
+            return
+
+
 def set_param(gcs, listener: Listener, name: str, value: float, integer: bool, expect: float | None = None):
     """PARAM_SET until the companion answers with ``expect`` (default: ``value``); returns that PARAM_VALUE."""
     kind = mavutil.mavlink.MAV_PARAM_TYPE_INT32 if integer else mavutil.mavlink.MAV_PARAM_TYPE_REAL32

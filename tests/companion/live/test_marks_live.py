@@ -16,10 +16,10 @@ import json
 from pathlib import Path
 
 import pytest
-from pymavlink import mavftp, mavutil
+from pymavlink import mavutil
 
 from companion.live.udp_hub import UdpHub
-from tests.companion.live_harness import Companion, Listener, wait_until, write_config
+from tests.companion.live_harness import Companion, Listener, ground_ftp, wait_until, write_config
 from tests.conftest import run_merlion
 
 TAU = 0.85
@@ -116,11 +116,7 @@ def test_marks_from_the_surface_steer_what_the_companion_keeps(tmp_path: Path, s
                                      dialect="ardupilotmega")
     try:
         gcs.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-        settings = {"debug": 0, "pkt_loss_tx": 0, "pkt_loss_rx": 0, "max_backlog": 5, "burst_read_size": 239,
-                    "write_size": 80, "write_qsize": 5, "idle_detection_time": 1.5, "read_retry_time": 0.6,
-                    "retry_time": 0.4}
-        client = mavftp.MAVFTP(gcs, 1, 100, settings=mavftp.MAVFTPSettings(
-            [(k, type(v), v) for k, v in settings.items()]))
+        client = ground_ftp(gcs)
         queries = tmp_path / "queries.txt"
         queries.write_text("underwater image of rocks\nunderwater image of open water\n")
         client.cmd_put([str(queries), "/config/queries.txt"])

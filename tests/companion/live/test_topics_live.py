@@ -16,11 +16,11 @@ import re
 from pathlib import Path
 
 import pytest
-from pymavlink import mavftp
 
 from tests.companion.live_harness import (
     Companion,
     ftp_get_json,
+    ftp_put,
     ground_ftp,
     store_summary,
     wait_until,
@@ -113,11 +113,8 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
     client = ground_ftp(gcs)
     upload = tmp_path / "queries.txt"
     upload.write_text(UPLOAD + "[kelp]\nunderwater image of kelp\nunderwater image of sand\n")
-    for _ in range(3):  # the first request may reach the hub before it knows where the companion is
-        client.cmd_put([str(upload), "/config/queries.txt"])
-        client.process_ftp_reply("put", timeout=15)  # (mavftp does not report the NAK on the close)
-        if any("Queries refused: kelp" in t for t in listener.texts()):
-            break
+    ftp_put(client, upload, "/config/queries.txt",
+            done=lambda _reply: any("Queries refused: kelp" in t for t in listener.texts()))
     listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Queries refused: kelp" in str(m.text), 5,
                       "the refusal's reason")
     again.wait_for("refused", 5)
@@ -126,10 +123,7 @@ def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: P
 
     # a ground station uploads two topics: fish stays, coral goes, wreck comes
     upload.write_text(UPLOAD)
-    for _ in range(3):  # the first request may reach the hub before it knows where the companion is
-        client.cmd_put([str(upload), "/config/queries.txt"])
-        if client.process_ftp_reply("put", timeout=15).error_code == mavftp.FtpError.Success:
-            break
+    ftp_put(client, upload, "/config/queries.txt")
     listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Topics set: fish, wreck" in str(m.text), 15,
                       "the companion's acknowledgement")
     again.wait_for("topics set: fish=", 10)
