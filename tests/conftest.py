@@ -42,6 +42,17 @@ def free_tcp_port() -> int:
         return s.getsockname()[1]
 
 
+def stop_process(proc: subprocess.Popen, grace_s: float) -> None:
+    """SIGTERM, and SIGKILL if it has not ended within ``grace_s``: what a test's clean-up owes a child."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
 def run_merlion(*args: str, timeout: float = 240, cwd: Path | None = None, env: dict | None = None,
                 input: str | None = None) -> subprocess.CompletedProcess:
     """The real ``merlion`` command in a subprocess, as a user would run it."""

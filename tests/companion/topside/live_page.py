@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.config import MavlinkConfig, SurfaceConfig
-from tests.conftest import REPO
+from tests.conftest import REPO, stop_process
 from vehicle.camera.downlink import Downlink
 from vehicle.link.connection import MavLink
 
@@ -51,13 +51,7 @@ def surface_with_page(out: Path, port: int, *options: str, duration: float = 90)
         assert match, line + proc.stderr.read() if proc.poll() is not None else line
         yield SurfacePage(proc, match.group(1), int(match.group(2)), match.group(3))
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc, 30)
 
 
 @contextmanager

@@ -23,6 +23,7 @@ import pytest
 
 from companion.live.udp_hub import UdpHub
 from tests.companion.live_harness import Companion, store_summary, wait_until, write_clip, write_config
+from tests.conftest import stop_process
 from vehicle.sim.gcs_load import run_client
 
 DURATION_S = float(os.environ.get("MERLION_STRESS_S", "20"))
@@ -180,11 +181,6 @@ def test_mavproxy_ftp_lists_and_fetches_the_index(tmp_path: Path) -> None:
         listing = out.read_text(errors="replace")
         assert "index.json" in listing and "3.jpg" in listing, listing
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, 10)
         surface.stop()
         link.stop()
