@@ -6,6 +6,7 @@ its store (with timeouts), never on fixed sleeps.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
@@ -208,6 +209,25 @@ class Listener:
         self._stop.set()
         self._thread.join(timeout=2)
         self.sock.close()
+
+
+@contextlib.contextmanager
+def simulated_vehicle(**sim_options):
+    """A UDP hub (the vehicle's router), the simulated ArduSub on it (``sim_options`` to SimVehicle) and a
+    ground-station listener on it: (hub, sim, listener)."""
+    from companion.live.udp_hub import UdpHub
+    from vehicle.sim.vehicle import SimVehicle
+
+    listener = Listener()
+    hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
+    sim = SimVehicle(hub.url, **sim_options)
+    sim.start()
+    try:
+        yield hub, sim, listener
+    finally:
+        sim.stop()
+        hub.stop()
+        listener.close()
 
 
 def write_clip(path: Path, frames: int = 20) -> Path:

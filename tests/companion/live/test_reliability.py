@@ -18,11 +18,11 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import StoreConfig
-from companion.live.udp_hub import UdpHub
 from companion.storage.store import TMP_PREFIX, Store
 from tests.companion.live_harness import (
     Companion,
     Listener,
+    simulated_vehicle,
     store_summary,
     wait_until,
     write_clip,
@@ -34,14 +34,9 @@ from vehicle.sim.vehicle import SimVehicle
 
 @pytest.fixture
 def vehicle():
-    listener = Listener()
-    hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
-    sim = SimVehicle(hub.url, reboot_s=1.0)
-    sim.start()
-    yield hub, sim, listener
-    sim.stop()
-    hub.stop()
-    listener.close()
+    """The live tests' vehicle (conftest.py), with a simulated ArduSub that reboots in 1 s."""
+    with simulated_vehicle(reboot_s=1.0) as parts:
+        yield parts
 
 
 def depth_values(listener: Listener) -> list[float]:

@@ -9,11 +9,9 @@ import numpy as np
 import pytest
 
 from companion.config import StoreConfig
-from companion.live.udp_hub import UdpHub
 from companion.storage.store import Store
-from tests.companion.live_harness import Companion, Listener, store_summary, wait_until, write_config
+from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
 from tests.conftest import run_merlion
-from vehicle.sim.vehicle import SimVehicle
 
 
 @pytest.mark.parametrize("text, message", [
@@ -54,19 +52,6 @@ def test_malformed_source_or_connection_is_one_line_and_exit_2_before_anything_s
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"merlion: error: {message}"), done.stderr
     assert not store.exists(), "a malformed source is not retried like an unplugged camera; nothing starts"
-
-
-@pytest.fixture
-def vehicle():
-    """A UDP hub (the router), the simulated ArduSub on it, and a ground-station listener on it."""
-    listener = Listener()
-    hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
-    sim = SimVehicle(hub.url)
-    sim.start()
-    yield hub, sim, listener
-    sim.stop()
-    hub.stop()
-    listener.close()
 
 
 def test_run_tags_frames_stores_them_sends_captures_and_stops_cleanly_then_resumes(tmp_path: Path, vehicle) -> None:
