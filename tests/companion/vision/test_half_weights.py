@@ -122,6 +122,29 @@ def test_each_stored_weight_is_upcast_about_once_per_forward(fp32_ckpt):
     assert all(count == 1 for name, count in calls.items() if name != "parametrizations.proj.0"), calls
 
 
+def test_upcasts_are_written_into_one_buffer_that_every_call_reuses(fp32_ckpt):
+    """No fresh fp32 tensor per weight and call: every upcast read inside a layer's call is a view of the one
+    buffer, at the same place at every forward (the tower's final projection, read outside any layer, is not)."""
+    from companion.vision.encoders.half_weights import MAX_CALL_CACHE_BYTES, UpcastToFloat32
+
+    half = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=fp32_ckpt, precision="fp16-weights"))
+    places: dict[str, set[int]] = {}
+    upcasts = {name: m for name, m in half._model.visual.named_modules() if isinstance(m, UpcastToFloat32)}
+    for name, module in upcasts.items():
+        module.register_forward_hook(
+            lambda mod, args, out, name=name: places.setdefault(name, set()).add(out.data_ptr()))
+    (arena,) = {id(m.arena): m.arena for m in upcasts.values()}.values()
+    frames = [np.random.default_rng(i).integers(0, 255, (120, 160, 3), dtype=np.uint8) for i in range(3)]
+    first = half.encode_images(frames)
+    np.testing.assert_array_equal(half.encode_images(frames), first)  # nothing stale carried between calls
+    start = arena.buffer.data_ptr()
+    end = start + arena.buffer.numel() * arena.buffer.element_size()
+    inside = {name for name, at in places.items() if all(start <= p < end for p in at)}
+    assert set(places) == set(upcasts) and inside == set(upcasts) - {"parametrizations.proj.0"}
+    assert all(len(places[name]) == 1 for name in inside)
+    assert 0 < end - start <= MAX_CALL_CACHE_BYTES
+
+
 def test_none_of_the_checkpoint_stays_resident_after_encoding(fp32_ckpt, tmp_path):
     """The fp32 pages are given back as each weight is converted, and the small fp32 tensors are copied out of the
     file: reading them at each forward mapped their page-cache folios again (84 MB of this 165 MB file)."""
