@@ -18,6 +18,10 @@ from companion.config import Config, ConfigError, load_config
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
+CUDA_BUILD_COST_MB = 280
+"""What ``import torch`` costs over torch's CPU build when no GPU is there (507 vs 229 MB measured, torch 2.14.1+cu130
+against 2.13.0+cpu): cuBLAS and its kin are loaded and initialised all the same (docs/encoders.md, Memory)."""
+
 
 @dataclass
 class Check:
@@ -216,6 +220,13 @@ def check_cuda(cfg: Config) -> Check:
     if cfg.encoder.device == "cuda":
         return Check("cuda", FAIL, f"encoder.device is cuda but torch {torch.__version__} sees no GPU",
                      "install NVIDIA's torch wheel for your JetPack, or set encoder.device: auto")
+    encodes_in_torch = cfg.encoder.name != "visual" and not (cfg.encoder.name == "clip" and cfg.encoder.runtime == "onnx")
+    if torch.version.cuda is not None and encodes_in_torch:
+        return Check("cuda", WARN, f"no GPU, and torch {torch.__version__} is a CUDA build: its GPU libraries cost "
+                     f"~{CUDA_BUILD_COST_MB} MB of memory in a process that encodes on the CPU",
+                     "on a Jetson, install NVIDIA's torch wheel for your JetPack; on a CPU-only computer, torch's "
+                     "CPU build (pip install torch torchvision --index-url https://download.pytorch.org/whl/cpu) "
+                     "or encoder.runtime: onnx")
     return Check("cuda", WARN, f"no GPU (torch {torch.__version__}); encoding runs on the CPU",
                  "on a Jetson, install NVIDIA's torch wheel for your JetPack")
 

@@ -37,3 +37,26 @@ def test_doctor_on_a_bad_config_names_the_key(tmp_path: Path) -> None:
     done = run_merlion("doctor", "--config", str(cfg), timeout=60)
     assert done.returncode == 1
     assert done.stdout.splitlines()[0].startswith("FAIL  config") and "mavlink.component_id" in done.stdout
+
+
+def test_doctor_names_the_cost_of_a_cuda_build_of_torch_on_a_computer_without_gpu() -> None:
+    """On a CPU-only companion a CUDA build of torch loads its GPU libraries all the same (~0.28 GB): the doctor
+    says so, with the CPU build or the ONNX runtime as the fix; an encoder that needs no torch gets no such line."""
+    import torch
+
+    from companion.config import Config
+    from companion.live.doctor import OK, WARN, check_cuda
+
+    torch_encoder = Config.model_validate({"encoder": {"name": "imagenet"}})
+    no_torch = Config.model_validate({"encoder": {"name": "clip", "runtime": "onnx"}})
+    if torch.cuda.is_available():
+        assert check_cuda(torch_encoder).status == OK
+        return
+    check, other = check_cuda(torch_encoder), check_cuda(no_torch)
+    assert check.status == other.status == WARN
+    assert "CUDA build" not in other.detail
+    if torch.version.cuda is None:  # a CPU build already
+        assert "CUDA build" not in check.detail
+    else:
+        assert "is a CUDA build" in check.detail and "MB of memory" in check.detail
+        assert "download.pytorch.org/whl/cpu" in check.fix and "encoder.runtime: onnx" in check.fix
