@@ -62,7 +62,7 @@ class EncoderConfig(_Section):
     device: Literal["auto", "cpu", "cuda"] = "auto"
     precision: Precision = "auto"
     """auto: fp16 on CUDA, bf16 on CPUs with native bf16 units, fp16-weights elsewhere (fp32 arithmetic on weights
-    stored in fp16: half the tower's memory at ~0.9x fp32's speed); int8 (CLIP, CPU only, never auto)."""
+    stored in fp16: half the tower's memory at about fp32's speed); int8 (CLIP, CPU only, never auto)."""
     runtime: Literal["torch", "onnx"] = "torch"
     """onnx: CLIP's image tower exported once and run by ONNX Runtime in fp32, with no torch in the process (see
     docs/encoders.md)."""

@@ -1,4 +1,4 @@
-"""fp32 arithmetic on weights kept in fp16: half the image tower's memory, ~0.9x fp32's speed, for CPUs without bf16.
+"""fp32 arithmetic on weights kept in fp16: half the image tower's memory at about fp32's speed, for CPUs without bf16.
 
 On an AVX2-only CPU the reduced-precision paths do not pay: bf16 is emulated (about 2x slower than fp32) and int8
 reaches 1.1-1.4x, while fp32 holds ViT-B-32's image tower in 351 MB, which with torch's and open_clip's imports

@@ -50,7 +50,7 @@ def pick_precision(precision: str, device: torch.device) -> str:
     """What ``auto`` means where the encoder runs; an explicit precision is checked against the device.
 
     auto: fp16 on CUDA; on the CPU bf16 where it has native bf16 units, else ``fp16-weights`` (fp32 arithmetic
-    on weights stored in fp16: ~0.9x fp32's speed and near its numerics in half the tower's memory; plain fp32 would
+    on weights stored in fp16: about fp32's speed and near its numerics in half the tower's memory; plain fp32 would
     put ViT-B-32 over the 1 GB budget, and emulated bf16 is slower than fp32).
     """
     if precision == "auto":
