@@ -45,7 +45,7 @@ class UpcastArena:
     """One fp32 buffer, allocated once, that the upcasts of a module call are written into.
 
     An upcast allocated afresh each time (ViT-B-32: 48 tensors of 2-9 MB per forward) costs a page-faulted
-    allocation and its zeroing every time; writing into warm memory made a forward ~5% faster. A view handed out
+    allocation and its zeroing every time; writing into warm memory made a forward 3-5% faster. A view handed out
     here lives until the outermost module call that opened a scope returns, which is when ``parametrize.cached``
     (which holds these views) forgets it; only then is the buffer reused. A read outside any scope, or one that
     does not fit, gets an ordinary tensor.
