@@ -52,7 +52,7 @@ class FrameFeed:
         self.decoded = 0
         self.max_bytes = max_bytes
         self.most_bytes_ahead = 0
-        """The most pixel bytes the read-ahead held at once (what the tests and the bench look at)."""
+        """The most pixel bytes the read-ahead held at once."""
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, depth))
         self._bytes_ahead = 0
         self._room = threading.Condition()

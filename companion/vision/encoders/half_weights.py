@@ -15,8 +15,10 @@ range, or a relative error above ``MAX_RELATIVE_ERROR`` from values in its subno
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 
 import torch
@@ -61,6 +63,17 @@ class UpcastArena:
         if elements > self.buffer.numel():
             self.buffer = torch.empty(elements)
 
+    @contextlib.contextmanager
+    def scope(self) -> Iterator[None]:
+        """One module call; the buffer is free again when the outermost scope closes."""
+        self.depth += 1
+        try:
+            yield
+        finally:
+            self.depth -= 1
+            if self.depth == 0:
+                self.top = 0
+
     def take(self, stored: torch.Tensor) -> torch.Tensor:
         n = stored.numel()
         if self.depth == 0 or self.top + n > self.buffer.numel():
@@ -73,12 +86,12 @@ class UpcastArena:
 class UpcastToFloat32(torch.nn.Module):
     """The parametrization: the stored fp16 tensor as the fp32 one the layer computes with."""
 
-    def __init__(self, arena: UpcastArena | None = None) -> None:
+    def __init__(self, arena: UpcastArena) -> None:
         super().__init__()
         self.arena = arena
 
     def forward(self, stored: torch.Tensor) -> torch.Tensor:
-        return self.arena.take(stored) if self.arena is not None else stored.float()
+        return self.arena.take(stored)
 
 
 def _to_fp16(weight: torch.Tensor) -> torch.Tensor | None:
@@ -127,9 +140,12 @@ def store_weights_in_fp16(module: torch.nn.Module, checkpoint: Path | None = Non
                 pages.replace(tensor, old.to(torch.float32, copy=True))  # a copy, out of the file: see above
             del old
     for owner in list(module.modules()):
-        if parametrize.is_parametrized(owner) and _upcast_bytes(owner) <= MAX_CALL_CACHE_BYTES:
+        if not parametrize.is_parametrized(owner):
+            continue
+        upcast = _upcast_bytes(owner)
+        if upcast <= MAX_CALL_CACHE_BYTES:
             _upcast_once_per_call(owner, arena)
-            arena.reserve(_upcast_bytes(owner) // 4)
+            arena.reserve(upcast // 4)
     log.debug("fp16 storage: %d MB saved, %d tensors kept in fp32 (out of fp16's reach)", saved >> 20, kept)
     return saved
 
@@ -156,14 +172,8 @@ def _upcast_once_per_call(module: torch.nn.Module, arena: UpcastArena) -> None:
 
     @functools.wraps(forward)
     def forward_upcasting_once(*args, **kwargs):
-        arena.depth += 1
-        try:
-            with parametrize.cached():
-                return forward(*args, **kwargs)
-        finally:
-            arena.depth -= 1
-            if arena.depth == 0:
-                arena.top = 0
+        with arena.scope(), parametrize.cached():
+            return forward(*args, **kwargs)
 
     module.forward = forward_upcasting_once
 
