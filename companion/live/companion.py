@@ -30,6 +30,7 @@ from companion.config import Config, ConfigError, build_config
 from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
+from companion.live.query_answer import refusal_line, resolution_lines
 from companion.live.queues import DropOldestQueue
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
@@ -369,6 +370,7 @@ class LiveCompanion:
         # topic changed, and a CLIP text not yet cached is encoded now (a child process, seconds) rather than
         # while the inference loop waits; under the lock the texts are then in memory
         self._check_queries(specs)
+        self._say_resolved(specs)
 
         def set_topics() -> list[SummaryEvent]:
             events = self.pipeline.set_topics(specs)
@@ -410,8 +412,14 @@ class LiveCompanion:
                 if self.surface is not None:
                     from vehicle.camera import status as st
 
-                    self.surface.event(f"Queries refused: {spec.name}: {err}"[:50], st.WARNING)
+                    self.surface.event(refusal_line(spec.name, err), st.WARNING)
                 raise ValueError(f"topic {spec.name}: {err}") from None
+
+    def _say_resolved(self, specs) -> None:
+        """Tell the surface what each query was read as (the packaged encoder's WordNet classes)."""
+        if self.surface is not None:
+            for line in resolution_lines(self.encoder, [(s.name, [s.positive, *s.negatives]) for s in specs]):
+                self.surface.event(line)
 
     # ---- the operator's marks -----------------------------------------------------------------------------------
     def _on_marks(self, like: list[int], unlike: list[int]) -> None:

@@ -54,23 +54,21 @@ _WORD = re.compile(r"[a-z][a-z'-]*|[,;/&+]")
 
 
 class UnknownWord(MerlionError):
-    """A query word that resolves to no ImageNet class; ``word`` and ``near`` make the short surface line."""
+    """A query word that resolves to no ImageNet class; ``word``, ``brief`` and ``near`` make the short line."""
 
-    def __init__(self, query: str, word: str, why: str, near: tuple[str, ...]) -> None:
+    def __init__(self, query: str, word: str, why: str, near: tuple[str, ...], brief: str) -> None:
         self.word = word
         self.near = near
+        self.brief = brief
         hint = f"; near words: {', '.join(near)}" if near else ""
         super().__init__(f"{word!r} {why} (query {query!r}){hint}")
 
-    def short(self) -> str:
-        """A line for a 50-character STATUSTEXT: the word first, then the nearest suggestions that fit."""
-        line = f"Unknown word: {self.word}"
-        for i, near in enumerate(self.near):
-            extra = f" (near: {near}" if i == 0 else f", {near}"
-            if len(line) + len(extra) + 1 > 50:
-                break
-            line += extra
-        return line + ")" if self.near and "(near:" in line else line
+    def short(self, width: int = 50, prefix: str = "") -> str:
+        """A line for a STATUSTEXT: ``prefix``, the word and why first, then the near words that fit."""
+        line = f"{prefix}{self.word!r} {self.brief}"
+        shown = [n for i, n in enumerate(self.near) if len(line) + len(" (near: )") + len(", ".join(self.near[:i + 1]))
+                 <= width]
+        return (line + f" (near: {', '.join(shown)})" if shown else line)[:width]
 
 
 @dataclass(frozen=True)
@@ -114,9 +112,10 @@ class ResolvedQuery:
             lines.append(f"  {t.phrase} -> {t.noun} [{t.how}]: {len(t.classes)} classes: {names}")
         return "\n".join(lines)
 
-    def short(self, width: int = 50) -> str:
-        """A line for a STATUSTEXT: ``fish=16: tench,goldfish,...`` cut at ``width`` characters."""
-        head = f"{'not ' if self.negated else ''}{'+'.join(t.phrase for t in self.terms)}={len(self.classes)}: "
+    def short(self, width: int = 50, prefix: str = "") -> str:
+        """A line for a STATUSTEXT: ``{prefix}fish=16: tench,goldfish,...`` cut at ``width`` characters, the
+        classes that weigh most first."""
+        head = f"{prefix}{'not ' if self.negated else ''}{'+'.join(t.phrase for t in self.terms)}={len(self.classes)}: "
         names = ",".join(class_name(c) for c in sorted(self.weights, key=lambda c: -self.weights[c]))
         line = head + names
         return line if len(line) <= width else line[: width - 2] + ".."
@@ -209,7 +208,8 @@ def _resolve_phrase(wn: WordNetNouns, query: str, words: list[str]) -> Term:
     phrase = " ".join(words)
     unknown = next((w for w in words if not wn.is_english(w)), None)
     if unknown is not None:  # queries mean what they say: no word is skipped unread
-        raise UnknownWord(query, unknown, "is not an English word that WordNet knows", _near(wn, unknown))
+        raise UnknownWord(query, unknown, "is not an English word that WordNet knows", _near(wn, unknown),
+                          "unknown")
     whole_known = wn.knows(phrase) if len(words) > 1 else False
     for length in range(min(len(words), MAX_WORDS), 0, -1):
         for start in range(len(words) - length, -1, -1):  # rightmost first: the head noun ends a phrase
@@ -238,8 +238,9 @@ def _resolve_phrase(wn: WordNetNouns, query: str, words: list[str]) -> Term:
                 found, how = _climb(wn, span)
                 if found:
                     return Term(phrase, span, how, tuple(sorted(found)))
-                raise UnknownWord(query, span, "names nothing the imagenet encoder can see", _near(wn, span))
-    raise UnknownWord(query, phrase, "is not a thing WordNet knows", _near(wn, words[-1]))
+                raise UnknownWord(query, span, "names nothing the imagenet encoder can see", _near(wn, span),
+                                  "not in model")
+    raise UnknownWord(query, phrase, "is not a thing WordNet knows", _near(wn, words[-1]), "unknown")
 
 
 def _near(wn: WordNetNouns, word: str) -> tuple[str, ...]:

@@ -110,7 +110,8 @@ def test_a_word_that_resolves_to_nothing_is_refused_naming_it(query, word, why):
         resolve_query(query)
     assert err.value.word == word and str(err.value).startswith(f"{word!r} {why}")
     assert "\n" not in str(err.value)
-    assert err.value.short().startswith(f"Unknown word: {word}") and len(err.value.short()) <= 50
+    line = err.value.short(50, "Queries refused: main: ")
+    assert line.startswith(f"Queries refused: main: {word!r} ") and len(line) <= 50
 
 
 def test_near_words_are_offered():
