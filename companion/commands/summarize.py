@@ -42,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
     sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
+    below = sum(f["below_threshold"] for f in result.document["frames"])
+    below_text = f"; {below} below the threshold, the best seen" if below else ""
     print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
-          f"({result.frames_passed} passed the query{lost}); see summary.json and {sheets}")
+          f"({result.frames_passed} passed the query{lost}{below_text}); see summary.json and {sheets}")
     return 0
