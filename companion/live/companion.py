@@ -32,6 +32,7 @@ from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
 from companion.live.query_answer import refusal_line, resolution_lines
 from companion.live.queues import DropOldestQueue
+from companion.live.quiet_notice import QuietNotice
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
@@ -84,6 +85,7 @@ class LiveCompanion:
         """Marked frames the encoder embedded (beside the frames it scored)."""
         self.pipeline = None
         self.encoder = None
+        self._quiet: QuietNotice | None = None
         self.link = None
         self.telemetry = None
         self.surface = None
@@ -211,6 +213,17 @@ class LiveCompanion:
     def _publish(self, event: SummaryEvent) -> None:
         if self.surface is not None:
             self.surface.publish(event)
+            self._tell_quiet(event)
+
+    def _tell_quiet(self, event: SummaryEvent) -> None:
+        """A topic's first stand-in (nothing passed for a while): say so once, as a warning the page shows."""
+        if self._quiet is None:
+            self._quiet = QuietNotice(self.cfg.queries.below_threshold_after_s)
+        line = self._quiet.line_for(event)
+        if line is not None:
+            from vehicle.camera import status as st
+
+            self.surface.event(line, st.WARNING)
 
     def _params_file(self) -> ParamsFile:
         return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)

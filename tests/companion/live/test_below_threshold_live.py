@@ -1,0 +1,50 @@
+"""A live dive where nothing passes is not silently empty (issue 23 item 3), end to end.
+
+A real `merlion run` with the packaged encoder looks for "fish" in footage that has none, behind a UDP hub, with a
+real `merlion surface` and its page: after ``queries.below_threshold_after_s`` of footage the companion says so in
+one STATUSTEXT (a warning on the page's status), its best frames so far enter the summary marked below the
+threshold (the store's sidecars, the surface's summary). That a passing frame displaces them is
+tests/companion/vision/test_below_threshold.py's.
+"""
+
+from __future__ import annotations
+
+import json
+
+from companion.live.udp_hub import UdpHub
+from tests.companion.live_harness import FAST_SOURCE, Companion, store_summary, wait_until, write_config
+from tests.companion.topside.live_page import page_state, surface_with_page
+from tests.conftest import free_udp_port
+
+
+def test_nothing_passing_shows_the_best_frames_and_tells_the_surface(tmp_path):
+    web_port = free_udp_port()
+    hub = UdpHub(outputs=[("127.0.0.1", web_port)]).start()
+    store = tmp_path / "store"
+    try:
+        cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)},
+                           encoder={"name": "imagenet"}, sampler={"k": 3},
+                           queries={"positive": "fish", "negatives": ["no fish"], "tau_ss": 0.9,
+                                    "below_threshold_after_s": 2},
+                           source={"uri": FAST_SOURCE, "fps": 5, "realtime": True, "loop": True},
+                           surface={"ftp_writable": True, "budget_bytes_per_s": 40000})
+        companion = Companion("--config", str(cfg))
+        companion.wait_for("companion running", 120)
+        with surface_with_page(tmp_path / "gallery", web_port, duration=120) as tool:
+            def warnings() -> list[str]:
+                return [s["text"] for s in page_state(tool.web)["companion"]["warnings"]]
+
+            wait_until(lambda: "main: none passed in 2s; best shown" in warnings(), 60,
+                       "the companion's notice on the page's status")
+            wait_until(lambda: store_summary(store).get("summary"), 30, "stand-ins in the store")
+            held = store_summary(store)["summary"]
+            sidecars = [json.loads((store / "frames" / f"{i:06d}.json").read_text()) for i in held]
+            assert 1 <= len(sidecars) <= 3 and all(s["below_threshold"] is True for s in sidecars), sidecars
+            assert all(s["score"] <= 0.9 for s in sidecars)
+            wait_until(lambda: {f["image_index"] for f in page_state(tool.web)["summary"]} >= set(held), 60,
+                       "the stand-ins on the surface's summary")
+            assert warnings().count("main: none passed in 2s; best shown") == 1  # said once, not per frame
+
+            assert companion.terminate() == 0, companion.output
+    finally:
+        hub.stop()
