@@ -584,7 +584,8 @@ class SurfaceTool:
                 if cap.thumbnail_crc32 is not None:
                     self._crc[cap.image_index] = cap.thumbnail_crc32
             tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
-                                                 "score", "topic", "file_url", "thumbnail_crc32")}
+                                                 "score", "topic", "file_url", "thumbnail_crc32",
+                                                 "below_threshold")}
             self.gallery.update_tags(cap.image_index, **tags)
             known = self.gallery.get(cap.image_index)
             if known is None:
@@ -744,7 +745,7 @@ def _age(now: float, then: float | None) -> float | None:
 def _capture_view(c: Capture) -> dict:
     return {
         "image_index": c.image_index, "dive": c.dive, "time_utc": c.time_utc, "depth_m": c.depth_m, "heading_deg": c.heading_deg,
-        "score": c.score, "topic": c.topic, "lat": c.lat, "lon": c.lon, "alt_m": c.alt_m, "thumbnail": c.thumbnail,
+        "score": c.score, "topic": c.topic, "below_threshold": bool(c.below_threshold), "lat": c.lat, "lon": c.lon, "alt_m": c.alt_m, "thumbnail": c.thumbnail,
         "via": c.thumbnail_via,
         "bytes": c.thumbnail_bytes,
     }
