@@ -26,7 +26,7 @@ _SUFFIXES = (("ses", "s"), ("xes", "x"), ("zes", "z"), ("ches", "ch"), ("shes", 
              ("ies", "y"), ("s", ""))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # 82,115 of them: no per-instance dict
 class Synset:
     offset: int
     """The WordNet 3.0 noun offset; ImageNet's ``n01440764`` is offset 1440764."""
