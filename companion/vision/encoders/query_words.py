@@ -169,10 +169,14 @@ def _depth(wn: WordNetNouns, offset: int) -> int:
 
 def _climb(wn: WordNetNouns, phrase: str) -> tuple[set[int], str]:
     """The classes of the same kind (animal, artifact, ...) below the nearest hypernym that has some, for a noun
-    with none below it. Animal senses are tried first, then the others, most frequent first; an ancestor nearer the root than ``MIN_DEPTH``
+    with none below it. Animal senses are tried first, those the word is the main name of first, then the
+    others, most frequent first; an ancestor nearer the root than ``MIN_DEPTH``
     ("material", "natural object") is too general to stand for the word."""
     offsets = class_offsets()
-    senses = sorted(wn.lookup(phrase), key=lambda s: s.lexfile != ANIMALS)  # the camera is under water
+    # the camera is under water: animal senses first; then senses the word is the main name of ("seahorse" is
+    # the fish's first name, and only the walrus's third)
+    word = wn.base_forms(phrase)[0] if wn.base_forms(phrase) else phrase
+    senses = sorted(wn.lookup(phrase), key=lambda s: (s.lexfile != ANIMALS, s.lemmas[0] != word))
     for sense in senses:
         frontier = [sense.offset]
         for _ in range(CLIMB):

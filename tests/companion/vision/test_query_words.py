@@ -72,6 +72,7 @@ MARINE = [
     ("coral reef", {"coral reef"}, {"brain coral"}),
     ("bottle", {"beer bottle", "water bottle", "pop bottle"}, set()),
     ("submarine", {"submarine"}, set()),
+    ("seahorse", {"goldfish", "lionfish"}, {"sea lion"}),  # the fish, not WordNet's other "sea horse", a walrus
 ]
 
 
