@@ -4,6 +4,12 @@ One owner of the connection: this loop reads every message, keeps the link and c
 companion, and hands each of its messages to the role that owns it: ``push_pairing`` (captures and pushed
 thumbnails), ``gallery_sync`` (index.json, status lines, FTP fallback and checks), ``page_state`` (what the page
 shows) and ``actions`` (what the page asks for). They share one explicit ``surface_state.SurfaceContext``.
+
+With a signing key, everything the companion sends changes the gallery, the dive or the page, so only messages
+whose signature the connection verified (``vehicle.link.signing.LinkSigning``, the companion's own check: valid
+signature, fresh timestamp per stream) are acted on; anything else is ignored, counted per source, and reported
+once per source on the page. The companion's identity is then settled by its first signed messages (or
+``--companion``) and never re-learned.
 """
 
 from __future__ import annotations
@@ -31,11 +37,13 @@ from companion.topside.surface_state import (
     MARKS_TIMEOUT_S,
     OFFLINE_EVERY_S,
     PUSH_MARKER,
+    SEVERITY_WARNING,
     LinkStatus,
     SurfaceContext,
     SurfaceOptions,
 )
 from vehicle.link.connection import MavLink, is_autopilot_heartbeat
+from vehicle.link.signing import MAX_SOURCES, OTHER_SOURCES
 
 __all__ = ["LinkStatus", "SurfaceOptions", "SurfaceTool"]
 
@@ -43,6 +51,12 @@ log = logging.getLogger("merlion.surface")
 
 MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
 MAV_TYPE_GCS = mav.MAV_TYPE_GCS
+
+
+def verified(msg) -> bool:
+    """Whether the connection's ``LinkSigning`` checked ``msg``'s signature and timestamp and found them good (it
+    marks such a message; an unsigned read it let through, or a badly signed one, carries no mark)."""
+    return bool(getattr(msg, "_signed", False))
 
 
 class SurfaceTool:
@@ -68,6 +82,7 @@ class SurfaceTool:
         self._last_seq: dict[tuple[int, int], int] = {}
         self._cameras: set[tuple[int, int]] = set()
         self._offline_at = -1e9
+        self._signed_only = self._link.signing.enabled
 
     # the context's parts, as other code and tests name them
     options = property(lambda self: self.ctx.options)
@@ -135,6 +150,9 @@ class SurfaceTool:
         if kind == "BAD_DATA":
             return
         source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self._signed_only and not verified(msg):
+            self._ignore(msg, source)
+            return
         now = time.time()
         seq = msg.get_seq()
         status = self.ctx.status
@@ -170,6 +188,22 @@ class SurfaceTool:
             self._on_value(msg, kind, now)
         elif kind == "FILE_TRANSFER_PROTOCOL" and self.ctx.ftp is not None:
             self.ctx.ftp.handle(msg)
+
+    def _ignore(self, msg, source: tuple[int, int]) -> None:
+        """An unsigned (or badly signed, or replayed) message on a signed link: counted, reported once per source
+        (a table of bounded size: spoofed ids by the thousand are counted together under 0/0)."""
+        status = self.ctx.status
+        with self.ctx.lock:
+            status.unsigned_ignored += 1
+            key = source if source in status.unsigned_sources or len(status.unsigned_sources) < MAX_SOURCES \
+                else OTHER_SOURCES
+            count = status.unsigned_sources.get(key, 0) + 1
+            status.unsigned_sources[key] = count
+            if count == 1:
+                text = f"unsigned {msg.get_type()} from {key[0]}/{key[1]} ignored (and any more from it)"
+                status.warnings.append({"time": time.time(), "severity": SEVERITY_WARNING, "text": text})
+        if count == 1:
+            log.warning("%s", text)
 
     def _on_value(self, msg, kind: str, now: float) -> None:
         name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else msg.name
