@@ -6,9 +6,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pymavlink import mavutil
+
 from companion.config import StoreConfig
 from companion.storage.store import Store
-from tests.companion.live_harness import Companion, set_param, wait_until, write_config
+from tests.companion.live_harness import Companion, wait_until, write_config
 from tests.companion.storage.test_store import tiny_tmpfs
 
 FULL = "Store disk full"
@@ -73,6 +75,10 @@ def test_a_full_store_is_reported_once_recovered_and_no_index_comes_twice(tmp_pa
             assert (store / "frames" / f"{i:06d}.jpg").is_file()
 
 
+def _answered(listener, start: int) -> bool:
+    return any(m.get_type() == "PARAM_VALUE" and m.param_id == "MERL_K" for m in listener.messages[start:])
+
+
 def test_a_param_set_on_a_read_only_store_is_still_answered(tmp_path: Path, dive) -> None:
     hub, gcs, listener = dive
     with tiny_tmpfs(tmp_path / "ro", "size=1m,ro") as mnt:
@@ -81,6 +87,11 @@ def test_a_param_set_on_a_read_only_store_is_still_answered(tmp_path: Path, dive
         companion.wait_for("companion running")
         listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "Store read-only" in str(m.text), 60,
                           "the read-only warning")
-        assert set_param(gcs, listener, "MERL_K", 5, integer=True).param_value == 5
+        wait_until(lambda: (gcs.mav.param_request_read_send(1, 100, b"MERL_K", -1), _answered(listener, 0))[1], 30,
+                   "the companion answering reads")
+        start = len(listener.messages)
+        gcs.mav.param_set_send(1, 100, b"MERL_K", 5.0, mavutil.mavlink.MAV_PARAM_TYPE_INT32)  # once: a retry would
+        listener.wait_for(lambda m: m in listener.messages[start:] and m.get_type() == "PARAM_VALUE"  # hide it
+                          and m.param_id == "MERL_K" and m.param_value == 5, 10, "the PARAM_SET's PARAM_VALUE")
         assert companion.alive()
         assert companion.terminate() == 0, companion.output
