@@ -82,7 +82,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
             if not hosts.allows(host):
                 self._refuse(f"Host {host[:100]!r} is not this server")
                 return False
-            why = None if page else cross_origin(self.headers)
+            why = None if page else cross_origin(self.headers, hosts)
             if why is not None:
                 self._refuse(why)
                 return False

@@ -9,7 +9,8 @@ A page on another web origin must not read the state (summary, depths, positions
   ``name:port``), for a reverse proxy in front of the page;
 - everything but the page itself (``/``, ``index.html``, ``app.js``: no state in them) is served only to same-origin
   requests: an ``Origin`` or ``Referer`` naming another host, or a ``Sec-Fetch-Site`` other than ``same-origin``
-  or ``none`` (what a browser sends for a script or image included by another site), is refused;
+  or ``none`` (what a browser sends for a script or image included by another site), is refused (behind a
+  reverse proxy that rewrites Host, its ``X-Forwarded-Host`` counts as the page's own when it is allowed);
 - a change (POST) also needs the per-run token.
 """
 
@@ -40,6 +41,15 @@ class HostPolicy:
         self.port = port
         self.extra = frozenset(h.strip().lower() for h in allowed_hosts if h.strip())
 
+    def allows_extra(self, host_header: str) -> bool:
+        """Whether ``host_header`` is one of the configured further hosts (``name`` or ``name:port``)."""
+        header = host_header.strip().lower()
+        try:
+            name = urlsplit(f"//{header}").hostname or ""
+        except ValueError:
+            return False
+        return header in self.extra or name in self.extra
+
     def allows(self, host_header: str | None) -> bool:
         header = (host_header or "").strip().lower()
         if not header:
@@ -60,16 +70,23 @@ class HostPolicy:
         return self.bind_host in WILDCARDS and _is_ip(host)
 
 
-def cross_origin(headers) -> str | None:
-    """Why a request comes from another web origin than the page's own (None: same origin, or no browser)."""
-    host = (headers.get("Host") or "").lower()
+def cross_origin(headers, hosts: HostPolicy | None = None) -> str | None:
+    """Why a request comes from another web origin than the page's own (None: same origin, or no browser).
+
+    The page's own origin is its Host, or, behind a reverse proxy that rewrites Host, the ``X-Forwarded-Host``
+    it adds when that is one of ``hosts``' allowed names (a page cannot add that header to a cross-origin request
+    without a CORS preflight, which this server never grants)."""
+    own = {(headers.get("Host") or "").lower()}
+    forwarded = (headers.get("X-Forwarded-Host") or "").split(",")[0].strip().lower()
+    if forwarded and hosts is not None and hosts.allows_extra(forwarded):
+        own.add(forwarded)
     origin = headers.get("Origin")
-    if origin is not None and urlsplit(origin).netloc.lower() != host:
+    if origin is not None and urlsplit(origin).netloc.lower() not in own:
         return f"cross-origin request from {origin[:100]!r}"
     if headers.get("Sec-Fetch-Site") not in (None, "same-origin", "none"):
         return "cross-site request"
     referer = headers.get("Referer")
-    if referer is not None and urlsplit(referer).netloc.lower() != host:
+    if referer is not None and urlsplit(referer).netloc.lower() not in own:
         return "request from another page's origin"
     return None
 
@@ -79,7 +96,7 @@ def refusal(headers, path: str, token: str, hosts: HostPolicy) -> str | None:
     host = headers.get("Host", "")
     if not hosts.allows(host):
         return f"Host {host[:100]!r} is not this server"
-    why = cross_origin(headers)
+    why = cross_origin(headers, hosts)
     if why is not None:
         return why
     given = parse_qs(urlsplit(path).query).get("token", [""])[0] or headers.get(TOKEN_HEADER, "")

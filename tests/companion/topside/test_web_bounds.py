@@ -130,3 +130,18 @@ def test_three_hundred_slow_bodies_do_not_pin_threads(surface):
     finally:
         for s in held:
             s.close()
+
+
+def test_behind_a_proxy_that_rewrites_host_the_forwarded_name_is_the_origin(surface):
+    """nginx's default passes Host as the upstream's address and adds X-Forwarded-Host: the page's own origin is
+    then the proxy's name, when --web-allow-host names it; any other forwarded name is no excuse."""
+    port = surface.web
+    proxied = {"X-Forwarded-Host": "proxy.example", "Origin": "https://proxy.example",
+               "Sec-Fetch-Site": "same-origin"}
+    assert _request(port, "GET", "/api/state", headers=proxied)[0] == 200
+    status, _ = _request(port, "POST", f"/api/mark?token={surface.token}", headers=proxied,
+                         body=b'{"index": 1, "kind": "like"}')
+    assert status == 400  # past the guard: the mark itself fails (no companion), not the origin
+    forged = dict(proxied, **{"X-Forwarded-Host": "evil.example", "Origin": "https://evil.example"})
+    assert _request(port, "GET", "/api/state", headers=forged)[0] == 403
+    assert _request(port, "POST", f"/api/mark?token={surface.token}", headers=forged, body=b"{}")[0] == 403
