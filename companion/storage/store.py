@@ -21,7 +21,6 @@ that cannot persist even that (a read-only disk at start) gets a dive id of its 
 
 from __future__ import annotations
 
-import io
 import json
 import logging
 import os
@@ -32,74 +31,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
-import numpy as np
-
 from companion.config import StoreConfig
 from companion.storage.atomic_write import TMP_PREFIX, atomic_write
+from companion.storage.frame_files import (
+    FORMAT_VERSION,
+    HeldFrame,
+    frame_name,
+    read_frame,
+    sidecar_for,
+    write_frame_files,
+)
 from companion.storage.index_reservation import IndexReservation
 from companion.storage.store_health import Listener, StoreHealth
 from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
-from vehicle.autopilot.pose import Pose
 
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 CHANGES_FILE = "changes.jsonl"
 NEXT_INDEX_FILE = "next_index"
-FORMAT_VERSION = 1
-
-
-def _name(index: int) -> str:
-    return f"{index:06d}"
-
-
-def _encode_jpeg(image: np.ndarray, quality: int = 95) -> bytes:
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise ValueError("could not encode the frame as JPEG")
-    return buf.tobytes()
-
-
-def _npy_bytes(array: np.ndarray) -> bytes:
-    bio = io.BytesIO()
-    np.save(bio, np.asarray(array, dtype=np.float32), allow_pickle=False)
-    return bio.getvalue()
-
-
-def pose_from_dict(data: dict[str, Any] | None) -> Pose | None:
-    if not data:
-        return None
-    data = dict(data)
-    if data.get("q") is not None:
-        data["q"] = tuple(data["q"])
-    known = set(Pose.__dataclass_fields__)
-    return Pose(**{k: v for k, v in data.items() if k in known})
-
-
-def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The JSON sidecar of a summary frame: what a person or the surface needs to know about it."""
-    h, w = frame.image.shape[:2]
-    return {
-        "version": FORMAT_VERSION,
-        "image_index": frame.image_index,
-        "frame_index": frame.frame_index,
-        "time_s": frame.time_s,
-        "capture_time": frame.capture_time,
-        "capture_utc": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(frame.capture_time))
-        + f".{int((frame.capture_time % 1) * 1000):03d}Z",
-        "score": float(frame.score),
-        "enhanced": bool(frame.enhanced),
-        "width": int(w),
-        "height": int(h),
-        "file": f"frames/{_name(frame.image_index)}.jpg",
-        "raw_file": None,
-        "feature_file": f"frames/{_name(frame.image_index)}.npy",
-        "pose": frame.pose.to_dict() if frame.pose is not None else None,
-        "topic": frame.topic,
-        "tags": dict(tags or {}),
-    }
 
 
 @dataclass
@@ -108,15 +59,6 @@ class StoreStats:
     frames_pruned: int = 0
     write_errors: int = 0
     bytes_on_disk: int = 0
-
-
-@dataclass
-class _Held:
-    """A summary frame the store holds (in memory too, so a memory-only store can still answer)."""
-
-    frame: SummaryFrame
-    sidecar: dict[str, Any]
-    on_disk: bool = False
 
 
 @dataclass
@@ -139,7 +81,7 @@ class Store:
         self.health = StoreHealth(self.dir)
         self._reservation = IndexReservation(self.dir / NEXT_INDEX_FILE)
         self._lock = threading.RLock()
-        self._held: dict[int, _Held] = {}
+        self._held: dict[int, HeldFrame] = {}
         self._summary: list[int] = []
         self._next_index = 0
         self.dive = ""
@@ -236,7 +178,7 @@ class Store:
         highest = self._highest_index_on_disk()
         self._next_index = max(next_index, highest + 1, self._reservation.load())
         for index in indices:
-            held = self._read_frame(index)
+            held = read_frame(self.dir, index)
             if held is None:
                 log.warning("store %s: summary frame %d is missing on disk; dropped from the summary", self.dir, index)
                 continue
@@ -281,40 +223,6 @@ class Store:
                 continue
         return highest
 
-    def _read_frame(self, index: int) -> _Held | None:
-        base = self.frames_dir / _name(index)
-        try:
-            sidecar = json.loads((base.with_suffix(".json")).read_text(encoding="utf-8"))
-            feature = np.load(base.with_suffix(".npy"), allow_pickle=False)
-            image = cv2.imread(str(base.with_suffix(".jpg")), cv2.IMREAD_COLOR)
-        except (OSError, ValueError):
-            return None
-        if image is None or not isinstance(sidecar, dict):
-            return None
-        try:
-            return self._held_from(sidecar, image, feature)
-        except (KeyError, TypeError, ValueError):  # a sidecar edited by hand or damaged: that frame is dropped
-            return None
-
-    def _held_from(self, sidecar: dict[str, Any], image: np.ndarray, feature: np.ndarray) -> _Held:
-        raw = None
-        if sidecar.get("raw_file"):
-            raw = cv2.imread(str(self.dir / sidecar["raw_file"]), cv2.IMREAD_COLOR)
-        frame = SummaryFrame(
-            image_index=int(sidecar["image_index"]),
-            frame_index=int(sidecar.get("frame_index", 0)),
-            time_s=float(sidecar.get("time_s", 0.0)),
-            capture_time=float(sidecar.get("capture_time", 0.0)),
-            score=float(sidecar.get("score", 0.0)),
-            image=image,
-            feature=feature,
-            pose=pose_from_dict(sidecar.get("pose")),
-            raw_image=raw,
-            enhanced=bool(sidecar.get("enhanced", False)),
-            topic=str(sidecar.get("topic") or ""),
-        )
-        return _Held(frame=frame, sidecar=sidecar, on_disk=True)
-
     # ---- what the rest of the companion asks ----------------------------------------------------------------
     def resume_state(self) -> ResumeState:
         """The summary to restore into the sampler (in summary order) and the next image index to hand out."""
@@ -337,7 +245,7 @@ class Store:
             held = self._held.get(index)
             if held is not None:
                 return held.frame
-        held = self._read_frame(index) if not self.memory_only else None
+        held = read_frame(self.dir, index) if not self.memory_only else None
         return held.frame if held else None
 
     def frame_jpeg(self, index: int, raw: bool = False) -> bytes | None:
@@ -345,7 +253,7 @@ class Store:
         byte for byte what the vehicle keeps."""
         if self.memory_only:
             return None
-        path = self.frames_dir / (f"{_name(index)}.raw.jpg" if raw else f"{_name(index)}.jpg")
+        path = self.frames_dir / (f"{frame_name(index)}.raw.jpg" if raw else f"{frame_name(index)}.jpg")
         try:
             return path.read_bytes()
         except OSError:
@@ -357,7 +265,7 @@ class Store:
             if held is not None:
                 return dict(held.sidecar)
         try:
-            return json.loads((self.frames_dir / f"{_name(index)}.json").read_text(encoding="utf-8"))
+            return json.loads((self.frames_dir / f"{frame_name(index)}.json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             return None
 
@@ -384,7 +292,7 @@ class Store:
                 sidecar = sidecar_for(event.frame, tags=tags)
                 self._next_index = max(self._next_index, index + 1)
                 self._persist_next_index()
-                held = _Held(frame=event.frame, sidecar=sidecar)
+                held = HeldFrame(frame=event.frame, sidecar=sidecar)
                 self._held[index] = held
                 self._write_frame(held)
             else:
@@ -426,7 +334,7 @@ class Store:
             self._check_writable()
             self._reservation.save(self._next_index, force=True)
             for held in pending:
-                self._write_frame_files(held)
+                write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
             self._write_summary_file()
             self._append_change_line({"t": time.time(), "kind": "back_on_disk", "summary": list(self._summary)})
         except OSError as err:
@@ -439,27 +347,16 @@ class Store:
         self.health.recovered(len(pending))
         self._enforce_budget()
 
-    def _write_frame(self, held: _Held) -> None:
+    def _write_frame(self, held: HeldFrame) -> None:
         if self.memory_only:
             return
         try:
-            self._write_frame_files(held)
+            write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
         except OSError as err:
             self._degrade(err)
             return
         held.on_disk = True
         self.stats.frames_written += 1
-
-    def _write_frame_files(self, held: _Held) -> None:
-        frame = held.frame
-        base = self.frames_dir / _name(frame.image_index)
-        atomic_write(base.with_suffix(".jpg"), _encode_jpeg(frame.image))
-        if frame.enhanced and frame.raw_image is not None and self.cfg.keep_raw:
-            raw_path = self.frames_dir / f"{_name(frame.image_index)}.raw.jpg"
-            atomic_write(raw_path, _encode_jpeg(frame.raw_image))
-            held.sidecar["raw_file"] = f"frames/{raw_path.name}"
-        atomic_write(base.with_suffix(".npy"), _npy_bytes(frame.feature))
-        atomic_write(base.with_suffix(".json"), json.dumps(held.sidecar, indent=1).encode())
 
     def _write_summary(self) -> None:
         if self.memory_only:
@@ -509,7 +406,7 @@ class Store:
             for index in old:
                 if usage <= self.budget_bytes:
                     break
-                for path in self.frames_dir.glob(f"{_name(index)}.*"):
+                for path in self.frames_dir.glob(f"{frame_name(index)}.*"):
                     try:
                         size = path.stat().st_size
                         path.unlink()
