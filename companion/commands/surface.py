@@ -122,6 +122,9 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     names += sorted({c.topic for c in held if c.topic and c.topic not in names})
     by_topic = (" (" + ", ".join(f"{name} {sum(c.topic == name for c in held)}" for name in names) + ")"
                 if len(names) > 1 else "")  # several topics: how many frames each
+    ignored = tool.status.unsigned_ignored
+    unsigned = (f"; {ignored} unsigned messages ignored from "
+                + ", ".join(f"{a}/{b}" for a, b in sorted(tool.status.unsigned_sources)) if ignored else "")
     print(f"merlion surface: {len(held)} frames in the summary{by_topic}, "
-          f"{sum(1 for c in held if c.thumbnail)} with thumbnails, in {gallery.root}", flush=True)
+          f"{sum(1 for c in held if c.thumbnail)} with thumbnails, in {gallery.root}{unsigned}", flush=True)
     return 0

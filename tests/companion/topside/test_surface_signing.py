@@ -102,6 +102,9 @@ def test_an_unsigned_attacker_changes_nothing_the_signed_companion_owns(tmp_path
             companion.publish(SummaryEvent("added", frames[7], summary=[5, 6, 7]))  # after the attack, in order
             assert wait_until(lambda: shows([7, 6, 5]), 30), page_state(web)
             state = page_state(web)
+        shown.proc.terminate()
+        last = shown.proc.stdout.read().strip().splitlines()[-1]
+    assert f"{attacker.sent} unsigned messages ignored from 1/100, 42/100" in last, last
     assert state["companion"]["id"] == [1, 100]
     assert state["dive"] == DIVE
     assert 4242 not in [f["image_index"] for f in state["summary"]]
