@@ -29,6 +29,9 @@ def register(add_command) -> None:
     p.add_argument("--web", type=int, metavar="PORT", help="serve the live page on this port (0: any free port)")
     p.add_argument("--web-host", default="127.0.0.1", help="address the page listens on (default 127.0.0.1, this "
                    "machine only; 0.0.0.0 for every interface: changes still need the printed URL's token)")
+    p.add_argument("--web-allow-host", action="append", default=[], metavar="NAME[:PORT]",
+                   help="a further Host the page answers to (repeatable), e.g. a reverse proxy's name; besides "
+                        "127.0.0.1, localhost and the --web-host address at the page's port")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests, demos)")
     p.add_argument("--companion", type=companion_ids, metavar="SYS:COMP",
                    help="the companion's ids (default: the camera component that sends captures)")
@@ -53,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
                              companion=args.companion, push_timeout_s=args.push_timeout, ftp=not args.no_ftp,
                              signing_key_file=args.signing_key)
-    return serve(options, args.out, web_port=args.web, web_host=args.web_host, duration=args.duration)
+    return serve(options, args.out, web_port=args.web, web_host=args.web_host, duration=args.duration,
+                 web_allowed_hosts=args.web_allow_host)
 
 
 def check_port_free(connect: str) -> None:
@@ -87,7 +91,8 @@ def mark_action(tool: SurfaceTool, body: dict) -> dict:
 
 
 def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "127.0.0.1",
-          duration: float | None = None, stop: threading.Event | None = None) -> int:
+          duration: float | None = None, stop: threading.Event | None = None,
+          web_allowed_hosts: list[str] | tuple[str, ...] = ()) -> int:
     """Run the surface tool until SIGINT/SIGTERM, ``stop``, or ``duration``; what tests and the demo call."""
     stop = stop or threading.Event()
     gallery = Gallery(out_dir)
@@ -96,7 +101,7 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     web = None
     if web_port is not None:
         web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame,
-                        actions={"mark": lambda body: mark_action(tool, body)})
+                        actions={"mark": lambda body: mark_action(tool, body)}, allowed_hosts=web_allowed_hosts)
         web.start()
         # the line the demo and tests wait for (the port matters when 0 was asked)
         print(f"merlion surface: live page at {web.url}", flush=True)
@@ -117,6 +122,9 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     names += sorted({c.topic for c in held if c.topic and c.topic not in names})
     by_topic = (" (" + ", ".join(f"{name} {sum(c.topic == name for c in held)}" for name in names) + ")"
                 if len(names) > 1 else "")  # several topics: how many frames each
+    ignored = tool.status.unsigned_ignored
+    unsigned = (f"; {ignored} unsigned messages ignored from "
+                + ", ".join(f"{a}/{b}" for a, b in sorted(tool.status.unsigned_sources)) if ignored else "")
     print(f"merlion surface: {len(held)} frames in the summary{by_topic}, "
-          f"{sum(1 for c in held if c.thumbnail)} with thumbnails, in {gallery.root}", flush=True)
+          f"{sum(1 for c in held if c.thumbnail)} with thumbnails, in {gallery.root}{unsigned}", flush=True)
     return 0

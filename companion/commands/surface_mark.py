@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 
-from pymavlink import mavutil
-
 from companion.commands.station_options import add_station_options, check_station_options
+from companion.config import MavlinkConfig
 from companion.errors import UsageError
 from companion.topside.marks_upload import upload_marks
 from vehicle.link.signing import load_key
@@ -34,18 +33,15 @@ def run(args: argparse.Namespace) -> int:
     if bad:
         raise UsageError(f"surface-mark: image index {bad[0]} is negative")
     check_station_options(args)
-    key = load_key(args.signing_key) if args.signing_key else None
-    conn = mavutil.mavlink_connection(args.connect, source_system=args.system_id,
-                                      source_component=args.component_id, dialect="ardupilotmega")
+    if args.signing_key:
+        load_key(args.signing_key)  # a bad key file is a one-line error before anything is sent
+    cfg = MavlinkConfig(connection=args.connect, system_id=args.system_id, component_id=args.component_id,
+                        signing_key_file=args.signing_key)
+    logging.disable(logging.ERROR)  # the link reports its start and stop: our line says what matters, once
     try:
-        if key is not None:
-            conn.setup_signing(key, sign_outgoing=True)
-        conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-        logging.disable(logging.ERROR)  # mavftp reports every retry on the root logger: our error says it once
-        upload_marks(conn, args.companion, args.like, args.unlike, timeout=args.timeout)
+        upload_marks(args.connect, cfg, args.companion, args.like, args.unlike, timeout=args.timeout)
     finally:
         logging.disable(logging.NOTSET)
-        conn.close()
     print(f"merlion surface-mark: marks set on {args.companion[0]}:{args.companion[1]}: "
           f"like {args.like}, unlike {args.unlike}", flush=True)
     return 0

@@ -262,6 +262,9 @@ class LiveCompanion:
                 self.surface.params.set(name, defaults[name])  # served and saved as what is in force
         if self.telemetry is not None and hasattr(self.telemetry, "on_notice"):
             self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
+        self.store.on_health(self._on_store_health)  # a full or read-only store, and its recovery, reach the surface
+        if self.store.memory_only:
+            self._on_store_health(True, self.store.memory_only_reason)
         self.surface.on_queries_changed(self._on_queries)
         self.surface.on_marks_changed(self._on_marks)
         self.surface.set_marks(self.marks.like, self.marks.unlike)
@@ -272,6 +275,15 @@ class LiveCompanion:
             self.telemetry.start()
         self.surface.start()
         self.keeper.republish()  # the resumed summary is on the FTP tree again
+
+    def _on_store_health(self, memory_only: bool, reason: str) -> None:
+        """The store left the disk (a WARNING, once) or came back to it (INFO): one STATUSTEXT each."""
+        from vehicle.camera import status as st
+
+        if memory_only:
+            self.surface.event(f"Store {reason}: kept in memory", st.WARNING)
+        else:
+            self.surface.event("Store writable again: back on disk", st.INFO)
 
     def _start_loops(self) -> None:
         from companion.sources.factory import open_source
@@ -571,6 +583,8 @@ class LiveCompanion:
             self._update_status()
 
     def _update_status(self) -> None:
+        if self.store is not None:
+            self.store.retry()  # a memory-only store tries the disk again (every few seconds)
         depth = None
         if self.telemetry is not None:
             pose = self._pose_at(time.time())
@@ -584,7 +598,8 @@ class LiveCompanion:
         c = self.counters
         src = self.source.state if self.source is not None else "starting"
         ap = "up" if self.link is not None and self.link.autopilot_alive else "down"
-        store = "memory-only" if self.store is not None and self.store.memory_only else "ok"
+        store = (f"memory-only ({self.store.memory_only_reason})" if self.store is not None and self.store.memory_only
+                 else "ok")
         return (f"source {src}; {c.fps():.1f} fps; seen {c.frames_seen} passed {c.frames_passed}; "
                 f"summary {self._summary_text()}; dropped {self.queue.dropped}; autopilot {ap}; store {store}")
 

@@ -38,6 +38,7 @@ class ParamsFile:
     def __init__(self, path: str | os.PathLike[str], *, version: str = "") -> None:
         self.path = Path(path)
         self.version = version
+        self.failing = False
 
     def load(self) -> dict[str, float]:
         """The saved values ({} when none or damaged); raises NewerFileError for a newer version's file."""
@@ -58,7 +59,18 @@ class ParamsFile:
             return {}
         return saved
 
-    def save(self, values: dict[str, float]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+    def save(self, values: dict[str, float]) -> bool:
+        """Replace the saved values; False when the disk refuses (full, read-only): the values still apply this
+        run and the PARAM_SET is still answered, only a restart forgets them. Said once per failure streak."""
         body = {"version": FILE_VERSION, "written_by": self.version or "unknown", "params": values}
-        atomic_write(self.path, json.dumps(body, indent=1) + "\n")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(self.path, json.dumps(body, indent=1) + "\n")
+        except OSError as err:
+            if not self.failing:
+                log.warning("%s: cannot save parameters (%s); they apply until the next restart only", self.path,
+                            err.strerror or err)
+            self.failing = True
+            return False
+        self.failing = False
+        return True

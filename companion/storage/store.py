@@ -8,16 +8,19 @@ Layout of the store directory::
     frames/000042.json       the sidecar: tags, pose, score, times; written last, so it marks a complete frame
     summary.json             the current summary (image indices), the next image index and the dive id
     changes.jsonl            append-only log of every change (one JSON object a line)
+    next_index               the next image index, persisted in place before an index is announced
 
 Every file is written atomically (temp file, fsync, rename, fsync of the directory), so a crash leaves either the
 old file or the new one, never half of one. When the disk is full or read-only the store keeps going in memory
-and says so once; the vehicle keeps working and what was saved before stays intact.
+and says so once (``store_health``: to the log and to its listeners, which tell the surface); the vehicle keeps
+working and what was saved before stays intact. It tries the disk again every few seconds, and once the disk takes
+writes again it writes what it kept in memory and goes on on disk. An image index is persisted
+(``index_reservation``) before it is announced, so no later run hands it out again under the same dive id; a run
+that cannot persist even that (a read-only disk at start) gets a dive id of its own.
 """
 
 from __future__ import annotations
 
-import errno
-import io
 import json
 import logging
 import os
@@ -28,72 +31,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
-import numpy as np
-
 from companion.config import StoreConfig
 from companion.storage.atomic_write import TMP_PREFIX, atomic_write
+from companion.storage.frame_files import (
+    FORMAT_VERSION,
+    HeldFrame,
+    frame_name,
+    read_frame,
+    sidecar_for,
+    write_frame_files,
+)
+from companion.storage.index_reservation import IndexReservation
+from companion.storage.store_health import Listener, StoreHealth
 from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
-from vehicle.autopilot.pose import Pose
 
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 CHANGES_FILE = "changes.jsonl"
-FORMAT_VERSION = 1
-
-
-def _name(index: int) -> str:
-    return f"{index:06d}"
-
-
-def _encode_jpeg(image: np.ndarray, quality: int = 95) -> bytes:
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise ValueError("could not encode the frame as JPEG")
-    return buf.tobytes()
-
-
-def _npy_bytes(array: np.ndarray) -> bytes:
-    bio = io.BytesIO()
-    np.save(bio, np.asarray(array, dtype=np.float32), allow_pickle=False)
-    return bio.getvalue()
-
-
-def pose_from_dict(data: dict[str, Any] | None) -> Pose | None:
-    if not data:
-        return None
-    data = dict(data)
-    if data.get("q") is not None:
-        data["q"] = tuple(data["q"])
-    known = set(Pose.__dataclass_fields__)
-    return Pose(**{k: v for k, v in data.items() if k in known})
-
-
-def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The JSON sidecar of a summary frame: what a person or the surface needs to know about it."""
-    h, w = frame.image.shape[:2]
-    return {
-        "version": FORMAT_VERSION,
-        "image_index": frame.image_index,
-        "frame_index": frame.frame_index,
-        "time_s": frame.time_s,
-        "capture_time": frame.capture_time,
-        "capture_utc": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(frame.capture_time))
-        + f".{int((frame.capture_time % 1) * 1000):03d}Z",
-        "score": float(frame.score),
-        "enhanced": bool(frame.enhanced),
-        "width": int(w),
-        "height": int(h),
-        "file": f"frames/{_name(frame.image_index)}.jpg",
-        "raw_file": None,
-        "feature_file": f"frames/{_name(frame.image_index)}.npy",
-        "pose": frame.pose.to_dict() if frame.pose is not None else None,
-        "topic": frame.topic,
-        "below_threshold": bool(frame.below_threshold),
-        "tags": dict(tags or {}),
-    }
+NEXT_INDEX_FILE = "next_index"
 
 
 @dataclass
@@ -102,15 +59,6 @@ class StoreStats:
     frames_pruned: int = 0
     write_errors: int = 0
     bytes_on_disk: int = 0
-
-
-@dataclass
-class _Held:
-    """A summary frame the store holds (in memory too, so a memory-only store can still answer)."""
-
-    frame: SummaryFrame
-    sidecar: dict[str, Any]
-    on_disk: bool = False
 
 
 @dataclass
@@ -130,16 +78,29 @@ class Store:
         self.frames_dir = self.dir / "frames"
         self.budget_bytes = int(cfg.disk_budget_mb * 1024 * 1024)
         self.stats = StoreStats()
-        self.memory_only = False
-        self.memory_only_reason = ""
+        self.health = StoreHealth(self.dir)
+        self._reservation = IndexReservation(self.dir / NEXT_INDEX_FILE)
         self._lock = threading.RLock()
-        self._held: dict[int, _Held] = {}
+        self._held: dict[int, HeldFrame] = {}
         self._summary: list[int] = []
         self._next_index = 0
         self.dive = ""
         """This store's dive id: made when the store is created (or its summary file is gone), kept across
         restarts, so the surface can tell a new dive's image 0 from the last dive's."""
         self._open()
+
+    @property
+    def memory_only(self) -> bool:
+        return self.health.memory_only
+
+    @property
+    def memory_only_reason(self) -> str:
+        return self.health.reason
+
+    def on_health(self, listener: Listener) -> None:
+        """``listener(memory_only, reason)`` when the store leaves the disk or comes back (called under the
+        store's lock: it must only queue, as the surface link's ``event`` does)."""
+        self.health.on_change(listener)
 
     # ---- start-up -------------------------------------------------------------------------------------------
     def _open(self) -> None:
@@ -215,15 +176,23 @@ class Store:
                 log.warning("store %s: %s unreadable (%s); rebuilding from the change log", self.dir, SUMMARY_FILE, err)
                 indices = self._summary_from_changes()
         highest = self._highest_index_on_disk()
-        self._next_index = max(next_index, highest + 1)
+        self._next_index = max(next_index, highest + 1, self._reservation.load())
         for index in indices:
-            held = self._read_frame(index)
+            held = read_frame(self.dir, index)
             if held is None:
                 log.warning("store %s: summary frame %d is missing on disk; dropped from the summary", self.dir, index)
                 continue
             self._held[index] = held
             self._summary.append(index)
         self.dive = dive or secrets.token_hex(4)
+        try:
+            self._reservation.save(self._next_index, force=True)
+        except OSError as err:
+            self.health.degrade(err)
+            if dive:  # the last run may have announced indices past what it could save: never reuse them
+                self.dive = secrets.token_hex(4)
+                log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
+                            err.strerror or err, self.dive)
         if not dive:
             self._write_summary()  # the new dive id is fixed now, not at the first frame
         self.stats.bytes_on_disk = self._disk_usage()
@@ -254,41 +223,6 @@ class Store:
                 continue
         return highest
 
-    def _read_frame(self, index: int) -> _Held | None:
-        base = self.frames_dir / _name(index)
-        try:
-            sidecar = json.loads((base.with_suffix(".json")).read_text(encoding="utf-8"))
-            feature = np.load(base.with_suffix(".npy"), allow_pickle=False)
-            image = cv2.imread(str(base.with_suffix(".jpg")), cv2.IMREAD_COLOR)
-        except (OSError, ValueError):
-            return None
-        if image is None or not isinstance(sidecar, dict):
-            return None
-        try:
-            return self._held_from(sidecar, image, feature)
-        except (KeyError, TypeError, ValueError):  # a sidecar edited by hand or damaged: that frame is dropped
-            return None
-
-    def _held_from(self, sidecar: dict[str, Any], image: np.ndarray, feature: np.ndarray) -> _Held:
-        raw = None
-        if sidecar.get("raw_file"):
-            raw = cv2.imread(str(self.dir / sidecar["raw_file"]), cv2.IMREAD_COLOR)
-        frame = SummaryFrame(
-            image_index=int(sidecar["image_index"]),
-            frame_index=int(sidecar.get("frame_index", 0)),
-            time_s=float(sidecar.get("time_s", 0.0)),
-            capture_time=float(sidecar.get("capture_time", 0.0)),
-            score=float(sidecar.get("score", 0.0)),
-            image=image,
-            feature=feature,
-            pose=pose_from_dict(sidecar.get("pose")),
-            raw_image=raw,
-            enhanced=bool(sidecar.get("enhanced", False)),
-            topic=str(sidecar.get("topic") or ""),
-            below_threshold=bool(sidecar.get("below_threshold", False)),
-        )
-        return _Held(frame=frame, sidecar=sidecar, on_disk=True)
-
     # ---- what the rest of the companion asks ----------------------------------------------------------------
     def resume_state(self) -> ResumeState:
         """The summary to restore into the sampler (in summary order) and the next image index to hand out."""
@@ -311,7 +245,7 @@ class Store:
             held = self._held.get(index)
             if held is not None:
                 return held.frame
-        held = self._read_frame(index) if not self.memory_only else None
+        held = read_frame(self.dir, index) if not self.memory_only else None
         return held.frame if held else None
 
     def frame_jpeg(self, index: int, raw: bool = False) -> bytes | None:
@@ -319,7 +253,7 @@ class Store:
         byte for byte what the vehicle keeps."""
         if self.memory_only:
             return None
-        path = self.frames_dir / (f"{_name(index)}.raw.jpg" if raw else f"{_name(index)}.jpg")
+        path = self.frames_dir / (f"{frame_name(index)}.raw.jpg" if raw else f"{frame_name(index)}.jpg")
         try:
             return path.read_bytes()
         except OSError:
@@ -331,7 +265,7 @@ class Store:
             if held is not None:
                 return dict(held.sidecar)
         try:
-            return json.loads((self.frames_dir / f"{_name(index)}.json").read_text(encoding="utf-8"))
+            return json.loads((self.frames_dir / f"{frame_name(index)}.json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             return None
 
@@ -351,11 +285,14 @@ class Store:
     def apply(self, event: SummaryEvent, *, tags: dict[str, Any] | None = None) -> None:
         """Record one summary change: save an added frame, forget a removed one, update the index and the log."""
         with self._lock:
+            if self.health.retry_due():
+                self._recover()
             index = event.frame.image_index
             if event.kind == "added":
                 sidecar = sidecar_for(event.frame, tags=tags)
                 self._next_index = max(self._next_index, index + 1)
-                held = _Held(frame=event.frame, sidecar=sidecar)
+                self._persist_next_index()
+                held = HeldFrame(frame=event.frame, sidecar=sidecar)
                 self._held[index] = held
                 self._write_frame(held)
             else:
@@ -371,19 +308,50 @@ class Store:
             self._write_summary()
             self._enforce_budget()
 
-    def _write_frame(self, held: _Held) -> None:
+    def _persist_next_index(self) -> None:
+        """Before the index is announced (the keeper publishes after ``apply``): an in-place write, which a full
+        disk still takes."""
+        try:
+            self._reservation.save(self._next_index)
+        except OSError as err:
+            self._degrade(err)
+            log.warning("store %s: next image index %d not persisted (%s)", self.dir, self._next_index,
+                        err.strerror or err)
+
+    def retry(self) -> bool:
+        """Try the disk again if the store is memory-only and a retry is due (the companion calls this once a
+        second; ``apply`` does too); True when the store is on disk."""
+        with self._lock:
+            if self.health.retry_due():
+                self._recover()
+            return not self.memory_only
+
+    def _recover(self) -> None:
+        """Back to disk: what was kept in memory (frames, the next index, the summary) is written, then the store
+        goes on on disk; any failure leaves it memory-only, quietly (it said so already)."""
+        pending = [self._held[i] for i in self._summary if not self._held[i].on_disk]  # what a restart needs
+        try:
+            self._check_writable()
+            self._reservation.save(self._next_index, force=True)
+            for held in pending:
+                write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
+            self._write_summary_file()
+            self._append_change_line({"t": time.time(), "kind": "back_on_disk", "summary": list(self._summary)})
+        except OSError as err:
+            self.health.write_errors += 1
+            log.debug("store %s: still not writable (%s)", self.dir, err)
+            return
+        for held in pending:
+            held.on_disk = True
+            self.stats.frames_written += 1
+        self.health.recovered(len(pending))
+        self._enforce_budget()
+
+    def _write_frame(self, held: HeldFrame) -> None:
         if self.memory_only:
             return
-        frame = held.frame
-        base = self.frames_dir / _name(frame.image_index)
         try:
-            atomic_write(base.with_suffix(".jpg"), _encode_jpeg(frame.image))
-            if frame.enhanced and frame.raw_image is not None and self.cfg.keep_raw:
-                raw_path = self.frames_dir / f"{_name(frame.image_index)}.raw.jpg"
-                atomic_write(raw_path, _encode_jpeg(frame.raw_image))
-                held.sidecar["raw_file"] = f"frames/{raw_path.name}"
-            atomic_write(base.with_suffix(".npy"), _npy_bytes(frame.feature))
-            atomic_write(base.with_suffix(".json"), json.dumps(held.sidecar, indent=1).encode())
+            write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
         except OSError as err:
             self._degrade(err)
             return
@@ -394,20 +362,26 @@ class Store:
         if self.memory_only:
             return
         try:
-            atomic_write(self.dir / SUMMARY_FILE, json.dumps(self.index_document(), indent=1).encode())
+            self._write_summary_file()
         except OSError as err:
             self._degrade(err)
+
+    def _write_summary_file(self) -> None:
+        atomic_write(self.dir / SUMMARY_FILE, json.dumps(self.index_document(), indent=1).encode())
 
     def _append_change(self, entry: dict[str, Any]) -> None:
         if self.memory_only:
             return
         try:
-            with open(self.dir / CHANGES_FILE, "a", encoding="utf-8") as fh:
-                fh.write(json.dumps(entry) + "\n")
-                fh.flush()
-                os.fsync(fh.fileno())
+            self._append_change_line(entry)
         except OSError as err:
             self._degrade(err)
+
+    def _append_change_line(self, entry: dict[str, Any]) -> None:
+        with open(self.dir / CHANGES_FILE, "a", encoding="utf-8") as fh:
+            fh.write(json.dumps(entry) + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
 
     # ---- disk budget ------------------------------------------------------------------------------------------
     def _disk_usage(self) -> int:
@@ -432,7 +406,7 @@ class Store:
             for index in old:
                 if usage <= self.budget_bytes:
                     break
-                for path in self.frames_dir.glob(f"{_name(index)}.*"):
+                for path in self.frames_dir.glob(f"{frame_name(index)}.*"):
                     try:
                         size = path.stat().st_size
                         path.unlink()
@@ -449,15 +423,7 @@ class Store:
     def _degrade(self, err: OSError) -> None:
         """A full or read-only disk: keep the summary in memory, say so once, never crash."""
         self.stats.write_errors += 1
-        if self.memory_only:
-            return
-        self.memory_only = True
-        reason = {errno.ENOSPC: "disk full", errno.EROFS: "read-only file system",
-                  errno.EACCES: "permission denied", errno.EDQUOT: "disk quota exceeded"}.get(
-            err.errno, err.strerror or str(err))
-        self.memory_only_reason = reason
-        log.warning("store %s: %s; keeping the summary in memory only (frames saved before are intact)",
-                    self.dir, reason)
+        self.health.degrade(err)
 
     def describe(self) -> dict[str, Any]:
         with self._lock:
@@ -470,5 +436,7 @@ class Store:
                 "next_image_index": self._next_index,
                 "frames_written": self.stats.frames_written,
                 "frames_pruned": self.stats.frames_pruned,
+                "back_on_disk": self.health.recoveries,
+                "frames_in_memory_only": sum(1 for i in self._summary if not self._held[i].on_disk),
                 "bytes_on_disk": self.stats.bytes_on_disk,
             }

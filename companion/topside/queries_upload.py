@@ -4,25 +4,19 @@ The companion checks the file when the upload's session closes: it answers the c
 STATUSTEXT ``Queries set: ...`` (one topic) or ``Topics set: ...`` (several), or with a NAK, and
 ``Queries refused: why`` when the file itself is wrong. pymavlink's ``mavftp`` neither reports a NAK of the
 closing request nor lets other messages through while it waits, so the upload is the surface tool's own
-message-driven FTP client, fed here by a small receive loop that also hears the companion's status lines.
+message-driven FTP client (``station_upload``), whose receive loop also hears the companion's status lines.
 The file is checked with the vehicle's own parser before anything is sent.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from pymavlink.dialects.v20 import ardupilotmega as mav
-
 from companion.config import MavlinkConfig
-from companion.errors import MerlionError, UsageError
-from companion.topside.ftp_client import FtpClient
+from companion.errors import UsageError
+from companion.topside.station_upload import UploadAnswer, upload_file
 from vehicle.camera.downlink import QUERIES_PATH
-from vehicle.link.connection import MavLink
 from vehicle.protocol.queries import MAX_BYTES, QueryTopic, format_queries, parse_queries
 
 __all__ = ["QUERIES_PATH", "QueriesAnswer", "queries_from_file", "queries_from_options", "upload_queries"]
@@ -33,9 +27,6 @@ CHECK_NAME = "main"
 """Stands for the vehicle's default topic name when a one-topic file is checked here (the vehicle names it)."""
 ANSWERS = ("Queries set", "Topics set", "Queries refused")
 """The companion's STATUSTEXT answers to a queries upload."""
-ANSWER_WAIT_S = 3.0
-"""After the ACK or NAK, how long the companion's status line may still take (it is sent at status priority,
-so it usually arrives first)."""
 
 
 def queries_from_file(path: str | Path) -> bytes:
@@ -77,15 +68,8 @@ def queries_from_options(query: str | None, negatives: list[str], topics: list[d
     return data
 
 
-@dataclass
-class QueriesAnswer:
-    """What the companion made of the upload."""
-
-    accepted: bool
-    error: str = ""
-    """Why the upload failed (the FTP client's words: ``refused: ...``, ``create failed: ...``), when it did."""
-    status: list[str] = field(default_factory=list)
-    """The companion's STATUSTEXT answers (``Queries set: ...``, ``Topics set: ...``, ``Queries refused: ...``)."""
+QueriesAnswer = UploadAnswer
+"""What the companion made of a queries upload (``status``: its ``Queries set``/``Topics set``/``Queries refused``)."""
 
 
 def upload_queries(connect: str, cfg: MavlinkConfig, target: tuple[int, int], data: bytes, *,
@@ -94,47 +78,7 @@ def upload_queries(connect: str, cfg: MavlinkConfig, target: tuple[int, int], da
     wait for its ACK or NAK and its status line. MerlionError when it never answered within ``timeout``."""
     if len(data) > MAX_BYTES:
         raise UsageError(f"the queries file is {len(data)} bytes, more than {MAX_BYTES}")
-    inbox: queue.Queue = queue.Queue()
-    link = MavLink(connect, cfg, name="surface-queries", mav_type=mav.MAV_TYPE_GCS)
-    link.subscribe(inbox.put, types=("FILE_TRANSFER_PROTOCOL", "STATUSTEXT"))
-
-    def send(system: int, component: int, payload: bytes) -> None:
-        link.send(mav.MAVLink_file_transfer_protocol_message(0, system, component, list(payload)))
-
-    result: list[tuple[bytes | None, str]] = []
-    status: list[str] = []
-    client = FtpClient(send, target, own=(cfg.system_id, cfg.component_id), max_timeout_s=2.0, max_tries=1000)
-    deadline = time.monotonic() + timeout
-    link.start()
-    try:
-        if not link.wait_open(min(5.0, timeout)):
-            raise MerlionError(f"--connect {connect}: the connection did not open")
-        client.upload(QUERIES_PATH, data, lambda _path, got, error: result.append((got, error)))
-        answered_at: float | None = None
-        while time.monotonic() < deadline:
-            if result and answered_at is None:
-                answered_at = time.monotonic()
-            if answered_at is not None and (status or time.monotonic() - answered_at > ANSWER_WAIT_S):
-                break
-            try:
-                msg = inbox.get(timeout=0.05)
-            except queue.Empty:
-                client.tick()
-                continue
-            if (msg.get_srcSystem(), msg.get_srcComponent()) != target:
-                continue
-            if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
-                client.handle(msg)
-            else:
-                text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else msg.text
-                text = text.rstrip("\0")
-                if text.startswith(ANSWERS):
-                    status.append(text)
-            client.tick()
-    finally:
-        link.stop()
-    if not result:
-        raise MerlionError(f"no answer from the companion {target[0]}:{target[1]} within {timeout:g} s")
-    got, error = result[0]
-    log.info("queries upload to %d:%d: %s", target[0], target[1], error or "accepted")
-    return QueriesAnswer(accepted=got is not None, error=error, status=status)
+    answer = upload_file(connect, cfg, target, QUERIES_PATH, data, answers=ANSWERS, timeout=timeout,
+                         name="surface-queries")
+    log.info("queries upload to %d:%d: %s", target[0], target[1], answer.error or "accepted")
+    return answer

@@ -4,16 +4,16 @@ loads first and what the offline copy in DIR holds) and ``/full/<n>.jpg`` (a sum
 fetched from the vehicle over MAVLink FTP the first time it is asked for). Nothing to install topside beyond
 this package.
 
-It listens on 127.0.0.1 unless told otherwise. Reads (GET) stay open to whoever can reach the port; anything that
-changes something is a POST to ``/api/<action>`` and needs the per-run token carried in the URL the tool prints
-(``?token=``, or the ``X-Merlion-Token`` header; a full-frame fetch spends link bandwidth, so it needs it too), a Host that is an IP address or ``localhost`` (so a DNS
-rebinding page cannot reach it by name) and, when the browser sends one, an Origin equal to the page's own.
+It listens on 127.0.0.1 unless told otherwise. Every request needs a Host this server answers to, and everything
+but the page itself goes only to same-origin requests (``web_guard``: no other web origin reads the state, no DNS
+rebinding). Anything that changes something is a POST to ``/api/<action>`` and also needs the per-run token carried
+in the URL the tool prints (``?token=``, or the ``X-Merlion-Token`` header; a full-frame fetch spends link
+bandwidth, so it needs it too). Clients cannot pin the server (``http_bounds``: bounded threads, read deadlines,
+bounded head and path), and bad input is a clean 4xx, never a traceback.
 """
 
 from __future__ import annotations
 
-import hmac
-import ipaddress
 import json
 import logging
 import re
@@ -21,12 +21,14 @@ import secrets
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
-from urllib.parse import parse_qs, urlsplit
 
 from companion.errors import MerlionError
+from companion.topside.http_bounds import BoundedHandler, BoundedHTTPServer
+from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal
+
+__all__ = ["TOKEN_HEADER", "WebServer"]
 
 log = logging.getLogger("merlion.surface.web")
 
@@ -36,8 +38,8 @@ IMAGE_TYPES = {"jpg": "image/jpeg", "jpeg": "image/jpeg", "webp": "image/webp", 
                "bmp": "image/bmp", "pgm": "image/x-portable-graymap"}
 LOGS = {"gallery.json": "application/json", "log.csv": "text/csv; charset=utf-8"}
 """The gallery's tag logs, downloadable from the page."""
-TOKEN_HEADER = "X-Merlion-Token"
 MAX_BODY = 64 * 1024
+MAX_PATH = 2048
 
 FullFrame = Callable[[int], "Path | None"]
 """Image index -> the full frame's file once fetched, or None (trimmed meanwhile, or the link too slow)."""
@@ -47,39 +49,11 @@ Action = Callable[[dict], dict]
 """A state-changing request: the JSON body in, a JSON answer out (a ValueError is a 400 with its message)."""
 
 
-def _host_is_literal(host_header: str) -> bool:
-    """An IP address or localhost: a browser only sends another name after a DNS rebinding trick."""
-    host = urlsplit(f"//{host_header}").hostname or ""
-    if host == "localhost":
-        return True
-    try:
-        ipaddress.ip_address(host)
-    except ValueError:
-        return False
-    return True
-
-
-def refusal(headers, path: str, token: str) -> str | None:
-    """Why a state-changing request must be refused (None: it may go ahead)."""
-    host = headers.get("Host", "")
-    if not _host_is_literal(host):
-        return f"Host {host!r} is not an address"
-    origin = headers.get("Origin")
-    if origin is not None and origin != f"http://{host}":
-        return f"cross-origin request from {origin!r}"
-    if headers.get("Sec-Fetch-Site") not in (None, "same-origin", "none"):
-        return "cross-site request"
-    given = parse_qs(urlsplit(path).query).get("token", [""])[0] or headers.get(TOKEN_HEADER, "")
-    if not hmac.compare_digest(given.encode(), token.encode()):
-        return "missing or wrong token"
-    return None
-
-
-def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str,
-                  actions: dict[str, Action], full_frame: FullFrame | None = None) -> type[BaseHTTPRequestHandler]:
+def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, hosts: HostPolicy,
+                  actions: dict[str, Action], full_frame: FullFrame | None = None) -> type[BoundedHandler]:
     root = gallery_dir.resolve()
 
-    class Handler(BaseHTTPRequestHandler):
+    class Handler(BoundedHandler):
         server_version = "merlion-surface"
 
         def log_message(self, fmt: str, *args) -> None:  # quiet: the page polls every second
@@ -93,8 +67,38 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str,
             self.end_headers()
             self.wfile.write(body)
 
+        def _refuse(self, why: str) -> None:
+            log.warning("web: refused %s %s from %s: %s", self.command, self.path.split("?", 1)[0][:100],
+                        self.client_address[0], why)
+            self._send(why.encode(), "text/plain; charset=utf-8", HTTPStatus.FORBIDDEN)
+
+        def _guard(self, *, page: bool) -> bool:
+            """True when the request may go on: a Host we answer to, and (but for the page) the same origin."""
+            self.request_read()
+            if len(self.path) > MAX_PATH:
+                self.send_error(HTTPStatus.REQUEST_URI_TOO_LONG, "path too long")
+                return False
+            host = self.headers.get("Host", "")
+            if not hosts.allows(host):
+                self._refuse(f"Host {host[:100]!r} is not this server")
+                return False
+            why = None if page else cross_origin(self.headers, hosts)
+            if why is not None:
+                self._refuse(why)
+                return False
+            return True
+
         def do_GET(self) -> None:  # noqa: N802 (http.server's name)
             path = self.path.split("?", 1)[0]
+            if not self._guard(page=path in STATIC):
+                return
+            try:
+                self._get(path)
+            except OSError as err:  # a name the filesystem refuses (too long, bad bytes): not found
+                log.debug("web: GET %s: %s", path[:100], err)
+                self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
+
+        def _get(self, path: str) -> None:
             if path in STATIC:
                 name, ctype = STATIC[path]
                 body = resources.files("companion.topside").joinpath("static", name).read_bytes()
@@ -105,10 +109,9 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str,
                 self._send(b"window.MERLION_STATE = " + json.dumps(state()).encode() + b";\n",
                            "text/javascript; charset=utf-8")
             elif (match := _FULL.fullmatch(path)) and full_frame is not None:
-                why = refusal(self.headers, self.path, token)
+                why = refusal(self.headers, self.path, token, hosts)
                 if why is not None:
-                    log.warning("web: refused %s from %s: %s", path, self.client_address[0], why)
-                    self._send(why.encode(), "text/plain", HTTPStatus.FORBIDDEN)
+                    self._refuse(why)
                     return
                 found = full_frame(int(match.group(1)))  # blocks this request's thread while FTP fetches it
                 if found is None:
@@ -128,23 +131,41 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str,
                 self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
 
         def do_POST(self) -> None:  # noqa: N802 (http.server's name)
-            why = refusal(self.headers, self.path, token)
+            if len(self.path) > MAX_PATH:
+                self.request_read()
+                self.send_error(HTTPStatus.REQUEST_URI_TOO_LONG, "path too long")
+                return
+            why = refusal(self.headers, self.path, token, hosts)
             if why is not None:
-                log.warning("web: refused POST %s from %s: %s", self.path.split("?", 1)[0], self.client_address[0],
-                            why)
+                self.request_read()
+                log.warning("web: refused POST %s from %s: %s", self.path.split("?", 1)[0][:100],
+                            self.client_address[0], why)
                 self._json({"error": why}, HTTPStatus.FORBIDDEN)
                 return
             path = self.path.split("?", 1)[0]
             action = actions.get(path.removeprefix("/api/")) if path.startswith("/api/") else None
             if action is None:
+                self.request_read()
                 self._json({"error": "no such action"}, HTTPStatus.NOT_FOUND)
                 return
-            length = int(self.headers.get("Content-Length") or 0)
-            if not 0 <= length <= MAX_BODY:
+            given = (self.headers.get("Content-Length") or "0").strip()
+            if not given.isascii() or not given.isdigit():
+                self.request_read()
+                self._json({"error": f"bad Content-Length {given[:40]!r}"}, HTTPStatus.BAD_REQUEST)
+                return
+            length = int(given)
+            if length > MAX_BODY:
+                self.request_read()
                 self._json({"error": "body too large"}, HTTPStatus.REQUEST_ENTITY_TOO_LARGE)
                 return
+            self.rfile.allow(length)
+            raw = self.rfile.read(length)
+            self.request_read()
+            if len(raw) < length:
+                self.close_connection = True
+                return  # the client went away, or was cut for being too slow: nobody to answer
             try:
-                body = json.loads(self.rfile.read(length) or b"{}")
+                body = json.loads(raw or b"{}")
                 if not isinstance(body, dict):
                     raise ValueError("expected a JSON object")
                 self._json(action(body))
@@ -164,16 +185,20 @@ class WebServer:
     the link (GET /full/<n>.jpg); both are guarded by ``token`` (new each run)."""
 
     def __init__(self, state: Callable[[], dict], gallery_dir: str | Path, port: int, host: str = "127.0.0.1",
-                 actions: dict[str, Action] | None = None, *, full_frame: FullFrame | None = None) -> None:
+                 actions: dict[str, Action] | None = None, *, full_frame: FullFrame | None = None,
+                 allowed_hosts: tuple[str, ...] | list[str] = ()) -> None:
+        """``allowed_hosts``: Host headers to answer besides this machine's own names at its port (``name`` or
+        ``name:port``), e.g. a reverse proxy's name in front of the page."""
         self.token = secrets.token_urlsafe(18)
         self.host = host
-        handler = _make_handler(state, Path(gallery_dir), self.token, dict(actions or {}), full_frame)
+        self._hosts = HostPolicy(host, port, allowed_hosts)
+        handler = _make_handler(state, Path(gallery_dir), self.token, self._hosts, dict(actions or {}), full_frame)
         try:
-            self._server = ThreadingHTTPServer((host, port), handler)
+            self._server = BoundedHTTPServer((host, port), handler)
         except OSError as err:
             raise MerlionError(f"--web {port}: cannot listen on {host}:{port} ({err.strerror})") from None
-        self._server.daemon_threads = True
         self.port = self._server.server_address[1]
+        self._hosts.port = self.port  # port 0 asked: the one the OS gave
         self._thread = threading.Thread(target=self._server.serve_forever, name="surface-web", daemon=True)
 
     @property
@@ -185,6 +210,10 @@ class WebServer:
 
     def start(self) -> None:
         self._thread.start()
+
+    def serving(self) -> int:
+        """Requests being served now (at most ``http_bounds.MAX_THREADS``)."""
+        return self._server.busy()
 
     def close(self) -> None:
         self._server.shutdown()

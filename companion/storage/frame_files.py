@@ -1,0 +1,133 @@
+"""A summary frame's files in the store: ``frames/<n>.jpg`` (and ``.raw.jpg``), ``.npy`` and the ``.json``
+sidecar, written one by one atomically with the sidecar last (so a sidecar marks a complete frame), and read back."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from companion.storage.atomic_write import atomic_write
+from companion.vision.events import SummaryFrame
+from vehicle.autopilot.pose import Pose
+
+FORMAT_VERSION = 1
+
+
+def frame_name(index: int) -> str:
+    return f"{index:06d}"
+
+
+def _encode_jpeg(image: np.ndarray, quality: int = 95) -> bytes:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError("could not encode the frame as JPEG")
+    return buf.tobytes()
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    bio = io.BytesIO()
+    np.save(bio, np.asarray(array, dtype=np.float32), allow_pickle=False)
+    return bio.getvalue()
+
+
+def pose_from_dict(data: dict[str, Any] | None) -> Pose | None:
+    if not data:
+        return None
+    data = dict(data)
+    if data.get("q") is not None:
+        data["q"] = tuple(data["q"])
+    known = set(Pose.__dataclass_fields__)
+    return Pose(**{k: v for k, v in data.items() if k in known})
+
+
+def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The JSON sidecar of a summary frame: what a person or the surface needs to know about it."""
+    h, w = frame.image.shape[:2]
+    return {
+        "version": FORMAT_VERSION,
+        "image_index": frame.image_index,
+        "frame_index": frame.frame_index,
+        "time_s": frame.time_s,
+        "capture_time": frame.capture_time,
+        "capture_utc": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(frame.capture_time))
+        + f".{int((frame.capture_time % 1) * 1000):03d}Z",
+        "score": float(frame.score),
+        "enhanced": bool(frame.enhanced),
+        "width": int(w),
+        "height": int(h),
+        "file": f"frames/{frame_name(frame.image_index)}.jpg",
+        "raw_file": None,
+        "feature_file": f"frames/{frame_name(frame.image_index)}.npy",
+        "pose": frame.pose.to_dict() if frame.pose is not None else None,
+        "topic": frame.topic,
+        "below_threshold": bool(frame.below_threshold),
+        "tags": dict(tags or {}),
+    }
+
+
+@dataclass
+class HeldFrame:
+    """A summary frame the store holds (in memory too, so a memory-only store can still answer)."""
+
+    frame: SummaryFrame
+    sidecar: dict[str, Any]
+    on_disk: bool = False
+
+
+def read_frame(store_dir: Path, index: int) -> HeldFrame | None:
+    """A complete frame from disk (its sidecar, written last, marks it complete); None when absent or damaged."""
+    base = store_dir / "frames" / frame_name(index)
+    try:
+        sidecar = json.loads((base.with_suffix(".json")).read_text(encoding="utf-8"))
+        feature = np.load(base.with_suffix(".npy"), allow_pickle=False)
+        image = cv2.imread(str(base.with_suffix(".jpg")), cv2.IMREAD_COLOR)
+    except (OSError, ValueError):
+        return None
+    if image is None or not isinstance(sidecar, dict):
+        return None
+    try:
+        return _held_from(store_dir, sidecar, image, feature)
+    except (KeyError, TypeError, ValueError):  # a sidecar edited by hand or damaged: that frame is dropped
+        return None
+
+
+def _held_from(store_dir: Path, sidecar: dict[str, Any], image: np.ndarray, feature: np.ndarray) -> HeldFrame:
+    raw = None
+    if sidecar.get("raw_file"):
+        raw = cv2.imread(str(store_dir / sidecar["raw_file"]), cv2.IMREAD_COLOR)
+    frame = SummaryFrame(
+        image_index=int(sidecar["image_index"]),
+        frame_index=int(sidecar.get("frame_index", 0)),
+        time_s=float(sidecar.get("time_s", 0.0)),
+        capture_time=float(sidecar.get("capture_time", 0.0)),
+        score=float(sidecar.get("score", 0.0)),
+        image=image,
+        feature=feature,
+        pose=pose_from_dict(sidecar.get("pose")),
+        raw_image=raw,
+        enhanced=bool(sidecar.get("enhanced", False)),
+        topic=str(sidecar.get("topic") or ""),
+        below_threshold=bool(sidecar.get("below_threshold", False)),
+    )
+    return HeldFrame(frame=frame, sidecar=sidecar, on_disk=True)
+
+
+def write_frame_files(store_dir: Path, held: HeldFrame, *, keep_raw: bool) -> None:
+    """The frame's JPEG (and raw JPEG), feature and sidecar, each atomically, the sidecar last."""
+    frames_dir = store_dir / "frames"
+    frame = held.frame
+    base = frames_dir / frame_name(frame.image_index)
+    atomic_write(base.with_suffix(".jpg"), _encode_jpeg(frame.image))
+    if frame.enhanced and frame.raw_image is not None and keep_raw:
+        raw_path = frames_dir / f"{frame_name(frame.image_index)}.raw.jpg"
+        atomic_write(raw_path, _encode_jpeg(frame.raw_image))
+        held.sidecar["raw_file"] = f"frames/{raw_path.name}"
+    atomic_write(base.with_suffix(".npy"), _npy_bytes(frame.feature))
+    atomic_write(base.with_suffix(".json"), json.dumps(held.sidecar, indent=1).encode())

@@ -1,0 +1,170 @@
+"""A threaded HTTP server whose clients cannot pin it: a bounded number of handler threads, a deadline to send a
+whole request, a per-read socket timeout, and a bounded request head.
+
+``http.server.ThreadingHTTPServer`` starts one thread per connection and waits forever for a request's head and
+body: 300 clients that send a Content-Length and then nothing keep 300 threads. Here at most ``max_threads``
+requests are served at once (the others get a 503 at once), and a request not read in full within
+``read_deadline_s`` is cut (one reaper thread for all of them), so the slots come back.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+log = logging.getLogger("merlion.surface.web")
+
+MAX_THREADS = 32
+READ_DEADLINE_S = 10.0
+"""Time to send a request's head and body (at most 16 kB + 64 kB): ample on a tether, short for a slow-loris."""
+SOCKET_TIMEOUT_S = 5.0
+MAX_HEAD = 16 * 1024
+"""The request line and headers together."""
+MAX_REQUEST_LINE = 4096
+_BUSY = (b"HTTP/1.0 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: 5\r\n"
+         b"Retry-After: 1\r\nConnection: close\r\n\r\nbusy\n")
+
+
+class HeadTooLarge(Exception):
+    """The request's head went past ``MAX_HEAD``."""
+
+
+class BoundedReader:
+    """The connection's input with a byte budget: the head may not exceed it (``allow`` then sets the body's)."""
+
+    def __init__(self, raw, budget: int) -> None:
+        self._raw = raw
+        self._left = budget
+
+    def allow(self, budget: int) -> None:
+        self._left = budget
+
+    def readline(self, limit: int = -1) -> bytes:
+        want = self._left + 1 if limit < 0 else min(limit, self._left + 1)
+        line = self._raw.readline(want)
+        self._left -= len(line)
+        if self._left < 0:
+            raise HeadTooLarge()
+        return line
+
+    def read(self, n: int = -1) -> bytes:
+        data = self._raw.read(min(n, self._left) if n >= 0 else self._left)
+        self._left -= len(data)
+        return data
+
+    def __getattr__(self, name: str):
+        return getattr(self._raw, name)
+
+
+class BoundedHandler(BaseHTTPRequestHandler):
+    """A request handler whose head is bounded; subclasses call ``request_read`` once the body is in."""
+
+    timeout = SOCKET_TIMEOUT_S
+
+    def setup(self) -> None:
+        super().setup()
+        self.rfile = BoundedReader(self.rfile, MAX_HEAD)
+
+    def handle_one_request(self) -> None:
+        try:
+            super().handle_one_request()
+        except HeadTooLarge:
+            self.requestline, self.request_version, self.command = "", "HTTP/1.0", None
+            self.send_error(431, "request head too large")
+            self.close_connection = True
+        except (TimeoutError, ConnectionError, OSError) as err:  # a slow or vanished client: nothing to answer
+            log.debug("web: %s: %s", self.client_address[0], err)
+            self.close_connection = True
+
+    def parse_request(self) -> bool:
+        if len(self.raw_requestline) > MAX_REQUEST_LINE:
+            self.requestline, self.request_version, self.command = "", "HTTP/1.0", None
+            self.send_error(414, "request line too long")
+            return False
+        return super().parse_request()
+
+    def request_read(self) -> None:
+        """The whole request is in: the read deadline no longer applies (an answer may take long, e.g. an FTP
+        fetch over the link)."""
+        self.server.unwatch(self.connection)
+
+
+class BoundedHTTPServer(ThreadingHTTPServer):
+    """``ThreadingHTTPServer`` with at most ``max_threads`` handlers and a deadline to read each request."""
+
+    daemon_threads = True
+
+    def __init__(self, address, handler: type[BoundedHandler], *, max_threads: int = MAX_THREADS,
+                 read_deadline_s: float = READ_DEADLINE_S) -> None:
+        super().__init__(address, handler)
+        self.max_threads = max_threads
+        self.read_deadline_s = read_deadline_s
+        self.refused_busy = 0
+        self.cut_slow = 0
+        self._slots = threading.BoundedSemaphore(max_threads)
+        self._serving = 0
+        self._deadlines: dict[socket.socket, float] = {}
+        self._watch_lock = threading.Lock()
+        self._closed = threading.Event()
+        self._reaper = threading.Thread(target=self._reap, name="surface-web-reaper", daemon=True)
+        self._reaper.start()
+
+    def process_request(self, request, client_address) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.refused_busy += 1
+            try:
+                request.settimeout(1.0)
+                request.sendall(_BUSY)
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        with self._watch_lock:
+            self._deadlines[request] = time.monotonic() + self.read_deadline_s
+            self._serving += 1
+        threading.Thread(target=self._serve_one, args=(request, client_address), daemon=True).start()
+
+    def _serve_one(self, request, client_address) -> None:
+        try:
+            self.finish_request(request, client_address)
+        except Exception as err:  # never a traceback on stderr: one line in the log
+            log.warning("web: request from %s failed: %s", client_address[0], err)
+        finally:
+            self.unwatch(request)
+            self.shutdown_request(request)
+            with self._watch_lock:
+                self._serving -= 1
+            self._slots.release()
+
+    def unwatch(self, request) -> None:
+        with self._watch_lock:
+            self._deadlines.pop(request, None)
+
+    def busy(self) -> int:
+        """Requests being served now."""
+        with self._watch_lock:
+            return self._serving
+
+    def _reap(self) -> None:
+        while not self._closed.wait(0.25):
+            now = time.monotonic()
+            with self._watch_lock:
+                late = [s for s, deadline in self._deadlines.items() if deadline <= now]
+                for s in late:
+                    del self._deadlines[s]
+            for s in late:
+                self.cut_slow += 1
+                try:
+                    s.shutdown(socket.SHUT_RDWR)  # the handler's blocked read returns; its thread ends
+                except OSError:
+                    pass
+
+    def handle_error(self, request, client_address) -> None:
+        log.debug("web: error serving %s", client_address[0])
+
+    def server_close(self) -> None:
+        self._closed.set()
+        super().server_close()

@@ -1,0 +1,141 @@
+"""What the surface tool's roles share: its options, the link status the page shows, and the pairing state.
+
+The roles (``tool.SurfaceTool``: the link; ``gallery_sync``: index, status lines, FTP fallback and checks;
+``push_pairing``: captures paired with pushed thumbnails; ``page_state``: what the page shows; ``actions``: what
+the page asks for) run on the receive loop, except the page's reads and requests, which take ``lock`` or queue
+their work on ``requests`` for the loop. Each role gets this one explicit ``SurfaceContext``.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from companion.topside.ftp_client import FtpClient
+from companion.topside.gallery import Gallery
+from vehicle.protocol.image_push import Abandoned, PushedImage
+
+INDEX_PATH = "/summary/index.json"
+PUSH_MARKER = "MRL_PUSH"
+DEPTH_VALUE = "MRL_DEPTH"
+SEVERITY_WARNING = 4
+FULL_FRAME_TIMEOUT_S = 120.0
+"""A full frame (tens of kB) at a 2,000 B/s budget, sent after everything else: give it time."""
+MARKS_TIMEOUT_S = 30.0
+"""A marks upload is a few hundred bytes: a page's request waits this long for the companion's answer."""
+OFFLINE_EVERY_S = 2.0
+
+
+@dataclass
+class SurfaceOptions:
+    connect: str = "udpin:0.0.0.0:14550"
+    system_id: int = 254
+    """Not 255: ArduSub takes heartbeats of system 255 for the pilot's GCS and would hide a real GCS loss."""
+    component_id: int = 190
+    companion: tuple[int, int] | None = None
+    """(system, component) of the companion; None: the camera component that sends captures or pushes images."""
+    push_timeout_s: float = 30.0
+    """A capture with no pushed thumbnail after this long is fetched by FTP."""
+    push_stall_s: float = 3.0
+    """A push that received nothing for this long (longer on a slow link) is given up: the rest comes by FTP."""
+    index_refresh_s: float = 10.0
+    """Pull index.json at most this often, and only after the summary changed."""
+    ftp: bool = True
+    statustext_keep: int = 20
+    signing_key_file: str | None = None
+
+
+@dataclass
+class LinkStatus:
+    """What the web page shows about the link and the companion."""
+
+    started: float = field(default_factory=time.time)
+    messages: int = 0
+    last_message: float | None = None
+    companion: tuple[int, int] | None = None
+    companion_heartbeat: float | None = None
+    autopilot: tuple[int, int] | None = None
+    autopilot_heartbeat: float | None = None
+    values: dict[str, float] = field(default_factory=dict)
+    values_at: float | None = None
+    statustext: deque = field(default_factory=lambda: deque(maxlen=20))
+    warnings: deque = field(default_factory=lambda: deque(maxlen=20))
+    """Status lines of severity WARNING or worse, kept apart: summary churn never pushes them out."""
+    depth_track: deque = field(default_factory=lambda: deque(maxlen=7200))
+    """(surface time, depth m) from the companion's 1 Hz MRL_DEPTH: the page's depth-over-time plot."""
+    pushed_ok: int = 0
+    pushed_lost: int = 0
+    ftp_ok: int = 0
+    ftp_failed: int = 0
+    index_pulls: int = 0
+    verified: int = 0
+    """Pushed (or part-pushed) thumbnails whose CRC matched the companion's file."""
+    mismatched: int = 0
+    lost_packets: int = 0
+    unsigned_ignored: int = 0
+    """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
+    unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)
+
+
+@dataclass
+class PairingState:
+    """What the loop remembers between messages about captures, pushes and index pulls of the current dive."""
+
+    waiting: deque = field(default_factory=deque)
+    """Captures waiting for a push: (image index, since)."""
+    early: deque = field(default_factory=lambda: deque(maxlen=16))
+    """Handshakes that came before their capture (their numbers)."""
+    expected: dict[int, int] = field(default_factory=dict)
+    """Thumbnail bytes by image index, from index.json (JPEG only)."""
+    bound: dict[int, int] = field(default_factory=dict)
+    """Handshake number -> image index."""
+    orphans: dict[int, PushedImage] = field(default_factory=dict)
+    """Finished pushes not yet paired."""
+    lost_push: dict[int, Abandoned] = field(default_factory=dict)
+    """Pushes abandoned before pairing, by handshake number."""
+    fetching: set[tuple[str | None, int]] = field(default_factory=set)
+    """(dive, image index) being pulled by FTP."""
+    marker: int | None = None
+    """Image index named by the last MRL_PUSH, until its handshake comes."""
+    crc: dict[int, int] = field(default_factory=dict)
+    """Thumbnail CRC32 by image index, from index.json (JPEG only)."""
+    unverified: dict[int, bytes] = field(default_factory=dict)
+    """Pushed thumbnails waiting for an index.json with their CRC."""
+    last_announced: int | None = None
+    index_due: float | None = None
+    index_pulled_at: float = -1e9
+
+    def forget_dive(self) -> None:
+        """A new dive: image indices start again, so every pairing made under the old ones goes."""
+        for pending in (self.waiting, self.early, self.expected, self.bound, self.orphans, self.lost_push, self.crc,
+                        self.unverified):
+            pending.clear()
+        self.last_announced = None
+
+    def drop_waiting(self, gone) -> None:
+        """Take the captures in ``gone`` (a container of image indices) out of the pairing queue."""
+        self.waiting = deque((i, t) for i, t in self.waiting if i not in gone)
+
+
+@dataclass
+class SurfaceContext:
+    """The one explicit context every role of the surface tool is built with."""
+
+    options: SurfaceOptions
+    gallery: Gallery
+    clock: Callable[[], float]
+    send: Callable[[object], object]
+    """Send a MAVLink message on the tool's one connection."""
+    status: LinkStatus = field(default_factory=LinkStatus)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    pairing: PairingState = field(default_factory=PairingState)
+    requests: queue.Queue = field(default_factory=queue.Queue)
+    """Work handed to the receive loop by other threads (the web server's)."""
+    ftp: FtpClient | None = None
+    """The FTP client to the companion, once it is found (owned by the receive loop)."""
+    marks: dict[str, list[int]] = field(default_factory=lambda: {"like": [], "unlike": []})
+    """The marks this tool last had accepted by the companion (the page shows them on the cards)."""

@@ -1,0 +1,105 @@
+"""Who may read the live page's state and who may change anything: the Host and Origin checks of ``web``.
+
+A page on another web origin must not read the state (summary, depths, positions, marks) by including
+``/state.js`` as a script or fetching ``/api/state``, and a DNS-rebinding name must not reach the server at all:
+
+- every request must carry a Host the server answers to: ``127.0.0.1``, ``localhost`` or ``[::1]`` at the
+  server's port, the address it was bound to at that port, any IP address at that port when it listens on every
+  interface (a rebinding page can only send names), or an entry of ``allowed_hosts`` (``name`` for any port or
+  ``name:port``), for a reverse proxy in front of the page;
+- everything but the page itself (``/``, ``index.html``, ``app.js``: no state in them) is served only to same-origin
+  requests: an ``Origin`` or ``Referer`` naming another host, or a ``Sec-Fetch-Site`` other than ``same-origin``
+  or ``none`` (what a browser sends for a script or image included by another site), is refused (behind a
+  reverse proxy that rewrites Host, its ``X-Forwarded-Host`` counts as the page's own when it is allowed);
+- a change (POST) also needs the per-run token.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+from urllib.parse import parse_qs, urlsplit
+
+TOKEN_HEADER = "X-Merlion-Token"
+LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
+WILDCARDS = frozenset({"", "0.0.0.0", "::"})
+
+
+def _is_ip(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+class HostPolicy:
+    """The Host headers a server bound to ``bind_host:port`` answers to."""
+
+    def __init__(self, bind_host: str, port: int, allowed_hosts: tuple[str, ...] | list[str] = ()) -> None:
+        self.bind_host = bind_host.strip("[]").lower()
+        self.port = port
+        self.extra = frozenset(h.strip().lower() for h in allowed_hosts if h.strip())
+
+    def allows_extra(self, host_header: str) -> bool:
+        """Whether ``host_header`` is one of the configured further hosts (``name`` or ``name:port``)."""
+        header = host_header.strip().lower()
+        try:
+            name = urlsplit(f"//{header}").hostname or ""
+        except ValueError:
+            return False
+        return header in self.extra or name in self.extra
+
+    def allows(self, host_header: str | None) -> bool:
+        header = (host_header or "").strip().lower()
+        if not header:
+            return False
+        if header in self.extra:
+            return True
+        try:
+            parts = urlsplit(f"//{header}")
+            host, port = parts.hostname or "", parts.port
+        except ValueError:  # a port that is not a number
+            return False
+        if host in self.extra:
+            return True
+        if (port or 80) != self.port:
+            return False
+        if host in LOOPBACK_NAMES or (host == self.bind_host and self.bind_host not in WILDCARDS):
+            return True
+        return self.bind_host in WILDCARDS and _is_ip(host)
+
+
+def cross_origin(headers, hosts: HostPolicy | None = None) -> str | None:
+    """Why a request comes from another web origin than the page's own (None: same origin, or no browser).
+
+    The page's own origin is its Host, or, behind a reverse proxy that rewrites Host, the ``X-Forwarded-Host``
+    it adds when that is one of ``hosts``' allowed names (a page cannot add that header to a cross-origin request
+    without a CORS preflight, which this server never grants)."""
+    own = {(headers.get("Host") or "").lower()}
+    forwarded = (headers.get("X-Forwarded-Host") or "").split(",")[0].strip().lower()
+    if forwarded and hosts is not None and hosts.allows_extra(forwarded):
+        own.add(forwarded)
+    origin = headers.get("Origin")
+    if origin is not None and urlsplit(origin).netloc.lower() not in own:
+        return f"cross-origin request from {origin[:100]!r}"
+    if headers.get("Sec-Fetch-Site") not in (None, "same-origin", "none"):
+        return "cross-site request"
+    referer = headers.get("Referer")
+    if referer is not None and urlsplit(referer).netloc.lower() not in own:
+        return "request from another page's origin"
+    return None
+
+
+def refusal(headers, path: str, token: str, hosts: HostPolicy) -> str | None:
+    """Why a state-changing request must be refused (None: it may go ahead)."""
+    host = headers.get("Host", "")
+    if not hosts.allows(host):
+        return f"Host {host[:100]!r} is not this server"
+    why = cross_origin(headers, hosts)
+    if why is not None:
+        return why
+    given = parse_qs(urlsplit(path).query).get("token", [""])[0] or headers.get(TOKEN_HEADER, "")
+    if not hmac.compare_digest(given.encode(), token.encode()):
+        return "missing or wrong token"
+    return None
