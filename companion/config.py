@@ -106,6 +106,8 @@ class QueryConfig(_Section):
     tau_ss: float = 0.5
     """Semantic pre-sampling threshold, a fraction in [0, 1); a value above 1 is read as a percentage; 0 means no
     semantic gate (every frame goes on to the sampler)."""
+    below_threshold_after_s: float = Field(60.0, ge=0)
+    """When a topic's summary is empty and nothing has passed tau_ss for this many seconds of footage, its best frames so far are shown, marked below threshold, and the surface is told; the first frame that passes displaces them. 0: at once."""
     topics: list[TopicConfig] = Field(default_factory=list, max_length=8)
     """Several named topics followed at once, each with its own summary of K frames, e.g. [{name: fish, positive:
     ..., negatives: [...]}, {name: coral, ...}]; one encoder pass serves them all. Empty: the one topic above;

@@ -30,6 +30,7 @@ def register(add_command) -> None:
                    help="an example of what is not wanted (image or folder of images), repeatable")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--json", action="store_true", help='JSON lines: {"file": ..., "score": ...}')
+    p.add_argument("--explain", action="store_true", help="first say on stderr what each query resolves to")
     p.set_defaults(func=run)
 
 
@@ -41,9 +42,12 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.vision.query_explain import explain_queries
     from companion.vision.score_images import score_images
 
     cfg = load_config(args.config, overrides=overrides_from(args))
+    if args.explain:
+        print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
     failed = 0
     for item in score_images(cfg, args.paths, like=args.like, unlike=args.unlike):
         if item.score is None:

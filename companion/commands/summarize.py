@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
@@ -20,6 +21,7 @@ def register(add_command) -> None:
                    help="an example of what is not wanted (image or folder of images), repeatable")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--force", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--explain", action="store_true", help="first say on stderr what each query resolves to")
     p.set_defaults(func=run)
 
 
@@ -31,12 +33,17 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.vision.query_explain import explain_queries
     from companion.vision.summarize import summarize
 
     cfg = load_config(args.config, overrides=overrides_from(args))
+    if args.explain:
+        print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
     result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
     sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
+    below = sum(f["below_threshold"] for f in result.document["frames"])
+    below_text = f"; {below} below the threshold, the best seen" if below else ""
     print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
-          f"({result.frames_passed} passed the query{lost}); see summary.json and {sheets}")
+          f"({result.frames_passed} passed the query{lost}{below_text}); see summary.json and {sheets}")
     return 0

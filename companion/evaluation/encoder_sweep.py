@@ -14,7 +14,7 @@ import numpy as np
 from companion.config import EncoderConfig
 from companion.evaluation.sources import LabelledFrame
 from companion.vision.encoders.imagenet import CLASSES, FEATURES, ImageNetEncoder
-from companion.vision.encoders.marine_concepts import parse_query
+from companion.vision.encoders.query_words import resolve_query
 
 BONY_FISH = (0, 1, 389, 391, 392, 393, 394, 395, 396, 397)
 """Ray-finned fish only (no sharks, rays, eels): the narrower vocabulary tried against the default."""
@@ -22,7 +22,7 @@ BONY_FISH = (0, 1, 389, 391, 392, 393, 394, 395, 396, 397)
 
 def _vocabularies() -> dict[str, np.ndarray]:
     fish = np.zeros(CLASSES, np.float32)
-    fish[list(parse_query("fish").classes)] = 1.0
+    fish[list(resolve_query("fish").classes)] = 1.0
     bony = np.zeros(CLASSES, np.float32)
     bony[list(BONY_FISH)] = 1.0
     return {"fish": fish, "bony": bony}

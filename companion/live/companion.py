@@ -30,7 +30,9 @@ from companion.config import Config, ConfigError, build_config
 from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
+from companion.live.query_answer import refusal_line, resolution_lines
 from companion.live.queues import DropOldestQueue
+from companion.live.quiet_notice import QuietNotice
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
@@ -83,6 +85,7 @@ class LiveCompanion:
         """Marked frames the encoder embedded (beside the frames it scored)."""
         self.pipeline = None
         self.encoder = None
+        self._quiet: QuietNotice | None = None
         self.link = None
         self.telemetry = None
         self.surface = None
@@ -210,6 +213,17 @@ class LiveCompanion:
     def _publish(self, event: SummaryEvent) -> None:
         if self.surface is not None:
             self.surface.publish(event)
+            self._tell_quiet(event)
+
+    def _tell_quiet(self, event: SummaryEvent) -> None:
+        """A topic's first stand-in (nothing passed for a while): say so once, as a warning the page shows."""
+        if self._quiet is None:
+            self._quiet = QuietNotice(self.cfg.queries.below_threshold_after_s)
+        line = self._quiet.line_for(event)
+        if line is not None:
+            from vehicle.camera import status as st
+
+            self.surface.event(line, st.WARNING)
 
     def _params_file(self) -> ParamsFile:
         return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)
@@ -381,6 +395,7 @@ class LiveCompanion:
         # topic changed, and a CLIP text not yet cached is encoded now (a child process, seconds) rather than
         # while the inference loop waits; under the lock the texts are then in memory
         self._check_queries(specs)
+        self._say_resolved(specs)
 
         def set_topics() -> list[SummaryEvent]:
             events = self.pipeline.set_topics(specs)
@@ -422,8 +437,14 @@ class LiveCompanion:
                 if self.surface is not None:
                     from vehicle.camera import status as st
 
-                    self.surface.event(f"Queries refused: {spec.name}: {err}"[:50], st.WARNING)
+                    self.surface.event(refusal_line(spec.name, err), st.WARNING)
                 raise ValueError(f"topic {spec.name}: {err}") from None
+
+    def _say_resolved(self, specs) -> None:
+        """Tell the surface what each query was read as (the packaged encoder's WordNet classes)."""
+        if self.surface is not None:
+            for line in resolution_lines(self.encoder, [(s.name, [s.positive, *s.negatives]) for s in specs]):
+                self.surface.event(line)
 
     # ---- the operator's marks -----------------------------------------------------------------------------------
     def _on_marks(self, like: list[int], unlike: list[int]) -> None:

@@ -67,6 +67,7 @@ def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> d
         "feature_file": f"frames/{frame_name(frame.image_index)}.npy",
         "pose": frame.pose.to_dict() if frame.pose is not None else None,
         "topic": frame.topic,
+        "below_threshold": bool(frame.below_threshold),
         "tags": dict(tags or {}),
     }
 
@@ -113,6 +114,7 @@ def _held_from(store_dir: Path, sidecar: dict[str, Any], image: np.ndarray, feat
         raw_image=raw,
         enhanced=bool(sidecar.get("enhanced", False)),
         topic=str(sidecar.get("topic") or ""),
+        below_threshold=bool(sidecar.get("below_threshold", False)),
     )
     return HeldFrame(frame=frame, sidecar=sidecar, on_disk=True)
 

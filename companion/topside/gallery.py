@@ -73,6 +73,8 @@ class Capture:
     topic: str | None = None
     """The name of the topic whose summary holds it (index.json, or the STATUSTEXT when several are followed);
     None until the companion said (and in a gallery written before topics)."""
+    below_threshold: bool | None = None
+    """A stand-in (index.json): nothing passed the threshold for a while, so the best frame seen is shown."""
     file_url: str | None = None
     thumbnail: str | None = None
     """Path of the thumbnail relative to DIR, once we have it."""

@@ -209,6 +209,7 @@ def parse_index(data: bytes) -> list[Capture]:
             lat=_num(tags.get("lat")), lon=_num(tags.get("lon")), alt_m=_num(tags.get("alt_m")),
             score=_num(_first(tags, "score", "ss", "semantic_score")),
             topic=str(tags["topic"]) if isinstance(tags.get("topic"), str) and tags["topic"] else None,
+            below_threshold=tags["below_threshold"] if isinstance(tags.get("below_threshold"), bool) else None,
             file_url=url if isinstance(url, str) else None,
         )
         cap.thumbnail_bytes = int(size) if _num(size) is not None else None

@@ -34,6 +34,8 @@ class SummaryFrame:
     enhanced: bool = False
     topic: str = ""
     """The name of the topic whose summary it entered (``queries.topics``; the default topic's name with one)."""
+    below_threshold: bool = False
+    """A stand-in: nothing passed tau_ss for a while, so the best frame seen is shown (``vision.below_threshold``)."""
 
 
 @dataclass

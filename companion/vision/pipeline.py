@@ -17,6 +17,9 @@ Several named topics (``companion.vision.topics``, config ``queries.topics``) sh
 scores the same embeddings with its own queries and keeps its own summary; a frame may enter several of them
 (each entry is its own summary frame with its own image index).
 
+While a topic's summary is empty and nothing passes its gate, its best frames so far stand in, marked
+``below_threshold`` (``companion.vision.below_threshold``): after ``quiet_s`` seconds of footage, or at ``finish``.
+
 Before all of that, the frame gate (``companion.vision.gate``, config ``gate:``) lets through only the frames
 that differ from the last encoded one; a skipped frame gets a result with ``encoded=False`` (counted as seen,
 never scored, never offered to the sampler).
@@ -36,6 +39,7 @@ from companion.config import Config, as_fraction
 from companion.errors import UsageError
 from companion.sources.frame import Frame
 from companion.vision import distances as dist
+from companion.vision.below_threshold import KEEP
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
@@ -125,7 +129,7 @@ class Pipeline:
     def __init__(self, encoder: Encoder, topics: Sequence[Topic], *,
                  enhancer: Enhancer | None = None, enhance_mode: str = "none", tau_ses: float = 0.7,
                  first_image_index: int = 0, gate: FrameGate | None = None, default_tau_ss: float | None = None,
-                 default_topic: str | None = None) -> None:
+                 default_topic: str | None = None, quiet_s: float = 60.0) -> None:
         check_names([t.name for t in topics])
         if enhance_mode not in ENHANCE_MODES:
             raise UsageError(f"enhance.mode: {enhance_mode!r} is not one of {', '.join(ENHANCE_MODES)}")
@@ -146,6 +150,8 @@ class Pipeline:
         self.encode_size = encoder.input_size
         self.clock = StageClock()
         self.gate = gate if gate is not None else FrameGate("none")
+        self.quiet_s = float(quiet_s)
+        """Footage seconds with nothing passing after which an empty topic shows its best frames (stand-ins)."""
         self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0}
 
     @classmethod
@@ -164,7 +170,8 @@ class Pipeline:
         gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
         return cls(encoder, topics, default_tau_ss=cfg.queries.tau_ss, default_topic=cfg.queries.name,
                    enhancer=enhancer, enhance_mode=cfg.enhance.mode,
-                   tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate)
+                   tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate,
+                   quiet_s=cfg.queries.below_threshold_after_s)
 
     # ----- topics -------------------------------------------------------------------------------------------
 
@@ -259,7 +266,7 @@ class Pipeline:
         return [frame for topic in self.topics for frame in topic.summary]
 
     def _all_keys(self) -> list[int]:
-        return [key for topic in self.topics for key in topic.sampler.keys]
+        return [key for topic in self.topics for key in topic.keys]
 
     def restore(self, frames: Iterable[SummaryFrame]) -> list[SummaryEvent]:
         """Resume with stored summary frames (their features and image indices); new indices continue above them.
@@ -282,9 +289,15 @@ class Pipeline:
                 dropped.append(frame)
         removed = []
         for topic in self.topics:
-            mine = by_topic[topic.name]
+            mine = [f for f in by_topic[topic.name] if not f.below_threshold]
             removed.append((topic, topic.sampler.restore((f.image_index, f.feature) for f in mine)))
             topic.held = {f.image_index: f for f in mine}
+            for f in by_topic[topic.name]:
+                if f.below_threshold and not mine:  # shown again until a frame passes
+                    topic.below.showing(f)
+                    topic.below.candidates.append(f)
+                elif f.below_threshold:
+                    dropped.append(f)
         if frames:
             self.next_image_index = max(self.next_image_index, frames[-1].image_index + 1)
         events = self._removal_events(removed)
@@ -382,17 +395,66 @@ class Pipeline:
                                                                              final_images, final_scores)
         events: list[SummaryEvent] = []
         go = np.flatnonzero(passed.any(axis=1))
-        if len(go) == 0:
-            return BatchOutcome(results, events)
-        with self.clock.stage("sample", len(go)):
-            feats = dist.prepare_features(self.encoder.sampler_features(emb[go]))
-            for row, i in enumerate(go):
-                results[i].offered = True
-                self.counts["offered"] += 1
-                for t in np.flatnonzero(passed[i]):
-                    events.extend(self._offer(self.topics[t], frames[i], results[i], feats[row], final_images[i],
-                                              final_scores[i, t], poses[i] if poses is not None else None))
+        if len(go):
+            with self.clock.stage("sample", len(go)):
+                feats = dist.prepare_features(self.encoder.sampler_features(emb[go]))
+                for row, i in enumerate(go):
+                    results[i].offered = True
+                    self.counts["offered"] += 1
+                    for t in np.flatnonzero(passed[i]):
+                        events.extend(self._offer(self.topics[t], frames[i], results[i], feats[row],
+                                                  final_images[i], final_scores[i, t],
+                                                  poses[i] if poses is not None else None))
+        events.extend(self._stand_ins(frames, emb, passed, final_scores, final_images, poses))
         return BatchOutcome(results, events)
+
+    def _stand_ins(self, frames, emb, passed, scores, images, poses) -> list[SummaryEvent]:
+        """Per topic: a pass ends the quiet period (its stand-ins leave); else, while its summary is empty, the
+        batch's best frame may become a stand-in, and stand-ins enter once the quiet period is long enough."""
+        events: list[SummaryEvent] = []
+        for t, topic in enumerate(self.topics):
+            below = topic.below
+            below.seen(frames[0].time_s)
+            hits = np.flatnonzero(passed[:, t])
+            if len(hits):
+                gone = below.passed(frames[hits[-1]].time_s)
+                keys = self._all_keys()
+                events.extend(SummaryEvent("removed", f, list(keys)) for f in gone)
+                continue
+            if topic.sampler.keys:
+                continue
+            below.keep = min(KEEP, topic.sampler.k)
+            i = int(np.argmax(scores[:, t]))
+            feature = dist.prepare_features(self.encoder.sampler_features(emb[i:i + 1]))[0]
+            frame = frames[i]
+            enhanced = images[i] is not frame.image
+            below.consider(SummaryFrame(
+                image_index=-1, frame_index=frame.index, time_s=frame.time_s, capture_time=frame.capture_time,
+                score=float(scores[i, t]), image=images[i], feature=feature,
+                pose=poses[i] if poses is not None else None, raw_image=frame.image if enhanced else None,
+                enhanced=enhanced, topic=topic.name, below_threshold=True))
+            if below.due(frames[-1].time_s, self.quiet_s):
+                events.extend(self._show_stand_ins(topic))
+        return events
+
+    def _show_stand_ins(self, topic: Topic) -> list[SummaryEvent]:
+        """Make the summary show exactly the topic's current candidates (numbering the new ones)."""
+        add, gone = topic.below.to_show()
+        events = [SummaryEvent("removed", f, self._all_keys()) for f in gone]
+        for frame in sorted(add, key=lambda f: f.time_s):
+            frame.image_index = self.next_image_index
+            self.next_image_index += 1
+            topic.below.showing(frame)
+            events.append(SummaryEvent("added", frame, self._all_keys()))
+        return events
+
+    def finish(self) -> list[SummaryEvent]:
+        """End of the footage: an empty topic shows its best frames now, however short the quiet period was."""
+        events: list[SummaryEvent] = []
+        for topic in self.topics:
+            if not topic.sampler.keys and topic.below.candidates:
+                events.extend(self._show_stand_ins(topic))
+        return events
 
     def _enhance_selected(self, frames, passed, emb, results, images, scores):
         """MERLION-E: enhance the frames that passed (for any topic), re-encode them once, and keep, per topic,

@@ -1,6 +1,7 @@
 """``merlion summarize``: run a whole video or folder through the pipeline and write the summary to a directory.
 
-The output directory holds ``summary.json`` (source, encoder, parameters, and the summary frames in time order),
+The output directory holds ``summary.json`` (source, encoder, parameters, and the summary frames in time order;
+a topic that no frame passed shows its best-scoring frames instead, each marked ``below_threshold``),
 the frames at full resolution under ``frames/`` and ``contact_sheet.jpg``. With several topics
 (``queries.topics``) each topic's frames go under ``frames/<topic>/`` with a ``contact_sheet_<topic>.jpg`` each,
 and every frame entry names its topic. It is built in a temporary sibling
@@ -98,6 +99,7 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
     several = len(pipeline.topics) > 1
     topics = [{"name": t.name, "query": t.presampler.positive, "negatives": t.presampler.negatives,
                "tau_ss": t.presampler.tau_ss, "frames": sum(f.topic == t.name for f in frames),
+               "below_threshold": any(f.topic == t.name and f.below_threshold for f in frames),
                "contact_sheet": sheet_name(t.name, several)} for t in pipeline.topics]
     return {
         "source": cfg.source.uri,
@@ -119,7 +121,7 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
         },
         "frames": [
             {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
-             "file": frame_file(f, several), "topic": f.topic}
+             "file": frame_file(f, several), "topic": f.topic, "below_threshold": f.below_threshold}
             for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index, f.topic))
         ],
     }
@@ -207,6 +209,10 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
                 on_results(out.results)
             bar.update(len(batch))
             bar.set_postfix(passed=passed, held=len(pipeline.summary))
+    stand_ins = pipeline.finish()  # a topic nothing passed for shows its best frames, marked below threshold
+    if stand_ins:
+        log.warning("no frame passed tau_ss for topic(s) %s: the best-scoring frames are kept, marked "
+                    "below_threshold", ", ".join(sorted({e.frame.topic for e in stand_ins if e.kind == "added"})))
     lost = int(getattr(source, "lost", 0))
     if lost:
         log.warning("%s: %d frames could not be decoded and were skipped", cfg.source.uri, lost)

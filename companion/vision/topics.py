@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.errors import UsageError
+from companion.vision.below_threshold import BestBelow
 from companion.vision.encoders.base import Encoder
 from companion.vision.events import SummaryFrame
 from companion.vision.presampler import PreSampler
@@ -43,11 +44,18 @@ class Topic:
     sampler: InformativeSampler
     held: dict[int, SummaryFrame] = field(default_factory=dict)
     """The summary frames by image index (the sampler's keys)."""
+    below: BestBelow = field(default_factory=BestBelow)
+    """Stand-ins while nothing passes: in the summary (``below.shown``) only while the sampler holds nothing."""
+
+    @property
+    def keys(self) -> list[int]:
+        """Image indices in the summary: the sampler's, then any stand-ins."""
+        return [*self.sampler.keys, *self.below.shown]
 
     @property
     def summary(self) -> list[SummaryFrame]:
-        """The frames held now, in the order they entered."""
-        return [self.held[key] for key in self.sampler.keys]
+        """The frames held now, in the order they entered (stand-ins last)."""
+        return [self.held[key] for key in self.sampler.keys] + list(self.below.shown.values())
 
 
 def check_names(names: Sequence[str]) -> None:

@@ -110,6 +110,7 @@ def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
         "capture_time": frame.capture_time,
         "utc": datetime.fromtimestamp(frame.capture_time, timezone.utc).isoformat(timespec="milliseconds"),
         "score": _json_safe(round(float(frame.score), 4)), "enhanced": bool(frame.enhanced),
+        "below_threshold": bool(getattr(frame, "below_threshold", False)),  # a stand-in: nothing passed
     }
     if pose is not None:
         tags["pose"] = {k: _json_safe(v) for k, v in pose.to_dict().items() if v is not None}

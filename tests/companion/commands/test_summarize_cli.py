@@ -54,8 +54,8 @@ def test_summary_json_schema_and_frames(summary_dir):
         cells = line.split(",")
         labels[int(cells[0])] = cells[-1].strip() == "1"
     for f in frames:
-        assert set(f) == {"index", "time_s", "score", "file", "topic"}
-        assert f["topic"] == "main"  # the one default topic
+        assert set(f) == {"index", "time_s", "score", "file", "topic", "below_threshold"}
+        assert f["topic"] == "main" and f["below_threshold"] is False  # the one default topic; frames passed
         assert f["index"] % 10 == 0  # 10 fps source at --fps 1
         assert f["time_s"] == pytest.approx(f["index"] / 10.0)
         assert 0.45 < f["score"] <= 1.0
@@ -152,3 +152,22 @@ def test_truncated_video_is_summarized_and_the_loss_reported(tmp_path):
     stats = doc["params"]["stats"]
     assert stats["frames_lost"] > 0 and stats["frames_seen"] > 0
     assert f"{stats['frames_lost']} lost" in proc.stdout
+
+
+def test_a_clip_no_frame_passes_keeps_its_best_frames_marked_below_threshold(tmp_path):
+    """A real ROV clip with no fish, asked for "fish": not an empty summary, but the best-scoring frames, each
+    marked below the threshold in summary.json and the closing line (issue 23 item 3)."""
+    out = tmp_path / "rov"
+    clip = shared_file("rov_clips/V4361_20211006T163256Z_h265_1sec.mp4")
+    proc = run_merlion("summarize", str(clip), "--out", str(out), "--encoder", "imagenet", "--query", "fish",
+                       "--fps", "10", "--explain")
+    assert proc.returncode == 0, proc.stderr
+    assert "positive query 'fish':\n  fish -> fish [noun]: 16 classes: tench," in proc.stderr
+    doc = json.loads((out / "summary.json").read_text())
+    frames = doc["frames"]
+    assert doc["params"]["stats"]["frames_passed"] == 0
+    assert 1 <= len(frames) <= 3 and all(f["below_threshold"] is True for f in frames)
+    assert all(0 <= f["score"] <= doc["params"]["tau_ss"] for f in frames)
+    assert doc["params"]["topics"][0]["below_threshold"] is True and doc["params"]["topics"][0]["frames"] == len(frames)
+    assert all((out / f["file"]).is_file() for f in frames)
+    assert f"{len(frames)} below the threshold, the best seen" in proc.stdout

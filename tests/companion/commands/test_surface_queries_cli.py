@@ -185,3 +185,40 @@ def test_topics_from_the_surface_reach_a_live_companion_and_the_surface_tool(tmp
             assert companion.terminate() == 0, companion.output
     finally:
         hub.stop()
+
+
+def test_the_live_companion_answers_what_words_resolved_to_and_refuses_an_unknown_word(tmp_path):
+    """On the wire, against a real `merlion run` with the packaged encoder: "marine animal" is accepted and the
+    companion's STATUSTEXT (on the surface page's status too) names the WordNet classes it was read as; a made-up
+    word is refused, and the refusal names it."""
+    web_port = free_udp_port()
+    hub = UdpHub(outputs=[("127.0.0.1", web_port)]).start()
+    try:
+        cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(tmp_path / "store")},
+                           encoder={"name": "imagenet"}, source={"uri": FAST_SOURCE, "fps": 5, "loop": True},
+                           surface={"ftp_writable": True, "budget_bytes_per_s": 40000})
+        companion = Companion("--config", str(cfg))
+        companion.wait_for("companion running", 120)
+        with surface_with_page(tmp_path / "gallery", web_port, duration=120) as tool:
+            done = run_merlion("surface-queries", "--connect", hub.url, "--timeout", "30",
+                               "--query", "marine animal", "--negative", "no marine animal", timeout=90)
+            assert done.returncode == 0, done.stderr
+            assert done.stdout.strip() == "merlion surface-queries: 1:100 says: Queries set: marine animal"
+
+            def said(start: str) -> list[str]:
+                return [s["text"] for s in page_state(tool.web)["companion"]["statustext"] if s["text"].startswith(start)]
+
+            wait_until(lambda: said("Query marine animal="), 30, "the companion's reading of the query on the page")
+            line = said("Query marine animal=")[0]
+            assert line.startswith("Query marine animal=26: great white shark,") and len(line) <= 50, line
+            assert said("Query not marine animal=26: ")
+
+            done = run_merlion("surface-queries", "--connect", hub.url, "--timeout", "30",
+                               "--query", "fish or blorptang", "--negative", "no fish", timeout=90)
+            assert done.returncode == 1, done.stdout
+            assert done.stderr.strip() == ("merlion: error: the companion 1:100 refused the queries: "
+                                           "Queries refused: main: 'blorptang' unknown"), done.stderr
+            wait_until(lambda: said("Queries refused: main: 'blorptang'"), 30, "the refusal on the page")
+            assert companion.terminate() == 0, companion.output
+    finally:
+        hub.stop()

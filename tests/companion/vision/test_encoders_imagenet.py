@@ -1,4 +1,4 @@
-"""The packaged EfficientNet-Lite0 encoder on real underwater images, and its marine concept vocabulary."""
+"""The packaged EfficientNet-Lite0 encoder on real underwater images, and how its queries weigh classes."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.evaluation.roc import auroc
 from companion.vision.encoders.imagenet import CLASSES, CPU_FORWARD_FRAMES, FEATURES, ImageNetEncoder
-from companion.vision.encoders.marine_concepts import CONCEPTS, IMAGENET_CLASSES, parse_query
+from companion.vision.encoders.query_words import class_name, resolve_query
 from tests.conftest import shared_file
 
 FISH = "underwater image with fish"
@@ -83,9 +83,9 @@ def test_regions_find_a_small_fish_the_whole_frame_misses(encoder):
 
 
 def test_default_queries_map_and_negation_is_the_complement(encoder, suim):
-    pos, neg = parse_query(FISH), parse_query(NO_FISH)
-    assert [c.name for c in pos.concepts] == ["fish"] and not pos.negated
-    assert [c.name for c in neg.concepts] == ["fish"] and neg.negated
+    pos, neg = resolve_query(FISH), resolve_query(NO_FISH)
+    assert [t.noun for t in pos.terms] == ["fish"] and not pos.negated
+    assert [t.noun for t in neg.terms] == ["fish"] and neg.negated
     emb = encoder.encode_images(suim[0][:3])
     pair = encoder.semantic_scores(emb, encoder.encode_texts([FISH, NO_FISH]))
     alone = encoder.semantic_scores(emb, encoder.encode_texts([FISH]))
@@ -97,38 +97,28 @@ def test_default_queries_map_and_negation_is_the_complement(encoder, suim):
     np.testing.assert_allclose(mass[:, 0], alone, atol=1e-6)
 
 
-@pytest.mark.parametrize(("query", "names", "negated"), [
-    ("sharks", ["shark"], False),
-    ("a sea urchin on rocks", ["sea urchin"], False),
-    ("no fish or sharks", ["fish", "shark"], True),
-    ("Scuba DIVERS near a shipwreck", ["diver", "wreck"], False),
-    ("empty of jellyfish", ["jellyfish"], True),
-    ("sea stars and sea cucumbers", ["starfish", "sea cucumber"], False),
-    ("an anemone fish", ["fish"], False),
-    ("clownfish in a sea anemone", ["fish", "sea anemone"], False),
-])
-def test_query_words_map_to_concepts(query, names, negated):
-    parsed = parse_query(query)
-    assert [c.name for c in parsed.concepts] == names and parsed.negated is negated
+def test_query_texts_become_class_weights(encoder):
+    """Each query row holds its classes' weights (WordNet, query_words) and a negation flag; wording changes it."""
+    rows = encoder.encode_texts(["fish", "fish or shark or ray or eel", "no sharks", "underwater image with fish"])
+    fish = {class_name(i) for i in np.flatnonzero(rows[0, :CLASSES])}
+    assert {"tench", "great white shark", "stingray", "lionfish", "anemone fish", "puffer", "eel"} <= fish
+    assert set(np.unique(rows[0, :CLASSES])) == {0.0, 1.0} and rows[0, CLASSES] == 0
+    np.testing.assert_array_equal(rows[3], rows[0])  # "underwater image with" says nothing about the content
+    weighted = rows[1, :CLASSES]
+    assert (np.flatnonzero(weighted) == np.flatnonzero(rows[0, :CLASSES])).all()
+    assert weighted[[2, 3, 4, 5, 6, 390]].tolist() == [1.0] * 6 and weighted[0] == 0.5  # named fish weigh more
+    assert np.flatnonzero(rows[2, :CLASSES]).tolist() == [2, 3, 4] and rows[2, CLASSES] == 1
 
 
-@pytest.mark.parametrize("query", ["a cat on a sofa", "an underwater image", ""])
-def test_unmappable_query_is_refused_with_the_known_concepts(encoder, query):
-    with pytest.raises(MerlionError, match=r"names no concept .* known concepts: fish, shark, ray"):
+@pytest.mark.parametrize("query", ["blorptang", "an underwater image", ""])
+def test_unresolvable_query_is_refused_naming_it(encoder, query):
+    with pytest.raises(MerlionError, match="blorptang" if query == "blorptang" else "names nothing"):
         encoder.encode_texts([FISH, query])
 
 
 def test_mixed_negation_is_refused():
     with pytest.raises(MerlionError, match="mixes wanted and negated"):
-        parse_query("fish without divers")
-
-
-def test_vocabulary_uses_only_named_imagenet_classes():
-    fish = next(c for c in CONCEPTS if c.name == "fish")
-    assert {IMAGENET_CLASSES[i] for i in fish.classes} >= {"tench", "great white shark", "stingray", "lionfish",
-                                                            "anemone fish", "puffer", "eel", "barracouta"}
-    for concept in CONCEPTS:
-        assert concept.classes and all(i in IMAGENET_CLASSES for i in concept.classes), concept.name
+        resolve_query("fish without divers")
 
 
 def test_sampler_features_are_the_pooled_1280(encoder, suim):

