@@ -64,6 +64,8 @@ class TelemetrySnapshot:
     autopilot_reboots: int = 0
     position_source: bool | None = None
     """False once LOCAL_POSITION_NED was asked for and never came (no DVL/USBL), True once it came."""
+    spoofed_ignored: int = 0
+    """Unsigned messages claiming to be the autopilot after it was seen signing: ignored (docs/security.md)."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -129,6 +131,7 @@ class VehicleTelemetry:
     def latest(self) -> TelemetrySnapshot:
         with self._lock:
             return replace(self._latest, autopilot_alive=self.link.autopilot_alive,
+                           spoofed_ignored=sum(self.link.signing.spoofed.values()),
                            clock_offset_s=self.boot_clock.offset, autopilot_reboots=self.boot_clock.reboots)
 
     def pose_at(self, t: float) -> Pose:

@@ -192,6 +192,10 @@ class LinkSigning:
         self.reasons: dict[tuple[int, int], str] = {}
         self.last_signed_from: dict[tuple[int, int], int] = {}
         """Signing timestamp of the last valid signed message from each source (system, component)."""
+        self._protected: tuple[int, int] | None = None
+        self.spoofed: dict[tuple[int, int], int] = {}
+        """Unsigned (or badly signed) messages claiming to be the protected source (the autopilot) after it was
+        seen signing: ignored, whatever their type."""
         if key is not None:
             self.set_key(key)
 
@@ -268,6 +272,10 @@ class LinkSigning:
         if reason is None:
             self.accepted_signed += 1
             return True
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if source == self._protected and source in self.last_signed_from:
+            self._count_spoof(source, reason, msg.get_type())
+            return False
         if self.accept_unsigned_reads and not is_state_changing(msg):
             self.accepted_unsigned_reads += 1
             return True
@@ -289,6 +297,19 @@ class LinkSigning:
             else:
                 self.warnings_withheld += 1
         return False
+
+    def protect(self, source: tuple[int, int]) -> None:
+        """``source`` (the autopilot) signs everything once it has a key, as ArduPilot does: after one valid signed
+        message from it, nothing unsigned or badly signed that claims to be it is acted on (a spoofed HEARTBEAT
+        would move the vehicle's identity, a spoofed ATTITUDE or GLOBAL_POSITION_INT would tag frames)."""
+        self._protected = source
+
+    def _count_spoof(self, source: tuple[int, int], reason: str, mtype: str) -> None:
+        count = self.spoofed.get(source, 0) + 1
+        self.spoofed[source] = count
+        if count == 1:
+            log.warning("%s: %s %s claiming to be the autopilot %d/%d ignored (it signs); further ones are only "
+                        "counted", self.name, reason, mtype, *source)
 
     def _may_warn(self) -> bool:
         """A small bucket of STATUSTEXT warnings (a burst of 5, then one per 10 s), so that many spoofed sources
@@ -333,4 +354,5 @@ class LinkSigning:
             "warnings_withheld": self.warnings_withheld,
             "rejected": sum(self.rejected.values()),
             "rejected_by_source": {f"{s}/{c}": n for (s, c), n in sorted(self.rejected.items())},
+            "spoofed_autopilot": sum(self.spoofed.values()),
         }
