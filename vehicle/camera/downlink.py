@@ -164,7 +164,10 @@ class Downlink:
                                   persist=persist_params)
         self.params.on_change(self._own_param)
         self.tree = VirtualTree()
-        self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable)
+        signing = getattr(link, "signing", None)
+        # with a key, two sessions are kept for signed clients: unsigned strangers cannot lock them out
+        self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable,
+                             reserve_signed=2 if getattr(signing, "enabled", False) else 0)
         self._held: dict[int, _Held] = {}
         self._lock = threading.Lock()
         self.default_topic = default_topic
@@ -173,6 +176,7 @@ class Downlink:
         self._marks: tuple[list[int], list[int]] = ([], [])
         self._marks_cbs: list[Callable[[list[int], list[int]], None]] = []
         self._unsubscribe: Callable[[], None] | None = None
+        self._refusals_wired = False
         self._stop = threading.Event()
         self._status_thread: threading.Thread | None = None
         self.ftp_worker = RequestWorker("surface-ftp")
@@ -197,6 +201,9 @@ class Downlink:
         self.ftp_worker.start()
         self.control_worker.start()
         self._unsubscribe = self.link.subscribe(self._on_message, _REQUEST_TYPES)
+        if not self._refusals_wired and hasattr(self.link, "on_refused"):
+            self.link.on_refused(self._on_refused)
+            self._refusals_wired = True
         self.budget.start()
         self._status_thread = threading.Thread(target=self._status_loop, name="surface-status", daemon=True)
         self._status_thread.start()
@@ -392,23 +399,34 @@ class Downlink:
             self.budget.submit(reply, Priority.CONTROL)
 
     def _on_ftp(self, msg: mav.MAVLink_message) -> None:
-        if not self.cfg.ftp:
-            return
-        if msg.target_system not in (0, self.link.system_id) or msg.target_component != self.link.component_id:
+        if not self.cfg.ftp or not self._ftp_for_us(msg):
             return
         who = (msg.get_srcSystem(), msg.get_srcComponent())
         request = bytes(msg.payload)
-        replies = self.ftp.handle(request, who)
+        replies = self.ftp.handle(request, who, signed=bool(getattr(msg, "_signed", False)))
         if not replies:
             self.budget.wake()  # a burst may have started
             return
         # data replies are bulk; the small answers (open, close, CRC, write acks, refusals) are command answers
         opcode = request[3] if len(request) > 3 else 0
-        prio = Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL
+        self._send_ftp(who, replies, Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL)
+
+    def _ftp_for_us(self, msg: mav.MAVLink_message) -> bool:
+        return msg.target_system in (0, self.link.system_id) and msg.target_component == self.link.component_id
+
+    def _send_ftp(self, who: tuple[int, int], replies: list[bytes], prio: Priority) -> None:
         for payload in replies:
             reply = mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload))
             # a client retransmits while our answer still waits for budget: one copy in the queue is enough
             self.budget.submit(reply, prio, tag=("ftp", who, bytes(payload[:12])), unique=True)
+
+    def _on_refused(self, msg: mav.MAVLink_message, reason: str) -> None:
+        """An FTP write the link's signing refused still gets its NAK (on the FTP worker, off the receive loop)."""
+        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or not self.cfg.ftp or not self._ftp_for_us(msg):
+            return
+        who = (msg.get_srcSystem(), msg.get_srcComponent())
+        request = bytes(msg.payload)
+        self.ftp_worker.submit(lambda: self._send_ftp(who, self.ftp.refuse(request), Priority.CONTROL))
 
     def _next_burst(self) -> mav.MAVLink_message | None:
         got = self.ftp.next_burst()

@@ -160,6 +160,7 @@ class MavLink:
         self._subs_lock = threading.Lock()
         self._subs: list[tuple[Callable[[MAVLinkMessage], None], frozenset[str] | None]] = []
         self._autopilot_cbs: list[Callable[[bool], None]] = []
+        self._refused_cbs: list[Callable[[MAVLinkMessage, str], None]] = []
         self._stop = threading.Event()
         self._opened = threading.Event()
         self._found = threading.Event()
@@ -225,6 +226,11 @@ class MavLink:
     def on_autopilot(self, callback: Callable[[bool], None]) -> None:
         """``callback(True)`` when the autopilot's heartbeat is found (again), ``callback(False)`` when lost."""
         self._autopilot_cbs.append(callback)
+
+    def on_refused(self, callback: Callable[[MAVLinkMessage, str], None]) -> None:
+        """``callback(msg, reason)`` on the receive thread for each message addressed to us that signing refused
+        (unsigned, bad signature, replayed, stale): a protocol that must answer every request (FTP) NAKs it."""
+        self._refused_cbs.append(callback)
 
     def send(self, msg: MAVLinkMessage) -> int:
         """Pack ``msg`` with our ids and sequence and write it; the wire bytes written (0: no peer yet).
@@ -476,7 +482,7 @@ class MavLink:
             self.rx_unknown += 1
             return
         self.rx_messages += 1
-        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id)):
+        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id), self._refused):
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self._autopilot_heartbeat(msg)
@@ -487,6 +493,13 @@ class MavLink:
                 callback(msg)
             except Exception:
                 log.exception("%s: subscriber %r failed on %s", self.name, callback, mtype)
+
+    def _refused(self, msg: MAVLinkMessage, reason: str) -> None:
+        for callback in list(self._refused_cbs):
+            try:
+                callback(msg, reason)
+            except Exception:
+                log.exception("%s: refusal callback failed", self.name)
 
     def _autopilot_heartbeat(self, msg: MAVLinkMessage) -> bool:
         """Settle the autopilot (and, unless configured, our system id) once, from the first autopilot heartbeat;

@@ -263,9 +263,11 @@ class LinkSigning:
 
     # ------------------------------------------------------------------------------------------------ receive
     def admit(self, msg: mavlink2.MAVLink_message, send: Callable[[mavlink2.MAVLink_message], int],
-              me: tuple[int, int] | None = None) -> bool:
-        """True when ``msg`` may be acted on; a refused one addressed to ``me`` (system, component) is counted
-        and, once per source, reported (one meant for another component on a shared link is just dropped)."""
+              me: tuple[int, int] | None = None,
+              refused: Callable[[mavlink2.MAVLink_message, str], None] | None = None) -> bool:
+        """True when ``msg`` may be acted on; a refused one addressed to ``me`` (system, component) is counted,
+        handed to ``refused(msg, reason)`` (which may answer it) and, once per source, reported (one meant for
+        another component on a shared link is just dropped)."""
         if self._key is None:
             return True
         reason = self._verify(msg)
@@ -287,6 +289,8 @@ class LinkSigning:
             source = OTHER_SOURCES  # spoofed ids by the thousand must not grow the table (or the warnings)
         count = self.rejected.get(source, 0) + 1
         self.rejected[source] = count
+        if refused is not None:
+            refused(msg, reason)
         if count == 1:
             self.reasons[source] = reason
             name = "FTP write" if msg.get_type() == "FILE_TRANSFER_PROTOCOL" else msg.get_type()
