@@ -35,6 +35,8 @@ from vehicle.camera.params import ParamServer, ParamSpec
 from vehicle.camera.request_worker import RequestWorker
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
+from vehicle.link.fair_replies import FairReplies, Requester
+from vehicle.link.request_gate import RequestGate
 from vehicle.protocol.ftp import Op
 from vehicle.protocol.image_push import push_messages
 from vehicle.protocol.queries import QueryTopic, format_queries, parse_queries
@@ -100,6 +102,11 @@ class _Held:
     frame: CaptureFrame
     thumb: Thumbnail
     encoded: dict[str, bytes] = field(default_factory=dict)
+
+
+def _requester(msg: mav.MAVLink_message) -> Requester:
+    """Who asked: the sender's ids and whether its request was signed (ids can be spoofed, a signature cannot)."""
+    return msg.get_srcSystem(), msg.get_srcComponent(), bool(getattr(msg, "_signed", False))
 
 
 def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
@@ -187,7 +194,17 @@ class Downlink:
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
         self.tree.put(MARKS_PATH, lambda: format_marks(*self._marks), size=lambda: len(format_marks(*self._marks)))
         self.tree.uploadable(MARKS_PATH, self._upload_marks)
+        self.replies = FairReplies(lambda: self.budget.rate, on_flood=self._flood)
+        """Answers to commands, parameter and small FTP requests, per requester, signed ones first."""
+        self.bulk_replies = FairReplies(lambda: self.budget.rate, per_requester=16, work_conserving=True,
+                                        on_flood=self._flood)
+        """FTP data replies, per requester, signed ones first (bursts come from the FTP server itself)."""
+        self.requests = RequestGate(on_flood=self._flood)
+        """Commands and parameter requests per requester and second (FTP is bounded by its sessions)."""
+        self._floods: set[Requester] = set()
+        self.budget.add_source(Priority.CONTROL, self.replies.next)
         self.budget.add_source(Priority.BULK, self._next_burst)
+        self.budget.add_source(Priority.BULK, self.bulk_replies.next)
         for name, value in self.params.restored.items():
             self._own_param(name, value)
 
@@ -390,20 +407,25 @@ class Downlink:
         """On the receive loop: hand the request to its worker and return at once."""
         if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
             self.ftp_worker.submit(lambda: self._on_ftp(msg))
-        else:
+        elif self.requests.admit(_requester(msg)):
             self.control_worker.submit(lambda: self._on_control(msg))
 
     def _on_control(self, msg: mav.MAVLink_message) -> None:
         handler = self.camera.handle if msg.get_type().startswith("COMMAND") else self.params.handle
-        for reply in handler(msg):
-            self.budget.submit(reply, Priority.CONTROL)
+        replies = handler(msg)
+        if replies:
+            # one parameter list per requester at a time: a repeated PARAM_REQUEST_LIST while its answers still
+            # wait adds nothing (a flood of them costs its sender a bounded share, never the others' answers)
+            listing = msg.get_type() == "PARAM_REQUEST_LIST"
+            self.replies.submit(_requester(msg), replies, tag="param-list" if listing else None, unique=listing)
+            self.budget.wake()
 
     def _on_ftp(self, msg: mav.MAVLink_message) -> None:
         if not self.cfg.ftp or not self._ftp_for_us(msg):
             return
-        who = (msg.get_srcSystem(), msg.get_srcComponent())
+        who = _requester(msg)
         request = bytes(msg.payload)
-        replies = self.ftp.handle(request, who, signed=bool(getattr(msg, "_signed", False)))
+        replies = self.ftp.handle(request, who[:2], signed=who[2])
         if not replies:
             self.budget.wake()  # a burst may have started
             return
@@ -414,17 +436,30 @@ class Downlink:
     def _ftp_for_us(self, msg: mav.MAVLink_message) -> bool:
         return msg.target_system in (0, self.link.system_id) and msg.target_component == self.link.component_id
 
-    def _send_ftp(self, who: tuple[int, int], replies: list[bytes], prio: Priority) -> None:
+    def _send_ftp(self, who: Requester, replies: list[bytes], prio: Priority) -> None:
+        queue = self.bulk_replies if prio == Priority.BULK else self.replies
         for payload in replies:
             reply = mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload))
             # a client retransmits while our answer still waits for budget: one copy in the queue is enough
-            self.budget.submit(reply, prio, tag=("ftp", who, bytes(payload[:12])), unique=True)
+            queue.submit(who, [reply], tag=("ftp", bytes(payload[:12])), unique=True)
+        self.budget.wake()
+
+    def _flood(self, who: Requester) -> None:
+        """Said once per requester that asked too fast or whose replies overflowed its share (the counts are in
+        ``requests.stats()`` and ``replies.stats()``)."""
+        with self._lock:
+            if who in self._floods:
+                return
+            self._floods.add(who)
+        name = f"{who[0]}/{who[1]}{'' if who[2] else ' unsigned'}"
+        log.warning("request flood from %s: replies beyond its share are dropped (further ones only counted)", name)
+        self.event(f"Request flood from {name}: replies dropped"[:50], st.WARNING)
 
     def _on_refused(self, msg: mav.MAVLink_message, reason: str) -> None:
         """An FTP write the link's signing refused still gets its NAK (on the FTP worker, off the receive loop)."""
         if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or not self.cfg.ftp or not self._ftp_for_us(msg):
             return
-        who = (msg.get_srcSystem(), msg.get_srcComponent())
+        who = _requester(msg)
         request = bytes(msg.payload)
         self.ftp_worker.submit(lambda: self._send_ftp(who, self.ftp.refuse(request), Priority.CONTROL))
 
