@@ -5,7 +5,9 @@ goes back, across restarts too: timestamps are *reserved* a minute ahead in a sm
 they are used, so even a crash cannot hand a timestamp out twice. On receipt, a message that changes state
 (``is_state_changing``) is let through only with a valid signature and a timestamp newer than the last one seen
 on its (link id, system, component) stream; unsigned or badly signed ones are dropped, counted per source and
-reported once per source as a STATUSTEXT warning. Reads (heartbeats, telemetry, parameter and FTP reads) follow
+reported once per source as a STATUSTEXT warning. The streams' last timestamps live in the same file as our own:
+written before a signed state-changing message is acted on (and with each reservation), read back at start, so a
+recording replayed after a restart (even after a SIGKILL) is still a replay. Reads (heartbeats, telemetry, parameter and FTP reads) follow
 ArduPilot's rule: accepted unsigned unless ``accept_unsigned_reads`` is off.
 
 The check runs here rather than in pymavlink's parser because the link replaces its parser after a truncated
@@ -121,26 +123,55 @@ def _addressed_to(msg: mavlink2.MAVLink_message, me: tuple[int, int]) -> bool:
     return system in (0, me[0]) and component in (0, me[1])
 
 
+Stream = tuple[int, int, int]
+"""(link id, system, component) of a signed sender."""
+MAX_SAVED_STREAMS = 1024
+
+
 class TimestampFile:
-    """The highest signing timestamp this link may have used, written with fsync + rename (never half a file)."""
+    """The highest signing timestamp this link may have used, and the last timestamp accepted from each signed
+    stream, written with fsync + rename (never half a file).
+
+    The first line is our own reservation (the whole file, as older versions wrote it); each further line is
+    ``stream LINK SYSTEM COMPONENT TIMESTAMP``, so a signed message recorded before a restart is still a replay
+    after it."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
 
-    def load(self) -> int:
+    def _lines(self) -> list[str]:
         try:
-            return int(self.path.read_text().strip() or 0)
+            return self.path.read_text().splitlines()
         except FileNotFoundError:
-            return 0
-        except (OSError, ValueError) as err:
+            return []
+        except OSError as err:
+            log.warning("signing timestamp file %s unreadable (%s); starting from the clock", self.path, err)
+            return []
+
+    def load(self) -> int:
+        lines = self._lines()
+        try:
+            return int(lines[0].strip() or 0) if lines else 0
+        except ValueError as err:
             log.warning("signing timestamp file %s unreadable (%s); starting from the clock", self.path, err)
             return 0
 
-    def save(self, value: int) -> None:
+    def load_streams(self) -> dict[Stream, int]:
+        streams: dict[Stream, int] = {}
+        for line in self._lines()[1:]:
+            parts = line.split()
+            if len(parts) == 5 and parts[0] == "stream" and all(p.isdigit() for p in parts[1:]):
+                link_id, system, component, stamp = (int(p) for p in parts[1:])
+                streams[(link_id, system, component)] = stamp
+        return streams
+
+    def save(self, value: int, streams: dict[Stream, int] | None = None) -> None:
+        text = f"{value}\n" + "".join(f"stream {k[0]} {k[1]} {k[2]} {v}\n"
+                                      for k, v in list((streams or {}).items())[-MAX_SAVED_STREAMS:])
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
         try:
             with os.fdopen(fd, "w") as f:
-                f.write(f"{value}\n")
+                f.write(text)
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp, self.path)
@@ -180,7 +211,8 @@ class LinkSigning:
         self._reserved = 0
         self._time_floor = 0
         self._lock = threading.Lock()
-        self._streams: dict[tuple[int, int, int], int] = {}
+        self._save_lock = threading.Lock()
+        self._streams: dict[Stream, int] = {}
         self.accepted_signed = 0
         self.accepted_unsigned_reads = 0
         self.dropped_for_others = 0
@@ -232,6 +264,8 @@ class LinkSigning:
             # RESERVE_AHEAD before it, and a ground station's SETUP_SIGNING carries its own time
             self._time_floor = max(self._time_floor, initial_timestamp, stored - RESERVE_AHEAD)
             self._streams.clear()
+            if self._store is not None:  # what we accepted before a restart stays accepted only once
+                self._streams.update(self._store.load_streams())
 
     # ------------------------------------------------------------------------------------------------ send
     def prepare(self, tx: mavlink2.MAVLink) -> None:
@@ -253,13 +287,19 @@ class LinkSigning:
 
     def _reserve(self, value: int) -> None:
         """Write the reservation before any timestamp under it goes out (one small fsync every ~30 s)."""
-        try:
-            self._store.save(value)
-        except OSError as err:  # keep signing: the clock still moves on; say so once per failure
-            log.warning("%s: cannot persist the signing timestamp to %s: %s", self.name, self._store.path, err)
-            self._reserved = value  # do not retry on every packet
-            return
-        self._reserved = value
+        self._persist(value)
+        self._reserved = value  # also after a failure: do not retry on every packet
+
+    def _persist(self, reserved: int | None = None) -> None:
+        """Write our reservation and every stream's last accepted timestamp (one file, fsync + rename)."""
+        with self._save_lock:
+            with self._lock:
+                streams = dict(self._streams)
+            value = max(self._reserved, reserved or 0)
+            try:
+                self._store.save(value, streams)
+            except OSError as err:  # keep going: the clock still moves on; say so once per failure
+                log.warning("%s: cannot persist the signing timestamps to %s: %s", self.name, self._store.path, err)
 
     # ------------------------------------------------------------------------------------------------ receive
     def admit(self, msg: mavlink2.MAVLink_message, send: Callable[[mavlink2.MAVLink_message], int],
@@ -345,6 +385,9 @@ class LinkSigning:
             if last is None and stamp + NEW_STREAM_WINDOW < max(self._time_floor, now_timestamp(self.wall_clock)):
                 return "stale signed"
             self._streams[stream] = stamp
+        if self._store is not None and is_state_changing(msg):
+            # on disk before it is acted on: a SIGKILL right after cannot reopen this timestamp to a replay
+            self._persist()
         self.last_signed_from[source] = stamp
         msg._signed = True
         msg._link_id = link_id

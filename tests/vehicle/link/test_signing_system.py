@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.live.udp_hub import UdpHub
 from tests.companion.live_harness import Companion, Listener, reap_companions, wait_until, write_config
-from vehicle.link.signing import LinkSigning, now_timestamp
+from vehicle.link.signing import LinkSigning, TimestampFile, now_timestamp
 from vehicle.protocol.ftp import FtpPacket, Op
 from vehicle.sim.vehicle import SimVehicle
 
@@ -160,7 +160,7 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     first.wait_for("autopilot heartbeat back")
     wait_until(lambda: len(listener.from_companion()) >= 10, 30, "ten messages from the companion")
     first.kill()  # no clean shutdown: the timestamps were reserved on disk before they were used
-    reserved = int((key_file.parent / "signing.key.comp100.timestamp").read_text())
+    reserved = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load()
     assert max(_stamp(m) for m in listener.from_companion()) < reserved  # on disk before any of them went out
     # a station that joins the hub now hears nothing of the first process: the hub forwards in arrival order,
     # and all the first process sent was queued before this heartbeat
@@ -172,4 +172,31 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     second = Companion("--config", str(cfg), "--signing-key", str(key_file))
     wait_until(lambda: newcomer.from_companion(), 60, "a message from the restarted companion")
     assert _stamp(newcomer.from_companion()[0]) >= reserved  # above every timestamp the first process used
+    assert second.terminate() == 0, second.output
+
+
+def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(setup) -> None:
+    """Issue 24 item 5: the timestamps seen from others persist like our own (in the same state file)."""
+    key_file, hub, sim, store, cfg, stations = setup
+    good = Station(hub, 190, KEY)
+    stations.append(good)
+    good.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    first = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    first.wait_for("autopilot heartbeat back")
+    recorded = good.set_k(7)
+    first.wait_for(r"parameter MERL_K set to 7\b", 30)
+    good.set_k(8)
+    good.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MERL_K" and m.param_value == 8, 20,
+                  "MERL_K 8 saved and echoed")
+    first.kill()  # SIGKILL: no clean shutdown, nothing written on the way out
+    streams = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load_streams()
+    assert streams[(0, 255, 190)] >= _stamp(mav2.MAVLink(None).parse_buffer(recorded)[0])
+    second = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    second.wait_for("autopilot heartbeat back")
+    good.sock.sendto(recorded, good.hub)  # the recording, seconds after it was made: well inside a new stream's minute
+    wait_until(lambda: any(w.startswith("replayed PARAM_SET from 255/190") for w in good.warnings()), 30,
+               "the replay refused")
+    good.set_k(9)  # the real station goes on signing above what it sent before
+    second.wait_for(r"parameter MERL_K set to 9\b", 30)
+    assert "set to 7" not in second.output, second.output
     assert second.terminate() == 0, second.output
