@@ -163,6 +163,10 @@ class VehicleTelemetry:
 
     def _on_missing(self, name: str) -> None:
         """RateKeeper gave up expecting ``name`` (on its thread, once per declaration)."""
+        if self.link.signing.mismatch:  # our requests never reached it: the autopilot is not to blame
+            log.warning("%s never came: the autopilot %s and ignores this companion's rate requests", name,
+                        self.link.signing.autopilot)
+            return
         if name != "LOCAL_POSITION_NED":
             log.warning("the autopilot never sends %s, asked for %d times", name, self.rates.requests[name]
                         if self.rates is not None else 0)

@@ -482,7 +482,8 @@ class MavLink:
             self.rx_unknown += 1
             return
         self.rx_messages += 1
-        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id), self._refused):
+        handled = any(types is not None and mtype in types for _, types in self._subs)
+        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id), self._refused, handled):
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self._autopilot_heartbeat(msg)

@@ -117,10 +117,27 @@ def is_state_changing(msg: mavlink2.MAVLink_message) -> bool:
 
 
 def _addressed_to(msg: mavlink2.MAVLink_message, me: tuple[int, int]) -> bool:
-    """Whether ``msg`` targets ``me`` (a broadcast or a message without target fields does)."""
-    system = getattr(msg, "target_system", 0)
+    """Whether ``msg`` targets ``me`` (a broadcast or a message without target fields does). MANUAL_CONTROL names
+    its system in ``target``: it is for the vehicle's autopilot, never for a component that does not fly it."""
+    if msg.get_type() == "MANUAL_CONTROL":
+        return False
+    system = getattr(msg, "target_system", getattr(msg, "target", 0))
     component = getattr(msg, "target_component", 0)
     return system in (0, me[0]) and component in (0, me[1])
+
+
+def _carries_signature(msg: mavlink2.MAVLink_message) -> bool:
+    buf = bytes(msg.get_msgbuf())
+    return len(buf) > 10 + _SIGNATURE_LEN and buf[0] == mavlink2.PROTOCOL_MARKER_V2 and bool(buf[2] & _SIGNED_FLAG)
+
+
+AUTOPILOT_UNKNOWN = "unknown"
+AUTOPILOT_SIGNS_WITH_OUR_KEY = "signs with our key"
+AUTOPILOT_UNSIGNED = "does not sign"
+AUTOPILOT_NEEDS_A_KEY = "signs, and this companion has no key"
+AUTOPILOT_OTHER_KEY = "signs with another key"
+MISMATCHED = frozenset({AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY})
+"""An autopilot that signs drops whatever we send unless we sign with its key: nothing we send reaches anyone."""
 
 
 Stream = tuple[int, int, int]
@@ -225,6 +242,8 @@ class LinkSigning:
         self.last_signed_from: dict[tuple[int, int], int] = {}
         """Signing timestamp of the last valid signed message from each source (system, component)."""
         self._protected: tuple[int, int] | None = None
+        self.autopilot = AUTOPILOT_UNKNOWN
+        """How the autopilot signs, as far as its messages show (one of the AUTOPILOT_* values)."""
         self.spoofed: dict[tuple[int, int], int] = {}
         """Unsigned (or badly signed) messages claiming to be the protected source (the autopilot) after it was
         seen signing: ignored, whatever their type."""
@@ -304,24 +323,34 @@ class LinkSigning:
     # ------------------------------------------------------------------------------------------------ receive
     def admit(self, msg: mavlink2.MAVLink_message, send: Callable[[mavlink2.MAVLink_message], int],
               me: tuple[int, int] | None = None,
-              refused: Callable[[mavlink2.MAVLink_message, str], None] | None = None) -> bool:
-        """True when ``msg`` may be acted on; a refused one addressed to ``me`` (system, component) is counted,
-        handed to ``refused(msg, reason)`` (which may answer it) and, once per source, reported (one meant for
-        another component on a shared link is just dropped)."""
+              refused: Callable[[mavlink2.MAVLink_message, str], None] | None = None, handled: bool = True) -> bool:
+        """True when ``msg`` may be acted on; a refused one addressed to ``me`` (system, component) that this
+        component ``handled`` (some part of it asked for that type) is counted, handed to ``refused(msg, reason)``
+        (which may answer it) and, once per source, reported (one meant for another component on a shared link,
+        or of a type nobody here acts on, is just dropped)."""
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
         if self._key is None:
+            if source == self._protected and self.autopilot == AUTOPILOT_UNKNOWN:
+                self._learn_autopilot(AUTOPILOT_NEEDS_A_KEY if _carries_signature(msg) else AUTOPILOT_UNSIGNED)
             return True
         reason = self._verify(msg)
+        if source == self._protected and self.autopilot in (AUTOPILOT_UNKNOWN, AUTOPILOT_UNSIGNED):
+            if reason is None:
+                self._learn_autopilot(AUTOPILOT_SIGNS_WITH_OUR_KEY)
+            elif reason == "bad signature":
+                self._learn_autopilot(AUTOPILOT_OTHER_KEY)
+            elif reason == "unsigned" and self.autopilot == AUTOPILOT_UNKNOWN:
+                self._learn_autopilot(AUTOPILOT_UNSIGNED)
         if reason is None:
             self.accepted_signed += 1
             return True
-        source = (msg.get_srcSystem(), msg.get_srcComponent())
         if source == self._protected and source in self.last_signed_from:
             self._count_spoof(source, reason, msg.get_type())
             return False
         if self.accept_unsigned_reads and not is_state_changing(msg):
             self.accepted_unsigned_reads += 1
             return True
-        if me is not None and not _addressed_to(msg, me):
+        if not handled or (me is not None and not _addressed_to(msg, me)):
             self.dropped_for_others += 1
             return False
         source = (msg.get_srcSystem(), msg.get_srcComponent())
@@ -341,6 +370,23 @@ class LinkSigning:
             else:
                 self.warnings_withheld += 1
         return False
+
+    @property
+    def mismatch(self) -> bool:
+        """The autopilot signs and we cannot sign with its key: it ignores everything this link sends."""
+        return self.autopilot in MISMATCHED
+
+    def _learn_autopilot(self, state: str) -> None:
+        self.autopilot = state
+        if state == AUTOPILOT_NEEDS_A_KEY:
+            log.error("%s: the autopilot signs its messages and this companion has no signing key: the autopilot "
+                      "ignores everything the companion sends (heartbeat, STATUSTEXT, rate requests); give it the "
+                      "autopilot's passphrase (mavlink.signing_key_file or --signing-key, docs/security.md)", self.name)
+        elif state == AUTOPILOT_OTHER_KEY:
+            log.error("%s: the autopilot signs with another key than this companion's: it ignores everything the "
+                      "companion sends; use the autopilot's passphrase (docs/security.md)", self.name)
+        elif state == AUTOPILOT_SIGNS_WITH_OUR_KEY:
+            log.info("%s: the autopilot signs with our key", self.name)
 
     def protect(self, source: tuple[int, int]) -> None:
         """``source`` (the autopilot) signs everything once it has a key, as ArduPilot does: after one valid signed
@@ -401,5 +447,5 @@ class LinkSigning:
             "warnings_withheld": self.warnings_withheld,
             "rejected": sum(self.rejected.values()),
             "rejected_by_source": {f"{s}/{c}": n for (s, c), n in sorted(self.rejected.items())},
-            "spoofed_autopilot": sum(self.spoofed.values()),
+            "spoofed_autopilot": sum(self.spoofed.values()), "autopilot": self.autopilot,
         }

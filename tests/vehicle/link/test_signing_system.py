@@ -200,3 +200,32 @@ def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(
     second.wait_for(r"parameter MERL_K set to 9\b", 30)
     assert "set to 7" not in second.output, second.output
     assert second.terminate() == 0, second.output
+
+
+def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nobody_else(setup) -> None:
+    """Issue 24 item 8: the simulated ArduSub signs and drops everything unsigned; the companion has no key."""
+    key_file, hub, sim, store, cfg, stations = setup
+    companion = Companion("--config", str(cfg))
+    companion.wait_for("the autopilot signs its messages and this companion has no signing key", 30)
+    companion.wait_for("LOCAL_POSITION_NED never came: the autopilot signs, and this companion has no key", 60)
+    assert "no DVL or USBL" not in companion.output and "never sends" not in companion.output
+    assert companion.terminate() == 0, companion.output
+    assert "merlion run: the autopilot signs, and this companion has no key" in companion.output
+
+
+def test_manual_control_for_the_autopilot_is_never_refused_as_ours(setup) -> None:
+    key_file, hub, sim, store, cfg, stations = setup
+    companion = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    companion.wait_for("autopilot heartbeat back")
+    good, joystick = Station(hub, 190, KEY), Station(hub, 191, None)
+    stations += [good, joystick]
+    for s in stations:
+        s.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    for _ in range(20):  # an unsigned ground station's joystick, for the vehicle (target: system 1)
+        joystick.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
+        joystick.send(mav2.MAVLink_rc_channels_override_message(1, 1, *([1500] * 8)))
+    joystick.set_k(40)  # an unsigned write that *is* for the companion is still refused and reported
+    wait_until(lambda: any("PARAM_SET from 255/191" in w for w in good.warnings()), 30, "the PARAM_SET refusal")
+    assert companion.terminate() == 0, companion.output
+    assert not any("MANUAL_CONTROL" in w or "RC_CHANNELS" in w for w in good.warnings()), good.warnings()
+    assert "MANUAL_CONTROL" not in companion.output and "RC_CHANNELS_OVERRIDE" not in companion.output
