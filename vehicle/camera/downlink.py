@@ -31,8 +31,10 @@ from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.camera.component import CameraComponent, CameraIdentity
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
+from vehicle.camera.params import REQUEST_TYPES as PARAM_REQUESTS
 from vehicle.camera.params import ParamServer, ParamSpec
 from vehicle.camera.request_worker import RequestWorker
+from vehicle.camera.requests import RequestRouter, requester
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
 from vehicle.link.fair_replies import FairReplies, Requester
@@ -53,8 +55,6 @@ MARKS_MAX = 32
 INDEX_PATH = "/summary/index.json"
 FULL_QUALITY = 90
 _FTP_BULK_OPS = frozenset({Op.READ_FILE, Op.BURST_READ_FILE, Op.LIST_DIRECTORY})
-_REQUEST_TYPES = ("COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET",
-                  "FILE_TRANSFER_PROTOCOL")
 
 
 def parse_marks(data: bytes) -> tuple[list[int], list[int]]:
@@ -102,11 +102,6 @@ class _Held:
     frame: CaptureFrame
     thumb: Thumbnail
     encoded: dict[str, bytes] = field(default_factory=dict)
-
-
-def _requester(msg: mav.MAVLink_message) -> Requester:
-    """Who asked: the sender's ids and whether its request was signed (ids can be spoofed, a signature cannot)."""
-    return msg.get_srcSystem(), msg.get_srcComponent(), bool(getattr(msg, "_signed", False))
 
 
 def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
@@ -188,6 +183,17 @@ class Downlink:
         self._status_thread: threading.Thread | None = None
         self.ftp_worker = RequestWorker("surface-ftp")
         self.control_worker = RequestWorker("surface-control")
+        self.requests = RequestGate(on_flood=self._flood)
+        """Commands and parameter requests per requester and second (FTP is bounded by its sessions)."""
+        self._floods: set[Requester] = set()
+        self.router = RequestRouter(lambda: (link.system_id, link.component_id), self.requests)
+        """Request type -> handler: the one place that decides whether a request is for us."""
+        for kind in ("COMMAND_LONG", "COMMAND_INT"):
+            self.router.route(kind, self._answer(self.camera.answer), self.control_worker)
+        for kind in PARAM_REQUESTS:
+            self.router.route(kind, self._answer(self.params.answer, unique=kind == "PARAM_REQUEST_LIST"),
+                              self.control_worker)
+        self.router.route("FILE_TRANSFER_PROTOCOL", self._on_ftp, self.ftp_worker, broadcast=False, gated=False)
         self.tree.put(INDEX_PATH, self.index_json, size=lambda: len(self.index_json()))
         queries_text = lambda: format_queries(self._queries, self.default_topic).encode()  # noqa: E731
         self.tree.put(QUERIES_PATH, queries_text, size=lambda: len(queries_text()))
@@ -199,9 +205,6 @@ class Downlink:
         self.bulk_replies = FairReplies(lambda: self.budget.rate, per_requester=16, work_conserving=True,
                                         on_flood=self._flood)
         """FTP data replies, per requester, signed ones first (bursts come from the FTP server itself)."""
-        self.requests = RequestGate(on_flood=self._flood)
-        """Commands and parameter requests per requester and second (FTP is bounded by its sessions)."""
-        self._floods: set[Requester] = set()
         self.budget.add_source(Priority.CONTROL, self.replies.next)
         self.budget.add_source(Priority.BULK, self._next_burst)
         self.budget.add_source(Priority.BULK, self.bulk_replies.next)
@@ -217,7 +220,7 @@ class Downlink:
         self._stop.clear()
         self.ftp_worker.start()
         self.control_worker.start()
-        self._unsubscribe = self.link.subscribe(self._on_message, _REQUEST_TYPES)
+        self._unsubscribe = self.link.subscribe(self.router, self.router.types)
         if not self._refusals_wired and hasattr(self.link, "on_refused"):
             self.link.on_refused(self._on_refused)
             self._refusals_wired = True
@@ -403,27 +406,27 @@ class Downlink:
 
     # ---- incoming -------------------------------------------------------------------------------------------
 
-    def _on_message(self, msg: mav.MAVLink_message) -> None:
-        """On the receive loop: hand the request to its worker and return at once."""
-        if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
-            self.ftp_worker.submit(lambda: self._on_ftp(msg))
-        elif self.requests.admit(_requester(msg)):
-            self.control_worker.submit(lambda: self._on_control(msg))
+    def handle_requests(self, mtype: str, answer: Callable[[mav.MAVLink_message], list[mav.MAVLink_message]]) -> None:
+        """Answer each ``mtype`` addressed to this component with ``answer(msg)``'s replies (run on the control
+        worker, sent fairly per requester); call before ``start``. The target check is the router's."""
+        self.router.route(mtype, self._answer(answer), self.control_worker)
 
-    def _on_control(self, msg: mav.MAVLink_message) -> None:
-        handler = self.camera.handle if msg.get_type().startswith("COMMAND") else self.params.handle
-        replies = handler(msg)
-        if replies:
-            # one parameter list per requester at a time: a repeated PARAM_REQUEST_LIST while its answers still
-            # wait adds nothing (a flood of them costs its sender a bounded share, never the others' answers)
-            listing = msg.get_type() == "PARAM_REQUEST_LIST"
-            self.replies.submit(_requester(msg), replies, tag="param-list" if listing else None, unique=listing)
-            self.budget.wake()
+    def _answer(self, answer: Callable[[mav.MAVLink_message], list[mav.MAVLink_message]], *,
+                unique: bool = False) -> Callable[[mav.MAVLink_message], None]:
+        """A route's handler: queue ``answer(msg)``'s replies for the requester. ``unique``: one answer of this kind
+        per requester at a time (a repeated PARAM_REQUEST_LIST while its answers still wait adds nothing, so a flood
+        of them costs its sender a bounded share, never the others' answers)."""
+        def handle(msg: mav.MAVLink_message) -> None:
+            replies = answer(msg)
+            if replies:
+                self.replies.submit(requester(msg), replies, tag=msg.get_type() if unique else None, unique=unique)
+                self.budget.wake()
+        return handle
 
     def _on_ftp(self, msg: mav.MAVLink_message) -> None:
-        if not self.cfg.ftp or not self._ftp_for_us(msg):
+        if not self.cfg.ftp:
             return
-        who = _requester(msg)
+        who = requester(msg)
         request = bytes(msg.payload)
         replies = self.ftp.handle(request, who[:2], signed=who[2])
         if not replies:
@@ -432,9 +435,6 @@ class Downlink:
         # data replies are bulk; the small answers (open, close, CRC, write acks, refusals) are command answers
         opcode = request[3] if len(request) > 3 else 0
         self._send_ftp(who, replies, Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL)
-
-    def _ftp_for_us(self, msg: mav.MAVLink_message) -> bool:
-        return msg.target_system in (0, self.link.system_id) and msg.target_component == self.link.component_id
 
     def _send_ftp(self, who: Requester, replies: list[bytes], prio: Priority) -> None:
         queue = self.bulk_replies if prio == Priority.BULK else self.replies
@@ -457,9 +457,9 @@ class Downlink:
 
     def _on_refused(self, msg: mav.MAVLink_message, reason: str) -> None:
         """An FTP write the link's signing refused still gets its NAK (on the FTP worker, off the receive loop)."""
-        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or not self.cfg.ftp or not self._ftp_for_us(msg):
+        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or not self.cfg.ftp or not self.router.for_us(msg):
             return
-        who = _requester(msg)
+        who = requester(msg)
         request = bytes(msg.payload)
         self.ftp_worker.submit(lambda: self._send_ftp(who, self.ftp.refuse(request), Priority.CONTROL))
 
