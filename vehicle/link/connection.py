@@ -482,7 +482,7 @@ class MavLink:
             self.rx_unknown += 1
             return
         self.rx_messages += 1
-        handled = any(types is not None and mtype in types for _, types in self._subs)
+        handled = any(types is None or mtype in types for _, types in self._subs)  # something here acts on it
         if not self.signing.admit(msg, self.send, (self.system_id, self.component_id), self._refused, handled):
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
