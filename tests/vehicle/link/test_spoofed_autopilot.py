@@ -6,13 +6,14 @@ unsigned that claims to be the autopilot once the autopilot was seen signing."""
 
 from __future__ import annotations
 
+import json
 import time
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.config import MavlinkConfig
-from tests.conftest import free_udp_port
+from tests.conftest import free_udp_port, run_merlion
 from tests.vehicle.tether import KEY, PASSPHRASE, Peer, Repeater, boot_ms, gcs_heartbeat, sub_heartbeat
 from tests.waiting import wait_until
 from vehicle.autopilot.telemetry import VehicleTelemetry
@@ -140,3 +141,29 @@ def test_without_a_key_the_first_autopilot_is_kept(tmp_path):
         link.stop()
         first.close()
         second.close()
+
+
+def test_merlion_telemetry_ignores_and_counts_the_impostor(tmp_path):
+    """The real command, in its own process: a signed autopilot at 12 m, an unsigned impostor claiming 250 m."""
+    key_file = tmp_path / "signing.key"
+    key_file.write_text(PASSPHRASE + "\n")
+    port = free_udp_port()
+    start = time.monotonic()
+    autopilot, impostor, stranger = Peer(port, 1, 1, KEY), Peer(port, 1, 1), Peer(port, 42, 1)
+    floods = [Repeater(autopilot, _autopilot_stream(start), 10), Repeater(impostor, _spoof_as_autopilot(), 20),
+              Repeater(stranger, _attacker_stream(), 20)]
+    try:
+        done = run_merlion("telemetry", "--connect", f"udpin:127.0.0.1:{port}", "--signing-key", str(key_file),
+                           "--duration", "4", "--no-rates", "--json", timeout=120)
+    finally:
+        for f in floods:
+            f.stop()
+        for p in (autopilot, impostor, stranger):
+            p.close()
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    latest, link = result["latest"], result["link"]
+    assert latest["depth_m"] == pytest.approx(12.0) and latest["spoofed_ignored"] > 0
+    assert link["autopilot"] == [1, 1] and link["system_id"] == 1 and link["foreign_autopilot_heartbeats"] > 0
+    assert link["signing"]["spoofed_autopilot"] == latest["spoofed_ignored"]
+    assert link["signing"]["autopilot"] == "signs with our key"
