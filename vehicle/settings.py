@@ -19,7 +19,7 @@ class MavlinkConfig(_Section):
     connection: str | None = "udpin:127.0.0.1:14551"
     """pymavlink connection string (udpin:, udpout:, tcp:, tcpin:, /dev/ttyACM0,115200); null: no vehicle link."""
     system_id: int | None = Field(None, ge=1, le=254)
-    """The vehicle's system id; None: learnt from the autopilot heartbeat (1 until then). Never 255."""
+    """The vehicle's system id; None: learnt once from the first autopilot heartbeat and kept (1 until then). Never 255."""
     component_id: int = Field(100, ge=1, le=254)
     """This companion's component id: 100-105 are cameras (QGroundControl finds those), 191-194 onboard computers."""
     heartbeat_timeout_s: float = Field(3.0, gt=0)

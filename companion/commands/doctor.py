@@ -12,6 +12,8 @@ def register(add_command) -> None:
     p.add_argument("--config", metavar="FILE", help="the configuration to check (default: the built-in defaults)")
     p.add_argument("--wait", type=float, default=5.0, metavar="S", help="how long to wait for an autopilot "
                    "heartbeat (default 5)")
+    p.add_argument("--signing-key", metavar="FILE", help="override mavlink.signing_key_file: check signing with this "
+                   "key (32 raw bytes or a passphrase, as MAVProxy's signing setup; docs/security.md)")
     p.set_defaults(func=run)
 
 
@@ -20,7 +22,12 @@ def run(args: argparse.Namespace) -> int:
     from companion.live.doctor import FAIL, run_checks
 
     require_non_negative("--wait", args.wait)
-    results = run_checks(args.config, dict(os.environ), heartbeat_wait_s=args.wait,
+    if args.signing_key:  # a missing or empty key file is bad input, not a finding
+        from vehicle.link.signing import load_key
+
+        load_key(args.signing_key)
+    overrides = {"mavlink": {"signing_key_file": args.signing_key}} if args.signing_key else None
+    results = run_checks(args.config, dict(os.environ), heartbeat_wait_s=args.wait, overrides=overrides,
                          emit=lambda c: print(c.line(), flush=True))
     failed = [c for c in results if c.status == FAIL]
     print(f"merlion doctor: {len(failed)} problem(s)" if failed else "merlion doctor: all checks passed", flush=True)

@@ -41,6 +41,9 @@ def run(args: argparse.Namespace) -> int:
     if signing.get("enabled"):
         print(f"merlion run: signing on; refused {signing['rejected']} unsigned or badly signed writes "
               f"{signing['rejected_by_source']}", flush=True)
+    if signing.get("autopilot") in ("signs, and this companion has no key", "signs with another key"):
+        print(f"merlion run: the autopilot {signing['autopilot']}: it ignored everything this companion sent "
+              "(docs/security.md)", flush=True)
     print(f"merlion run: seen {report['frames_seen']}, passed {report['frames_passed']}, "
           f"dropped {report['frames_dropped']}, summary {report['summary']}, sent {report['bytes_sent']} bytes, "
           f"bad MAVLink {report['rx_bad']}, store {store.get('dir')} {mode}", flush=True)

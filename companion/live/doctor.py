@@ -10,6 +10,7 @@ import os
 import shutil
 import socket
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,9 +38,10 @@ class Check:
         return text
 
 
-def check_config(path: str | None, environ: dict[str, str]) -> tuple[Check, Config | None]:
+def check_config(path: str | None, environ: dict[str, str],
+                 overrides: dict | None = None) -> tuple[Check, Config | None]:
     try:
-        cfg = load_config(path, environ=environ)
+        cfg = load_config(path, overrides=overrides, environ=environ)
     except ConfigError as err:
         return Check("config", FAIL, str(err), "correct that key (docs/configuration.md lists every key)"), None
     where = path or "built-in defaults"
@@ -142,17 +144,30 @@ def check_autopilot(cfg: Config, wait_s: float) -> Check:
         link.stop()
 
 
+def _autopilot_signing(link, wait_s: float) -> str:
+    """How the autopilot signs, once one of its messages after its heartbeat showed it (or "unknown")."""
+    from vehicle.link.signing import AUTOPILOT_UNKNOWN
+
+    deadline = time.monotonic() + min(wait_s, 3.0)
+    while link.signing.autopilot == AUTOPILOT_UNKNOWN and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return link.signing.autopilot
+
+
 def check_signing(cfg: Config, wait_s: float) -> Check:
     """Is MAVLink 2 signing on, and does the autopilot act on our signed commands (and sign with our key)?
 
-    The probe is MAV_CMD_GET_MESSAGE_INTERVAL, a read that still needs a signature on a signed autopilot: an
-    autopilot with our key answers it, one with another key ignores it, and one with no key answers anyone."""
+    Without a key, an autopilot that signs (it has a key) drops everything the companion sends: that is a failure,
+    not a warning. With a key, the probe is MAV_CMD_GET_MESSAGE_INTERVAL, a read that still needs a signature on a
+    signed autopilot: an autopilot with our key answers it, one with another key ignores it (and its own messages
+    fail our check), and one with no key answers anyone."""
+    from vehicle.link.signing import AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY
+
     key_file = cfg.mavlink.signing_key_file
-    if not key_file:
-        return Check("signing", WARN, "off: anyone who can reach the link can change parameters and queries",
-                     "put one passphrase on the autopilot, the companion and the surface tool (docs/security.md)")
+    off = Check("signing", WARN, "off: anyone who can reach the link can change parameters and queries",
+                "put one passphrase on the autopilot, the companion and the surface tool (docs/security.md)")
     if not cfg.mavlink.connection:
-        return Check("signing", WARN, f"key {key_file}, but no vehicle link to check it on")
+        return off if not key_file else Check("signing", WARN, f"key {key_file}, but no vehicle link to check it on")
     from pymavlink.dialects.v20 import ardupilotmega as mav2
 
     from vehicle.link.connection import MavLink
@@ -166,7 +181,20 @@ def check_signing(cfg: Config, wait_s: float) -> Check:
     link.start()
     try:
         if not link.wait_autopilot(wait_s):
+            if not key_file:
+                return off
             return Check("signing", WARN, f"on (key {key_file}); no autopilot heartbeat to check it against")
+        how = _autopilot_signing(link, wait_s)
+        if how == AUTOPILOT_NEEDS_A_KEY:
+            return Check("signing", FAIL, "off, but the autopilot signs: it ignores everything this companion sends "
+                         "(heartbeat, STATUSTEXT, rate requests)", "give the companion the autopilot's passphrase: "
+                         "--signing-key FILE or mavlink.signing_key_file (docs/security.md)")
+        if not key_file:
+            return off
+        if how == AUTOPILOT_OTHER_KEY:
+            return Check("signing", FAIL, f"on (key {key_file}), but the autopilot signs with another key: it "
+                         "ignores everything this companion sends", "use the autopilot's passphrase on the "
+                         "companion (docs/security.md)")
         autopilot = link.autopilot
         for _ in range(3):  # a lost datagram is not a verdict
             link.send(mav2.MAVLink_command_long_message(*autopilot, mav2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
@@ -249,8 +277,9 @@ def check_disk(cfg: Config) -> Check:
 
 
 def run_checks(path: str | None, environ: dict[str, str], *, heartbeat_wait_s: float = 5.0,
-               emit: Callable[[Check], None] | None = None) -> list[Check]:
-    """Every check in a sensible order; ``emit`` sees each result as soon as it is known."""
+               emit: Callable[[Check], None] | None = None, overrides: dict | None = None) -> list[Check]:
+    """Every check in a sensible order; ``emit`` sees each result as soon as it is known; ``overrides`` are the
+    command line's settings (``--signing-key``)."""
     results: list[Check] = []
 
     def add(check: Check) -> None:
@@ -258,7 +287,7 @@ def run_checks(path: str | None, environ: dict[str, str], *, heartbeat_wait_s: f
         if emit is not None:
             emit(check)
 
-    config_check, cfg = check_config(path, environ)
+    config_check, cfg = check_config(path, environ, overrides)
     add(config_check)
     if cfg is None:
         return results

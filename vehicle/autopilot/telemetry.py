@@ -64,6 +64,8 @@ class TelemetrySnapshot:
     autopilot_reboots: int = 0
     position_source: bool | None = None
     """False once LOCAL_POSITION_NED was asked for and never came (no DVL/USBL), True once it came."""
+    spoofed_ignored: int = 0
+    """Unsigned messages claiming to be the autopilot after it was seen signing: ignored (docs/security.md)."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -129,6 +131,7 @@ class VehicleTelemetry:
     def latest(self) -> TelemetrySnapshot:
         with self._lock:
             return replace(self._latest, autopilot_alive=self.link.autopilot_alive,
+                           spoofed_ignored=sum(self.link.signing.spoofed.values()),
                            clock_offset_s=self.boot_clock.offset, autopilot_reboots=self.boot_clock.reboots)
 
     def pose_at(self, t: float) -> Pose:
@@ -160,6 +163,10 @@ class VehicleTelemetry:
 
     def _on_missing(self, name: str) -> None:
         """RateKeeper gave up expecting ``name`` (on its thread, once per declaration)."""
+        if self.link.signing.mismatch:  # our requests never reached it: the autopilot is not to blame
+            log.warning("%s never came: the autopilot %s and ignores this companion's rate requests", name,
+                        self.link.signing.autopilot)
+            return
         if name != "LOCAL_POSITION_NED":
             log.warning("the autopilot never sends %s, asked for %d times", name, self.rates.requests[name]
                         if self.rates is not None else 0)

@@ -34,6 +34,8 @@ def describe(s: TelemetrySnapshot) -> str:
         parts.append(f"{'armed' if s.armed else 'disarmed'} {s.mode}")
     if s.battery_v is not None:
         parts.append(f"battery {s.battery_v:.1f} V")
+    if s.spoofed_ignored:
+        parts.append(f"{s.spoofed_ignored} unsigned messages claiming to be the autopilot ignored")
     return ", ".join(parts)
 
 

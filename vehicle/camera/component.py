@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from vehicle.camera.captures import CaptureLog
+from vehicle.camera.requests import addressed_to
 
 VENDOR = "MERLION"
 MSG_CAMERA_INFORMATION = 259
@@ -84,17 +85,18 @@ class CameraComponent:
     # ---- dispatch -------------------------------------------------------------------------------------------
 
     def handle(self, msg: mav.MAVLink_message) -> list[mav.MAVLink_message]:
-        """Replies to one received COMMAND_LONG / COMMAND_INT; [] for anything not for us."""
-        kind = msg.get_type()
-        if kind not in ("COMMAND_LONG", "COMMAND_INT"):
+        """Replies to one received COMMAND_LONG / COMMAND_INT; [] for anything not for us (standalone use: the
+        downlink's ``RequestRouter`` checks the target and calls ``answer``)."""
+        if msg.get_type() not in ("COMMAND_LONG", "COMMAND_INT"):
             return []
-        if msg.target_system not in (0, self.system_id()):
+        if not addressed_to(msg, (self.system_id(), self.component_id)):
             return []
-        broadcast = msg.target_component == 0
-        if not broadcast and msg.target_component != self.component_id:
-            return []
+        return self.answer(msg)
+
+    def answer(self, msg: mav.MAVLink_message) -> list[mav.MAVLink_message]:
+        """Replies to a command addressed to us (or to every component: then only the camera requests)."""
         command = msg.command
-        if broadcast and not self._answers_broadcast(msg):
+        if msg.target_component == 0 and not self._answers_broadcast(msg):
             return []
         self.commands_seen += 1
         result, extra = self._run(msg)

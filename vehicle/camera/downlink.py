@@ -31,10 +31,14 @@ from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.camera.component import CameraComponent, CameraIdentity
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
+from vehicle.camera.params import REQUEST_TYPES as PARAM_REQUESTS
 from vehicle.camera.params import ParamServer, ParamSpec
 from vehicle.camera.request_worker import RequestWorker
+from vehicle.camera.requests import RequestRouter, requester
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
+from vehicle.link.fair_replies import FairReplies, Requester
+from vehicle.link.request_gate import RequestGate
 from vehicle.protocol.ftp import Op
 from vehicle.protocol.image_push import push_messages
 from vehicle.protocol.queries import QueryTopic, format_queries, parse_queries
@@ -51,8 +55,6 @@ MARKS_MAX = 32
 INDEX_PATH = "/summary/index.json"
 FULL_QUALITY = 90
 _FTP_BULK_OPS = frozenset({Op.READ_FILE, Op.BURST_READ_FILE, Op.LIST_DIRECTORY})
-_REQUEST_TYPES = ("COMMAND_LONG", "COMMAND_INT", "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET",
-                  "FILE_TRANSFER_PROTOCOL")
 
 
 def parse_marks(data: bytes) -> tuple[list[int], list[int]]:
@@ -165,7 +167,10 @@ class Downlink:
                                   persist=persist_params)
         self.params.on_change(self._own_param)
         self.tree = VirtualTree()
-        self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable)
+        signing = getattr(link, "signing", None)
+        # with a key, two sessions are kept for signed clients: unsigned strangers cannot lock them out
+        self.ftp = FtpServer(self.tree, writable=cfg.ftp_writable,
+                             reserve_signed=2 if getattr(signing, "enabled", False) else 0)
         self._held: dict[int, _Held] = {}
         self._lock = threading.Lock()
         self.default_topic = default_topic
@@ -174,17 +179,36 @@ class Downlink:
         self._marks: tuple[list[int], list[int]] = ([], [])
         self._marks_cbs: list[Callable[[list[int], list[int]], None]] = []
         self._unsubscribe: Callable[[], None] | None = None
+        self._refusals_wired = False
         self._stop = threading.Event()
         self._status_thread: threading.Thread | None = None
         self.ftp_worker = RequestWorker("surface-ftp")
         self.control_worker = RequestWorker("surface-control")
+        self.requests = RequestGate(on_flood=self._flood)
+        """Commands and parameter requests per requester and second (FTP is bounded by its sessions)."""
+        self._floods: set[Requester] = set()
+        self.router = RequestRouter(lambda: (link.system_id, link.component_id), self.requests)
+        """Request type -> handler: the one place that decides whether a request is for us."""
+        for kind in ("COMMAND_LONG", "COMMAND_INT"):
+            self.router.route(kind, self._answer(self.camera.answer), self.control_worker)
+        for kind in PARAM_REQUESTS:
+            self.router.route(kind, self._answer(self.params.answer, unique=kind == "PARAM_REQUEST_LIST"),
+                              self.control_worker)
+        self.router.route("FILE_TRANSFER_PROTOCOL", self._on_ftp, self.ftp_worker, broadcast=False, gated=False)
         self.tree.put(INDEX_PATH, self.index_json, size=lambda: len(self.index_json()))
         queries_text = lambda: format_queries(self._queries, self.default_topic).encode()  # noqa: E731
         self.tree.put(QUERIES_PATH, queries_text, size=lambda: len(queries_text()))
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
         self.tree.put(MARKS_PATH, lambda: format_marks(*self._marks), size=lambda: len(format_marks(*self._marks)))
         self.tree.uploadable(MARKS_PATH, self._upload_marks)
+        self.replies = FairReplies(lambda: self.budget.rate, on_flood=self._flood)
+        """Answers to commands, parameter and small FTP requests, per requester, signed ones first."""
+        self.bulk_replies = FairReplies(lambda: self.budget.rate, per_requester=16, work_conserving=True,
+                                        on_flood=self._flood)
+        """FTP data replies, per requester, signed ones first (bursts come from the FTP server itself)."""
+        self.budget.add_source(Priority.CONTROL, self.replies.next)
         self.budget.add_source(Priority.BULK, self._next_burst)
+        self.budget.add_source(Priority.BULK, self.bulk_replies.next)
         for name, value in self.params.restored.items():
             self._own_param(name, value)
 
@@ -197,7 +221,10 @@ class Downlink:
         self._stop.clear()
         self.ftp_worker.start()
         self.control_worker.start()
-        self._unsubscribe = self.link.subscribe(self._on_message, _REQUEST_TYPES)
+        self._unsubscribe = self.link.subscribe(self.router, self.router.types)
+        if not self._refusals_wired and hasattr(self.link, "on_refused"):
+            self.link.on_refused(self._on_refused)
+            self._refusals_wired = True
         self.budget.start()
         self._status_thread = threading.Thread(target=self._status_loop, name="surface-status", daemon=True)
         self._status_thread.start()
@@ -380,36 +407,62 @@ class Downlink:
 
     # ---- incoming -------------------------------------------------------------------------------------------
 
-    def _on_message(self, msg: mav.MAVLink_message) -> None:
-        """On the receive loop: hand the request to its worker and return at once."""
-        if msg.get_type() == "FILE_TRANSFER_PROTOCOL":
-            self.ftp_worker.submit(lambda: self._on_ftp(msg))
-        else:
-            self.control_worker.submit(lambda: self._on_control(msg))
+    def handle_requests(self, mtype: str, answer: Callable[[mav.MAVLink_message], list[mav.MAVLink_message]]) -> None:
+        """Answer each ``mtype`` addressed to this component with ``answer(msg)``'s replies (run on the control
+        worker, sent fairly per requester); call before ``start``. The target check is the router's."""
+        self.router.route(mtype, self._answer(answer), self.control_worker)
 
-    def _on_control(self, msg: mav.MAVLink_message) -> None:
-        handler = self.camera.handle if msg.get_type().startswith("COMMAND") else self.params.handle
-        for reply in handler(msg):
-            self.budget.submit(reply, Priority.CONTROL)
+    def _answer(self, answer: Callable[[mav.MAVLink_message], list[mav.MAVLink_message]], *,
+                unique: bool = False) -> Callable[[mav.MAVLink_message], None]:
+        """A route's handler: queue ``answer(msg)``'s replies for the requester. ``unique``: one answer of this kind
+        per requester at a time (a repeated PARAM_REQUEST_LIST while its answers still wait adds nothing, so a flood
+        of them costs its sender a bounded share, never the others' answers)."""
+        def handle(msg: mav.MAVLink_message) -> None:
+            replies = answer(msg)
+            if replies:
+                self.replies.submit(requester(msg), replies, tag=msg.get_type() if unique else None, unique=unique)
+                self.budget.wake()
+        return handle
 
     def _on_ftp(self, msg: mav.MAVLink_message) -> None:
         if not self.cfg.ftp:
             return
-        if msg.target_system not in (0, self.link.system_id) or msg.target_component != self.link.component_id:
-            return
-        who = (msg.get_srcSystem(), msg.get_srcComponent())
+        who = requester(msg)
         request = bytes(msg.payload)
-        replies = self.ftp.handle(request, who)
+        replies = self.ftp.handle(request, who[:2], signed=who[2])
         if not replies:
             self.budget.wake()  # a burst may have started
             return
         # data replies are bulk; the small answers (open, close, CRC, write acks, refusals) are command answers
         opcode = request[3] if len(request) > 3 else 0
-        prio = Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL
+        self._send_ftp(who, replies, Priority.BULK if opcode in _FTP_BULK_OPS else Priority.CONTROL)
+
+    def _send_ftp(self, who: Requester, replies: list[bytes], prio: Priority) -> None:
+        queue = self.bulk_replies if prio == Priority.BULK else self.replies
         for payload in replies:
             reply = mav.MAVLink_file_transfer_protocol_message(0, who[0], who[1], list(payload))
             # a client retransmits while our answer still waits for budget: one copy in the queue is enough
-            self.budget.submit(reply, prio, tag=("ftp", who, bytes(payload[:12])), unique=True)
+            queue.submit(who, [reply], tag=("ftp", bytes(payload[:12])), unique=True)
+        self.budget.wake()
+
+    def _flood(self, who: Requester) -> None:
+        """Said once per requester that asked too fast or whose replies overflowed its share (the counts are in
+        ``requests.stats()`` and ``replies.stats()``)."""
+        with self._lock:
+            if who in self._floods:
+                return
+            self._floods.add(who)
+        name = f"{who[0]}/{who[1]}{'' if who[2] else ' unsigned'}"
+        log.warning("request flood from %s: replies beyond its share are dropped (further ones only counted)", name)
+        self.event(f"Request flood from {name}: replies dropped"[:50], st.WARNING)
+
+    def _on_refused(self, msg: mav.MAVLink_message, reason: str) -> None:
+        """An FTP write the link's signing refused still gets its NAK (on the FTP worker, off the receive loop)."""
+        if msg.get_type() != "FILE_TRANSFER_PROTOCOL" or not self.cfg.ftp or not self.router.for_us(msg):
+            return
+        who = requester(msg)
+        request = bytes(msg.payload)
+        self.ftp_worker.submit(lambda: self._send_ftp(who, self.ftp.refuse(request), Priority.CONTROL))
 
     def _next_burst(self) -> mav.MAVLink_message | None:
         got = self.ftp.next_burst()

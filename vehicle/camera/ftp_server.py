@@ -7,11 +7,13 @@ echo the request opcode and carry seq + 1, OpenFileRO's ACK carries the size as 
 239 bytes, TerminateSession is acknowledged, a retransmitted request is answered again, paths are NUL terminated
 and ``..`` cannot leave the tree (nothing on disk is reachable at all: every file is a callable in memory).
 
-Many clients at once (QGroundControl, BlueOS, MAVProxy, the surface tool): a cached answer is replayed only for
-the very same request (requester, seq, opcode, session, offset, size and path/data) within a few seconds; sessions
-belong to the requester that opened them; every refused or failed request gets a NAK with its error code
-(FileNotFound, Fail, Fail+errno, NoSessionsAvailable, ...), never silence. Listings come from each file's size
-metadata, so listing the frames never produces (JPEG-encodes) them.
+Many clients at once (QGroundControl, BlueOS, MAVProxy, the surface tool): the server remembers only the last
+reply per requester and resends it only for a byte-identical request within a few seconds (MAVLink FTP's
+retransmission: a client repeats its last request when the answer was lost), so a restarted client that reuses
+seq numbers, or a new OpenFileRO, always gets fresh answers; sessions belong to the link that opened them
+(``ftp_sessions``); every refused or failed request gets a NAK with its error code (FileNotFound, Fail,
+Fail+errno, NoSessionsAvailable, ...), never silence. Listings come from each file's size metadata, so listing
+the frames never produces (JPEG-encodes) them.
 """
 
 from __future__ import annotations
@@ -23,23 +25,20 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass
 
+from vehicle.camera.ftp_sessions import Requester, Session, SessionTable
 from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, crc32_ardupilot, nak
 
 __all__ = ["FtpServer", "VirtualTree", "clean_path", "crc32_ardupilot"]
 
 log = logging.getLogger(__name__)
 
-Requester = tuple[int, int]
-"""(system id, component id) of the client; replies are addressed to it."""
-
 BURST_PACKETS = 32
 """Packets per BurstReadFile answer before burst_complete asks the client for more."""
 RETRANSMIT_WINDOW_S = 5.0
 """A repeated request is a retransmission only this soon after the first (a restarted client reuses seqs)."""
-STALE_SESSION_S = 30.0
-"""A session nobody used for this long may be closed to make room for another client's open."""
+MAX_REQUESTERS = 256
+"""Last replies kept for this many requesters (spoofed ids by the thousand must not grow the table)."""
 
 
 def clean_path(raw: str) -> str | None:
@@ -124,38 +123,27 @@ class VirtualTree:
             return self._uploads.get(path)
 
 
-@dataclass
-class _Session:
-    requester: Requester
-    path: str
-    data: bytearray
-    writing: bool
-    burst_offset: int | None = None
-    burst_seq: int = 0
-    burst_left: int = 0
-    burst_session: int = 0
-    used: float = 0.0
-
-
 class FtpServer:
     """MAVLink FTP over a ``VirtualTree``: read-only unless ``writable``; ``max_sessions`` open files at once.
 
     Sessions are kept per client, and an open is granted the session number the client asked with: pymavlink's
     mavftp adopts whatever the ACK says, but MAVSDK 4 keeps using its own number, so echoing it serves both. An
-    open on a number the same client still holds replaces that session (the client has abandoned it). When every
-    session is taken, the opener's own oldest session is closed (its TerminateSession was lost), else one idle
-    for ``STALE_SESSION_S``; a busy server answers NoSessionsAvailable rather than close another client's file.
+    open on a number the same client still holds replaces that session (the client has abandoned it). Who may
+    take a session when the table is full, and which link owns one, is ``SessionTable``'s rule; a busy server
+    answers NoSessionsAvailable rather than close another client's file in use.
     """
 
     def __init__(self, tree: VirtualTree, *, writable: bool = False, max_sessions: int = 8,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, per_requester: int = 2,
+                 reserve_signed: int = 0) -> None:
         self.tree = tree
         self.writable = writable
         self.max_sessions = max_sessions
         self._clock = clock
         self._lock = threading.Lock()
-        self._sessions: OrderedDict[tuple[Requester, int], _Session] = OrderedDict()
-        self._recent: OrderedDict[tuple, tuple[float, list[bytes]]] = OrderedDict()
+        self.sessions = SessionTable(max_sessions, per_requester=per_requester, reserve_signed=reserve_signed)
+        self._last: OrderedDict[tuple[Requester, bool], tuple[float, bytes, list[bytes]]] = OrderedDict()
+        """Per requester (and whether it signs): when, the request's bytes and the replies it got."""
         self.requests = 0
         self.retransmits_answered = 0
         self.naks: dict[int, int] = {}
@@ -163,8 +151,10 @@ class FtpServer:
 
     # ---- requests -------------------------------------------------------------------------------------------
 
-    def handle(self, payload: bytes, requester: Requester) -> list[bytes]:
-        """Immediate reply payloads (251 bytes each) for one request; bursts continue through ``next_burst``."""
+    def handle(self, payload: bytes, requester: Requester, signed: bool = False) -> list[bytes]:
+        """Immediate reply payloads (251 bytes each) for one request; bursts continue through ``next_burst``.
+
+        ``signed``: the request carried a valid signature (the sessions it opens are then its link's alone)."""
         try:
             req = FtpPacket.unpack(payload)
         except ValueError as err:
@@ -172,21 +162,22 @@ class FtpServer:
             return []
         if req.opcode in (Op.ACK, Op.NAK):
             return []
-        # the very same request from the same client: path/data, size and session included
-        key = (requester, req.seq, req.opcode, req.session, req.offset, req.size, req.data)
+        owner = (requester, signed)
+        raw = bytes(payload)
         now = self._clock()
         with self._lock:
             self.requests += 1
-            cached = self._recent.get(key)
-            if req.opcode != Op.BURST_READ_FILE and cached is not None and now - cached[0] <= RETRANSMIT_WINDOW_S:
-                self.retransmits_answered += 1
-                return list(cached[1])
+            last = self._last.get(owner)
+            if (req.opcode != Op.BURST_READ_FILE and last is not None and last[1] == raw
+                    and now - last[0] <= RETRANSMIT_WINDOW_S):
+                self.retransmits_answered += 1  # the very same bytes again: our answer was lost
+                return list(last[2])
         try:
             pre = self._prefetch(req)  # outside the lock: a file may be produced on demand (a full frame's JPEG)
             with self._lock:
-                upload = self._finished_upload(req, requester)
+                upload = self._finished_upload(req, requester, signed)
                 if upload is None:
-                    packets = self._dispatch(req, requester, pre)
+                    packets = self._dispatch(req, requester, signed, pre)
             if upload is not None:  # the receiver of an upload may take its time (new queries are encoded)
                 packets = [self._commit(req, upload)]
         except OSError as err:
@@ -200,11 +191,25 @@ class FtpServer:
             for p in packets:
                 if p.opcode == Op.NAK:
                     self.naks[p.data[0]] = self.naks.get(p.data[0], 0) + 1
-            if req.opcode != Op.BURST_READ_FILE:
-                self._recent[key] = (now, replies)
-                while len(self._recent) > 256:
-                    self._recent.popitem(last=False)
+            self._last.pop(owner, None)
+            if req.opcode != Op.BURST_READ_FILE:  # only the last reply per requester is ever resent
+                self._last[owner] = (now, raw, replies)
+                while len(self._last) > MAX_REQUESTERS:
+                    self._last.popitem(last=False)
         return replies
+
+    def refuse(self, payload: bytes, error: FtpErr = FtpErr.FILE_PROTECTED) -> list[bytes]:
+        """The NAK for a request the link refused before it reached us (an unsigned write on a signed link):
+        every request gets an answer."""
+        try:
+            req = FtpPacket.unpack(payload)
+        except ValueError:
+            return []
+        if req.opcode in (Op.ACK, Op.NAK):
+            return []
+        with self._lock:
+            self.naks[int(error)] = self.naks.get(int(error), 0) + 1
+        return [nak(req, error).pack()]
 
     def _prefetch(self, req: FtpPacket) -> object:
         """What the tree holds for a request that reads it: bytes, a listing, or None (not there / no such op)."""
@@ -215,80 +220,74 @@ class FtpServer:
             return None
         return self.tree.listdir(path) if req.opcode == Op.LIST_DIRECTORY else self.tree.read(path)
 
-    def _forget_requester(self, who: Requester) -> None:
-        """A client reset its sessions (it restarted): its cached answers must not answer its new requests."""
-        for key in [k for k in self._recent if k[0] == who]:
-            del self._recent[key]
-
-    def _dispatch(self, req: FtpPacket, who: Requester, pre: object = None) -> list[FtpPacket]:
+    def _dispatch(self, req: FtpPacket, who: Requester, signed: bool, pre: object = None) -> list[FtpPacket]:
         op = req.opcode
         if op == Op.NONE:
             return [ack(req)]
         if op == Op.RESET_SESSIONS:
-            for key in [k for k in self._sessions if k[0] == who]:
-                del self._sessions[key]
-            self._forget_requester(who)
+            self.sessions.reset(who, signed)
             return [ack(req)]
         if op == Op.TERMINATE_SESSION:
-            return [self._terminate(req, who)]
+            return [self._terminate(req, who, signed)]
         if op == Op.LIST_DIRECTORY:
             return [self._list(req, pre)]
         if op == Op.OPEN_FILE_RO:
-            return [self._open_ro(req, who, pre)]
+            return [self._open_ro(req, who, signed, pre)]
         if op == Op.READ_FILE:
-            return [self._read(req, who)]
+            return [self._read(req, who, signed)]
         if op == Op.BURST_READ_FILE:
-            return self._burst_start(req, who)
+            return self._burst_start(req, who, signed)
         if op == Op.CALC_FILE_CRC32:
             return [self._crc(req, pre)]
         if op in (Op.CREATE_FILE, Op.OPEN_FILE_WO, Op.WRITE_FILE, Op.TRUNCATE_FILE, Op.REMOVE_FILE):
             if not self.writable:
                 return [nak(req, FtpErr.FILE_PROTECTED)]
-            return [self._write_op(req, who)]
+            return [self._write_op(req, who, signed)]
         if op in (Op.CREATE_DIRECTORY, Op.REMOVE_DIRECTORY) and not self.writable:
             return [nak(req, FtpErr.FILE_PROTECTED)]
         return [nak(req, FtpErr.UNKNOWN_COMMAND)]
 
-    def _session(self, req: FtpPacket, who: Requester) -> _Session | None:
-        sess = self._sessions.get((who, req.session))
-        if sess is not None:
-            sess.used = self._clock()
-        return sess
+    def _session(self, req: FtpPacket, who: Requester, signed: bool) -> tuple[Session | None, FtpPacket | None]:
+        """The session a request names, or the NAK that answers it (none such, or another link's)."""
+        sess, foreign = self.sessions.find(who, req.session, signed, self._clock())
+        if foreign:
+            return None, nak(req, FtpErr.FAIL)
+        if sess is None:
+            return None, nak(req, FtpErr.INVALID_SESSION)
+        return sess, None
 
-    def _new_session(self, req: FtpPacket, who: Requester, path: str, data: bytes, writing: bool) -> int | None:
-        """The session number granted, or None when every session is held by active clients."""
-        key = (who, req.session)
-        self._sessions.pop(key, None)
-        now = self._clock()
-        while len(self._sessions) >= self.max_sessions:
-            own = [k for k in self._sessions if k[0] == who]
-            stale = [k for k, s in self._sessions.items() if now - s.used > STALE_SESSION_S]
-            victims = own or stale
-            if not victims:
-                log.info("FTP: all %d sessions in use, refusing an open from %s", self.max_sessions, who)
-                return None
-            del self._sessions[victims[0]]
-            log.info("FTP: all %d sessions taken, closing %s", self.max_sessions, victims[0])
-        self._sessions[key] = _Session(who, path, bytearray(data), writing, used=now)
-        return req.session
+    def _new_session(self, req: FtpPacket, who: Requester, signed: bool, path: str, data: bytes,
+                     writing: bool) -> FtpPacket:
+        """The ACK granting the session the client asked for, or the NAK: NoSessionsAvailable when every session
+        is held by active clients, Fail when that session is another (signed) link's."""
+        session = Session(who, path, bytearray(data), writing)
+        refused = self.sessions.grant(who, req.session, signed, session, self._clock())
+        if refused == "foreign":
+            return nak(req, FtpErr.FAIL)
+        if refused is not None:
+            return nak(req, FtpErr.NO_SESSIONS_AVAILABLE)
+        if writing:
+            return ack(req, session=req.session)
+        return ack(req, session=req.session, data=struct.pack("<I", len(data)))
 
-    def _terminate(self, req: FtpPacket, who: Requester) -> FtpPacket:
-        if self._session(req, who) is None:
-            return nak(req, FtpErr.INVALID_SESSION)
-        del self._sessions[(who, req.session)]
+    def _terminate(self, req: FtpPacket, who: Requester, signed: bool) -> FtpPacket:
+        sess, refusal = self._session(req, who, signed)
+        if sess is None:
+            return refusal
+        self.sessions.end(who, req.session)
         return ack(req)
 
-    def _finished_upload(self, req: FtpPacket, who: Requester) -> _Session | None:
+    def _finished_upload(self, req: FtpPacket, who: Requester, signed: bool) -> Session | None:
         """A TerminateSession that closes a written file: the session, taken out (called with the lock held)."""
         if req.opcode != Op.TERMINATE_SESSION:
             return None
-        sess = self._session(req, who)
+        sess, _ = self._session(req, who, signed)
         if sess is None or not sess.writing:
             return None
-        del self._sessions[(who, req.session)]
+        self.sessions.end(who, req.session)
         return sess
 
-    def _commit(self, req: FtpPacket, sess: _Session) -> FtpPacket:
+    def _commit(self, req: FtpPacket, sess: Session) -> FtpPacket:
         """Hand a closed upload to its receiver (without the lock held); its refusal is the client's NAK."""
         target = self.tree.upload_target(sess.path)
         try:
@@ -318,27 +317,24 @@ class FtpServer:
             return nak(req, FtpErr.FAIL)
         return ack(req, data=out)
 
-    def _open_ro(self, req: FtpPacket, who: Requester, data) -> FtpPacket:
+    def _open_ro(self, req: FtpPacket, who: Requester, signed: bool, data) -> FtpPacket:
         if data is None:
             return nak(req, FtpErr.FILE_NOT_FOUND)
-        sid = self._new_session(req, who, clean_path(req.path()) or "", data, writing=False)
-        if sid is None:
-            return nak(req, FtpErr.NO_SESSIONS_AVAILABLE)
-        return ack(req, session=sid, data=struct.pack("<I", len(data)))
+        return self._new_session(req, who, signed, clean_path(req.path()) or "", data, writing=False)
 
-    def _read(self, req: FtpPacket, who: Requester) -> FtpPacket:
-        sess = self._session(req, who)
+    def _read(self, req: FtpPacket, who: Requester, signed: bool) -> FtpPacket:
+        sess, refusal = self._session(req, who, signed)
         if sess is None or sess.writing:
-            return nak(req, FtpErr.INVALID_SESSION)
+            return refusal or nak(req, FtpErr.INVALID_SESSION)
         if req.offset >= len(sess.data):
             return nak(req, FtpErr.EOF)
         want = req.size if 0 < req.size <= MAX_DATA else MAX_DATA
         return ack(req, data=bytes(sess.data[req.offset: req.offset + want]))
 
-    def _burst_start(self, req: FtpPacket, who: Requester) -> list[FtpPacket]:
-        sess = self._session(req, who)
+    def _burst_start(self, req: FtpPacket, who: Requester, signed: bool) -> list[FtpPacket]:
+        sess, refusal = self._session(req, who, signed)
         if sess is None or sess.writing:
-            return [nak(req, FtpErr.INVALID_SESSION)]
+            return [refusal or nak(req, FtpErr.INVALID_SESSION)]
         if req.offset >= len(sess.data):
             sess.burst_offset = None
             return [nak(req, FtpErr.EOF)]
@@ -353,12 +349,12 @@ class FtpServer:
             return nak(req, FtpErr.FILE_NOT_FOUND)
         return ack(req, data=struct.pack("<I", crc32_ardupilot(data)))
 
-    def _write_op(self, req: FtpPacket, who: Requester) -> FtpPacket:
+    def _write_op(self, req: FtpPacket, who: Requester, signed: bool) -> FtpPacket:
         op = req.opcode
         if op == Op.WRITE_FILE:
-            sess = self._session(req, who)
+            sess, refusal = self._session(req, who, signed)
             if sess is None or not sess.writing:
-                return nak(req, FtpErr.INVALID_SESSION)
+                return refusal or nak(req, FtpErr.INVALID_SESSION)
             end = req.offset + len(req.data)
             if end > 1 << 20:
                 return nak(req, FtpErr.INVALID_DATA_SIZE)
@@ -378,21 +374,18 @@ class FtpServer:
             target(current[: req.offset])  # a refusal raises: handle() answers it with a NAK
             return ack(req)
         start = b"" if op == Op.CREATE_FILE else current
-        sid = self._new_session(req, who, path, start, writing=True)
-        if sid is None:
-            return nak(req, FtpErr.NO_SESSIONS_AVAILABLE)
-        return ack(req, session=sid)
+        return self._new_session(req, who, signed, path, start, writing=True)
 
     # ---- bursts ---------------------------------------------------------------------------------------------
 
     def has_burst(self) -> bool:
         with self._lock:
-            return any(s.burst_offset is not None for s in self._sessions.values())
+            return any(s.burst_offset is not None for s in self.sessions.values())
 
     def next_burst(self) -> tuple[Requester, bytes] | None:
-        """The next bulk packet of the oldest running burst, or None when no burst is running."""
+        """The next bulk packet of the oldest running burst (signed links' first), or None when none is running."""
         with self._lock:
-            for sess in self._sessions.values():
+            for sess in self.sessions.values():
                 if sess.burst_offset is None:
                     continue
                 offset = sess.burst_offset
@@ -404,9 +397,10 @@ class FtpServer:
                                 req_opcode=Op.BURST_READ_FILE, offset=offset, data=chunk, burst_complete=last)
                 sess.burst_seq = (sess.burst_seq + 1) & 0xFFFF
                 sess.burst_offset = None if last else nxt
+                sess.used = self._clock()
                 return sess.requester, pkt.pack()
         return None
 
     def close_all(self) -> None:
         with self._lock:
-            self._sessions.clear()
+            self.sessions.clear()

@@ -16,9 +16,12 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from vehicle.camera.requests import addressed_to
+
 log = logging.getLogger(__name__)
 
 ID_MAX = 16
+REQUEST_TYPES = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
 
 
 @dataclass
@@ -104,14 +107,16 @@ class ParamServer:
         return mav.MAVLink_param_value_message(name.encode("ascii"), float(spec.value), spec.mav_type,
                                                len(self._order), self._order.index(name))
 
-    def _for_us(self, msg: mav.MAVLink_message) -> bool:
-        return msg.target_system in (0, self._system_id()) and msg.target_component in (0, self.component_id)
-
     def handle(self, msg: mav.MAVLink_message) -> list[mav.MAVLink_message]:
-        """PARAM_VALUE replies to PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET; [] for anything else."""
-        kind = msg.get_type()
-        if kind not in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET") or not self._for_us(msg):
+        """PARAM_VALUE replies to PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET; [] for anything else or not
+        for us (standalone use: the downlink's ``RequestRouter`` checks the target and calls ``answer``)."""
+        if msg.get_type() not in REQUEST_TYPES or not addressed_to(msg, (self._system_id(), self.component_id)):
             return []
+        return self.answer(msg)
+
+    def answer(self, msg: mav.MAVLink_message) -> list[mav.MAVLink_message]:
+        """The PARAM_VALUE replies to a parameter request addressed to us."""
+        kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
             return [self.param_value(n) for n in self._order]
         if kind == "PARAM_REQUEST_READ":

@@ -6,7 +6,10 @@ message goes only when the bucket holds a full frame (``MAX_WIRE``), and is then
 reports it actually wrote: the budget never packs a message itself (packing mutates the message object, and a
 second pack on another thread is how packets left corrupted), so the link's one send path packs each message
 exactly once. Over any window W the wire carries at most ``rate * W + capacity + one message`` bytes; with the
-default capacity (a tenth of a second, at least one frame) that is within 3% over 10 s. Queues are served strictly by priority; bulk sources (FTP bursts) are asked for a packet only when all
+default capacity (a tenth of a second, at least one frame) that is within 3% over 10 s. Queues are served by
+priority, except that answers to requests (CONTROL) may not starve captures, status and thumbnails: after
+``control_streak`` bytes of answers in a row while those wait, one of them goes first (requests from the surface
+can take at most about two thirds of the link). Bulk sources (FTP bursts) are asked for a packet only when all
 queues above them are empty and the budget allows, so a new burst never waits behind a stale one.
 """
 
@@ -54,7 +57,7 @@ class LinkBudget:
     """Priority queues drained by one thread within ``rate`` bytes per second (see the module docstring)."""
 
     def __init__(self, link: Link, rate: float = 2000.0, *, clock: Callable[[], float] = time.monotonic,
-                 capacity_s: float = 0.1, queue_limit: int = 4000) -> None:
+                 capacity_s: float = 0.1, queue_limit: int = 4000, control_streak: int = 2 * MAX_WIRE) -> None:
         self.link = link
         self._clock = clock
         self._capacity_s = capacity_s
@@ -71,6 +74,9 @@ class LinkBudget:
         self.sent_bytes = 0
         self.sent_by_priority = {p: 0 for p in Priority}
         self.dropped = 0
+        self.control_streak = control_streak
+        self._streak = 0
+        """CONTROL bytes sent in a row while STATUS or THUMBNAIL messages waited."""
         self._history: collections.deque[tuple[float, int]] = collections.deque()
 
     @property
@@ -173,7 +179,12 @@ class LinkBudget:
 
     def _send_one(self) -> float | None:
         """0.0 after sending one message; else the wait the budget needs, or None when nothing is pending."""
+        waiting = bool(self._queues[Priority.STATUS] or self._queues[Priority.THUMBNAIL])
+        if not waiting:
+            self._streak = 0
         for prio in Priority:
+            if prio == Priority.CONTROL and waiting and self._streak >= self.control_streak:
+                continue  # captures and status get their turn
             queue = self._queues[prio]
             if queue:
                 if self._level < MAX_WIRE:
@@ -200,6 +211,10 @@ class LinkBudget:
             self._level -= foreign
             self._note(self._clock(), foreign)
         self._level -= sent
+        if prio == Priority.CONTROL:
+            self._streak += sent
+        elif prio in (Priority.STATUS, Priority.THUMBNAIL):
+            self._streak = 0
         self.sent_bytes += sent
         self.sent_by_priority[prio] += sent
         self._note(self._clock(), sent)

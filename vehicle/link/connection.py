@@ -144,6 +144,10 @@ class MavLink:
         self.rx_slow = 0
         """Datagrams that held the loop longer than 50 ms (wall)."""
         self.last_autopilot_heartbeat: MAVLinkMessage | None = None
+        self._autopilot_signed = False
+        self.foreign_autopilot_heartbeats = 0
+        """Autopilot heartbeats from another system or component than the autopilot found first: ignored (the
+        identity is settled once; a stranger's HEARTBEAT must not move it)."""
         self._last_autopilot_seen: float | None = None
         self._conn: mavutil.mavfile | None = None
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
@@ -156,6 +160,7 @@ class MavLink:
         self._subs_lock = threading.Lock()
         self._subs: list[tuple[Callable[[MAVLinkMessage], None], frozenset[str] | None]] = []
         self._autopilot_cbs: list[Callable[[bool], None]] = []
+        self._refused_cbs: list[Callable[[MAVLinkMessage, str], None]] = []
         self._stop = threading.Event()
         self._opened = threading.Event()
         self._found = threading.Event()
@@ -222,6 +227,11 @@ class MavLink:
         """``callback(True)`` when the autopilot's heartbeat is found (again), ``callback(False)`` when lost."""
         self._autopilot_cbs.append(callback)
 
+    def on_refused(self, callback: Callable[[MAVLinkMessage, str], None]) -> None:
+        """``callback(msg, reason)`` on the receive thread for each message addressed to us that signing refused
+        (unsigned, bad signature, replayed, stale): a protocol that must answer every request (FTP) NAKs it."""
+        self._refused_cbs.append(callback)
+
     def send(self, msg: MAVLinkMessage) -> int:
         """Pack ``msg`` with our ids and sequence and write it; the wire bytes written (0: no peer yet).
 
@@ -248,6 +258,7 @@ class MavLink:
             "autopilot": self.autopilot, "autopilot_alive": self.autopilot_alive, "tx_bytes": self.tx_bytes,
             "tx_messages": self.tx_messages, "rx_bytes": self.rx_bytes, "rx_messages": self.rx_messages,
             "rx_bad": self.rx_bad, "rx_unknown": self.rx_unknown, "reconnects": self.reconnects,
+            "foreign_autopilot_heartbeats": self.foreign_autopilot_heartbeats,
             "signing": self.signing.stats(),
             "rx_longest_ms": round(self.rx_longest_s * 1000.0, 2),
             "rx_longest_cpu_ms": round(self.rx_longest_cpu_s * 1000.0, 2), "rx_slow": self.rx_slow,
@@ -471,7 +482,8 @@ class MavLink:
             self.rx_unknown += 1
             return
         self.rx_messages += 1
-        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id)):
+        handled = any(types is None or mtype in types for _, types in self._subs)  # something here acts on it
+        if not self.signing.admit(msg, self.send, (self.system_id, self.component_id), self._refused, handled):
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self._autopilot_heartbeat(msg)
@@ -483,23 +495,52 @@ class MavLink:
             except Exception:
                 log.exception("%s: subscriber %r failed on %s", self.name, callback, mtype)
 
-    def _autopilot_heartbeat(self, msg: MAVLinkMessage) -> None:
+    def _refused(self, msg: MAVLinkMessage, reason: str) -> None:
+        for callback in list(self._refused_cbs):
+            try:
+                callback(msg, reason)
+            except Exception:
+                log.exception("%s: refusal callback failed", self.name)
+
+    def _autopilot_heartbeat(self, msg: MAVLinkMessage) -> bool:
+        """Settle the autopilot (and, unless configured, our system id) once, from the first autopilot heartbeat;
+        with a key, a first one that was unsigned is provisional until a signed one arrives. False: a stranger's
+        heartbeat (subscribers still see it; telemetry takes only the autopilot's)."""
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if src[0] == 255:
-            return
-        self.autopilot = src
+            return False
+        signed = bool(getattr(msg, "_signed", False))
+        if self.autopilot is None or (src != self.autopilot and signed and not self._autopilot_signed):
+            self._adopt_autopilot(src, signed)
+        elif src != self.autopilot:
+            self.foreign_autopilot_heartbeats += 1
+            if self.foreign_autopilot_heartbeats == 1:
+                log.warning("%s: autopilot heartbeat from %d/%d ignored: the autopilot is %d/%d", self.name, *src,
+                            *self.autopilot)
+            return False
+        elif signed and not self._autopilot_signed:
+            self._autopilot_signed = True
         self.last_autopilot_heartbeat = msg
         self._last_autopilot_seen = self.clock()
-        if self._configured_system is None and self.system_id != src[0]:
-            log.info("%s: vehicle is system %d", self.name, src[0])
-            with self._send_lock:
-                self.system_id = src[0]
-                self._tx.srcSystem = src[0]
         if not self.autopilot_alive:
             self.autopilot_alive = True
             self._found.set()
             log.info("%s: autopilot %d/%d found", self.name, *src)
             self._notify(True)
+        return True
+
+    def _adopt_autopilot(self, src: tuple[int, int], signed: bool) -> None:
+        if self.autopilot is not None:
+            log.warning("%s: autopilot %d/%d signs: it replaces %d/%d, whose heartbeat was unsigned", self.name,
+                        *src, *self.autopilot)
+        self.autopilot = src
+        self._autopilot_signed = signed
+        self.signing.protect(src)
+        if self._configured_system is None and self.system_id != src[0]:
+            log.info("%s: vehicle is system %d", self.name, src[0])
+            with self._send_lock:
+                self.system_id = src[0]
+                self._tx.srcSystem = src[0]
 
     def _notify(self, alive: bool) -> None:
         for callback in list(self._autopilot_cbs):

@@ -118,8 +118,9 @@ def test_a_signed_companion_takes_the_queries_only_when_signed(tmp_path):
     surface.start()
     try:
         unsigned = _upload(port, "--query", "a crab", "--negative", "sand", "--timeout", "3")
-        assert unsigned.returncode == 1 and "no answer from the companion 1:100" in unsigned.stderr
-        assert changed == []  # an unsigned FTP write is ignored
+        # an unsigned FTP write is refused, and answered (a NAK, not silence: issue 24 item 4)
+        assert unsigned.returncode == 1 and "refused the queries" in unsigned.stderr
+        assert "file protected" in unsigned.stderr and changed == []
         signed = _upload(port, "--query", "a crab", "--negative", "sand", "--signing-key", str(key))
         assert signed.returncode == 0, signed.stderr
         assert "says: Queries set: a crab" in signed.stdout and changed[-1][0].positive == "a crab"

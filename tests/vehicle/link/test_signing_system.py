@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.live.udp_hub import UdpHub
 from tests.companion.live_harness import Companion, Listener, reap_companions, wait_until, write_config
-from vehicle.link.signing import LinkSigning, now_timestamp
+from vehicle.link.signing import LinkSigning, TimestampFile, now_timestamp
 from vehicle.protocol.ftp import FtpPacket, Op
 from vehicle.sim.vehicle import SimVehicle
 
@@ -160,7 +160,7 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     first.wait_for("autopilot heartbeat back")
     wait_until(lambda: len(listener.from_companion()) >= 10, 30, "ten messages from the companion")
     first.kill()  # no clean shutdown: the timestamps were reserved on disk before they were used
-    reserved = int((key_file.parent / "signing.key.comp100.timestamp").read_text())
+    reserved = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load()
     assert max(_stamp(m) for m in listener.from_companion()) < reserved  # on disk before any of them went out
     # a station that joins the hub now hears nothing of the first process: the hub forwards in arrival order,
     # and all the first process sent was queued before this heartbeat
@@ -173,3 +173,63 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     wait_until(lambda: newcomer.from_companion(), 60, "a message from the restarted companion")
     assert _stamp(newcomer.from_companion()[0]) >= reserved  # above every timestamp the first process used
     assert second.terminate() == 0, second.output
+
+
+def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(setup) -> None:
+    """Issue 24 item 5: the timestamps seen from others persist like our own (in the same state file)."""
+    key_file, hub, sim, store, cfg, stations = setup
+    good = Station(hub, 190, KEY)
+    stations.append(good)
+    good.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    first = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    first.wait_for("autopilot heartbeat back")
+    recorded = good.set_k(7)
+    first.wait_for(r"parameter MERL_K set to 7\b", 30)
+    good.set_k(8)
+    good.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MERL_K" and m.param_value == 8, 20,
+                  "MERL_K 8 saved and echoed")
+    first.kill()  # SIGKILL: no clean shutdown, nothing written on the way out
+    streams = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load_streams()
+    assert streams[(0, 255, 190)] >= _stamp(mav2.MAVLink(None).parse_buffer(recorded)[0])
+    second = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    second.wait_for("autopilot heartbeat back")
+    good.sock.sendto(recorded, good.hub)  # the recording, seconds after it was made: well inside a new stream's minute
+    wait_until(lambda: any(w.startswith("replayed PARAM_SET from 255/190") for w in good.warnings()), 30,
+               "the replay refused")
+    good.set_k(9)  # the real station goes on signing above what it sent before
+    second.wait_for(r"parameter MERL_K set to 9\b", 30)
+    assert "set to 7" not in second.output, second.output
+    assert second.terminate() == 0, second.output
+
+
+def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nobody_else(setup) -> None:
+    """Issue 24 item 8: the simulated ArduSub signs and drops everything unsigned; the companion has no key."""
+    key_file, hub, sim, store, cfg, stations = setup
+    companion = Companion("--config", str(cfg))
+    companion.wait_for("the autopilot signs its messages and this companion has no signing key", 30)
+    companion.wait_for("LOCAL_POSITION_NED never came: the autopilot signs, and this companion has no key", 60)
+    assert "no DVL or USBL" not in companion.output and "never sends" not in companion.output
+    assert companion.terminate() == 0, companion.output
+    assert "merlion run: the autopilot signs, and this companion has no key" in companion.output
+
+
+def test_manual_control_for_the_autopilot_is_never_refused_as_ours(setup) -> None:
+    key_file, hub, sim, store, cfg, stations = setup
+    companion = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    companion.wait_for("autopilot heartbeat back")
+    good, joystick = Station(hub, 190, KEY), Station(hub, 191, None)
+    stations += [good, joystick]
+    for s in stations:
+        s.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    for _ in range(20):  # an unsigned ground station's joystick, for the vehicle (target: system 1)
+        joystick.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
+        joystick.send(mav2.MAVLink_rc_channels_override_message(1, 1, *([1500] * 8)))
+    joystick.set_k(40)  # an unsigned write that *is* for the companion is still refused and reported
+
+    def ours() -> list[str]:  # the companion's warnings (the simulated autopilot reports what it refuses itself)
+        return [m.text for m in good.from_companion() if m.get_type() == "STATUSTEXT" and "ignored" in m.text]
+
+    wait_until(lambda: any("PARAM_SET from 255/191" in w for w in ours()), 30, "the PARAM_SET refusal")
+    assert companion.terminate() == 0, companion.output
+    assert not any("MANUAL_CONTROL" in w or "RC_CHANNELS" in w for w in ours()), ours()
+    assert "MANUAL_CONTROL" not in companion.output and "RC_CHANNELS_OVERRIDE" not in companion.output

@@ -1,0 +1,95 @@
+"""Issue 24 item 2 on real UDP: an unsigned stranger floods PARAM_REQUEST_LIST at 20/s beside a signed ground
+station, on the default 2000 B/s downlink. Captures, pushed thumbnails and status keep flowing during the flood, the
+signed station's reads are answered, and the flood is reported once."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+from companion.config import MavlinkConfig
+from tests.conftest import free_udp_port
+from tests.vehicle.surface_env import added
+from tests.vehicle.tether import KEY, PASSPHRASE, Peer, Repeater, gcs_heartbeat
+from tests.waiting import wait_until
+from vehicle.camera.downlink import Downlink
+from vehicle.camera.params import ParamSpec
+from vehicle.link.connection import MavLink
+from vehicle.settings import SurfaceConfig
+
+COMPANION = (1, 100)
+CAPTURES = 6
+PARAMS = [ParamSpec(f"MERL_P{i}", float(i), 0, 100) for i in range(6)]
+
+
+@pytest.fixture
+def downlink(tmp_path):
+    key_file = tmp_path / "signing.key"
+    key_file.write_text(PASSPHRASE + "\n")
+    port = free_udp_port()
+    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100,
+                                                            signing_key_file=str(key_file)))
+    link.start()
+    assert link.wait_open(5)
+    surface = Downlink(link, SurfaceConfig(status_hz=1), params=PARAMS)  # the default budget: 2000 B/s
+    peers: list[Peer] = []
+    floods: list[Repeater] = []
+    yield port, surface, peers, floods
+    for f in floods:
+        f.stop()
+    surface.stop()
+    link.stop()
+    for p in peers:
+        p.close()
+
+
+def test_a_parameter_list_flood_starves_nothing_and_is_reported_once(downlink):
+    port, surface, peers, floods = downlink
+    gcs, stranger = Peer(port, 255, 190, KEY), Peer(port, 255, 191)
+    peers += [gcs, stranger]
+    for p in (gcs, stranger):
+        p.send(gcs_heartbeat())
+    surface.start()
+    assert wait_until(lambda: gcs.got("STATUSTEXT", COMPANION), 10)  # "started"
+    flood = Repeater(stranger, lambda: [mav2.MAVLink_param_request_list_message(*COMPANION)], 20)
+    floods.append(flood)
+    assert wait_until(lambda: len(stranger.got("PARAM_VALUE", COMPANION)) >= 6, 10)  # the flood is being served
+    answered = 0
+    for i in range(CAPTURES):
+        surface.publish(added(i + 1, list(range(1, i + 2))))
+        value = 50.0 + i  # a signed PARAM_SET: its PARAM_VALUE (broadcast, like the flood's) carries this value
+        gcs.send(mav2.MAVLink_param_set_message(*COMPANION, b"MERL_P0", value, mav2.MAV_PARAM_TYPE_REAL32))
+        answered += wait_until(lambda v=value: gcs.got("PARAM_VALUE", COMPANION, lambda m: m.param_value == v), 5)
+    wait_until(lambda: len(gcs.got("CAMERA_IMAGE_CAPTURED", COMPANION)) == CAPTURES, 30)
+    wait_until(lambda: len(gcs.got("DATA_TRANSMISSION_HANDSHAKE", COMPANION)) == CAPTURES, 30)
+    captures = len(gcs.got("CAMERA_IMAGE_CAPTURED", COMPANION))  # all while the flood still runs
+    pushed = len(gcs.got("DATA_TRANSMISSION_HANDSHAKE", COMPANION))
+    flooding = flood.sent
+    flood.stop()
+    print(f"\nduring a {flooding / 20:.0f} s PARAM_REQUEST_LIST flood at 20/s: {captures}/{CAPTURES} captures, "
+          f"{pushed}/{CAPTURES} thumbnails, {answered}/{CAPTURES} signed reads answered; "
+          f"stranger got {len(stranger.got('PARAM_VALUE', COMPANION))} PARAM_VALUEs for {flooding} requests")
+    assert (captures, pushed, answered) == (CAPTURES, CAPTURES, CAPTURES)
+    texts = [m.text for m in gcs.got("STATUSTEXT", COMPANION)]
+    assert sum("Request flood from 255/191" in t for t in texts) == 1, texts
+    assert sum(t.startswith("Summary +#") for t in texts) == CAPTURES
+    assert surface.requests.stats()["255/191 unsigned"] > 0
+
+
+def test_signed_answers_go_before_a_strangers(downlink):
+    port, surface, peers, floods = downlink
+    gcs, stranger = Peer(port, 255, 190, KEY), Peer(port, 255, 191)
+    peers += [gcs, stranger]
+    for p in (gcs, stranger):
+        p.send(gcs_heartbeat())
+    surface.start()
+    assert wait_until(lambda: gcs.got("STATUSTEXT", COMPANION), 10)
+    for i in range(15):  # fifteen distinct unsigned reads queue ahead...
+        stranger.send(mav2.MAVLink_param_request_read_message(*COMPANION, b"", i % 6))
+    time.sleep(0.2)  # let them reach the queue first (ordering, not speed, is what is checked)
+    gcs.send(mav2.MAVLink_param_set_message(*COMPANION, b"MERL_P1", 77.0, mav2.MAV_PARAM_TYPE_REAL32))
+    assert wait_until(lambda: len(gcs.got("PARAM_VALUE", COMPANION)) >= 16, 20)
+    order = [m.param_value for m in gcs.got("PARAM_VALUE", COMPANION)]
+    assert order.index(77.0) < 15, order  # ...and the signed answer still goes ahead of them
