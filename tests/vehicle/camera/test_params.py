@@ -8,7 +8,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import Config, SurfaceConfig
-from companion.live.tunables import default_params
+from companion.live.control.params import default_params
 from companion.storage.params_file import FILE_VERSION, ParamsFile
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import companion_link, ground_station, wait_for
