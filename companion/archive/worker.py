@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from companion.atomic_write import atomic_write
 from companion.config import Config
-from companion.storage.atomic_write import atomic_write
 from companion.vision.encoders.base import Encoder
 from companion.vision.pipeline import FrameResult
 

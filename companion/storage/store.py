@@ -31,8 +31,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from companion.atomic_write import TMP_PREFIX, atomic_write
 from companion.config import StoreConfig
-from companion.storage.atomic_write import TMP_PREFIX, atomic_write
 from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
 from vehicle.autopilot.pose import Pose

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.storage.atomic_write import atomic_write
+from companion.atomic_write import atomic_write
 
 log = logging.getLogger(__name__)
 

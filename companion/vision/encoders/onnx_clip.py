@@ -20,11 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.atomic_write import atomic_write
 from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.clip_cache import ClipCache, cache_root
-from companion.vision.encoders.clip_child import run_clip_child
+from companion.vision.encoders.clip_child_runner import run_clip_child
 from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings, resolved_request
@@ -124,8 +125,6 @@ class OnnxClipEncoder(Encoder):
                              f"find the weights of {cfg.pretrained} and export the image tower")
         record = _resolution_record(self._root, cfg.model, cfg.pretrained)
         record.parent.mkdir(parents=True, exist_ok=True)
-        from companion.storage.atomic_write import atomic_write
-
         atomic_write(record, json.dumps({"weights": answer["weights"], "source": answer["source"],
                                          "preprocess": answer["preprocess"]}))
         return ResolvedWeights(path=Path(answer["weights"]), source=answer["source"],
