@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from companion.bench.param_bench import run_param_bench
-from companion.commands.arg_checks import require_positive
-
 
 def register(add_command) -> None:
     p = add_command("params", "PARAM_SET to PARAM_VALUE round trip at a ground station while the live companion "
@@ -21,6 +18,9 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.bench.param_bench import run_param_bench  # the live companion: see commands/__init__.py
+    from companion.commands.arg_checks import require_positive
+
     require_positive("--count", args.count)
     require_positive("--fps", args.fps)
     result = run_param_bench(args.count, encoder=args.encoder, fps=args.fps)

@@ -38,6 +38,7 @@ from companion.sources.frame import Frame
 from companion.vision import distances as dist
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
+from companion.vision.enhancers.factory import make_enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.gate import FrameGate
 from companion.vision.presampler import PreSampler
@@ -158,8 +159,6 @@ class Pipeline:
                   for t in cfg.queries.topic_list()]
         enhancer = None
         if cfg.enhance.mode != "none":
-            from companion.vision.enhancers.factory import make_enhancer
-
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
         gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
         return cls(encoder, topics, default_tau_ss=cfg.queries.tau_ss, default_topic=cfg.queries.name,

@@ -11,6 +11,7 @@ cut short leaves no tower that looks complete.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 import os
@@ -100,8 +101,6 @@ class ClipCache:
     def put_text(self, text: str, embedding: np.ndarray) -> bool:
         """Keep one embedding for later starts; False (logged) when the cache cannot be written: the embedding
         still serves this run, which gets it from the child's answer."""
-        import io
-
         try:
             self.text_dir.mkdir(parents=True, exist_ok=True)
             buf = io.BytesIO()
