@@ -385,10 +385,6 @@ class FtpServer:
 
     # ---- bursts ---------------------------------------------------------------------------------------------
 
-    def has_burst(self) -> bool:
-        with self._lock:
-            return any(s.burst_offset is not None for s in self._sessions.values())
-
     def next_burst(self) -> tuple[Requester, bytes] | None:
         """The next bulk packet of the oldest running burst, or None when no burst is running."""
         with self._lock:
@@ -406,7 +402,3 @@ class FtpServer:
                 sess.burst_offset = None if last else nxt
                 return sess.requester, pkt.pack()
         return None
-
-    def close_all(self) -> None:
-        with self._lock:
-            self._sessions.clear()
