@@ -100,7 +100,10 @@ class StageClock:
             self.items[name] = self.items.get(name, 0) + items
 
     def ms_per_item(self) -> dict[str, float]:
-        return {k: 1000.0 * self.seconds[k] / max(1, self.items.get(k, 0)) for k in self.seconds}
+        # copies first: the inference thread may add a stage while the status thread asks (dict.copy runs in C,
+        # without letting another thread in; iterating the live dict could raise "changed size during iteration")
+        seconds, items = self.seconds.copy(), self.items.copy()
+        return {k: 1000.0 * v / max(1, items.get(k, 0)) for k, v in seconds.items()}
 
 
 def downscale_for(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:

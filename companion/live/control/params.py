@@ -40,7 +40,12 @@ class Tunable:
     """Refuses a value (ValueError) before anything changes."""
 
     def spec(self, cfg: Config) -> ParamSpec:
-        return ParamSpec(self.name, self.start(cfg), self.minimum, self.maximum, integer=self.integer, doc=self.doc)
+        """The parameter as served; its range widened to take in the configured value (the configuration may allow
+        what the usual range does not, e.g. tau_ss 0.995 or a 2 MB/s link), so the value in force is never one a
+        ground station could not set back."""
+        value = float(self.start(cfg))
+        return ParamSpec(self.name, value, min(self.minimum, value), max(self.maximum, value), integer=self.integer,
+                         doc=self.doc)
 
 
 def gate_param(mode: str, threshold: float) -> float:
