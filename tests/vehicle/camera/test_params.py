@@ -8,7 +8,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import Config, SurfaceConfig
-from companion.live.control.params import default_params
+from companion.live.control.params import TUNABLES, default_params
 from companion.storage.params_file import FILE_VERSION, ParamsFile
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import companion_link, ground_station, wait_for
@@ -39,10 +39,10 @@ def test_list_read_set_and_restart(tmp_path):
     gcs = ground_station(port)
     try:
         gcs.mav.param_request_list_send(1, 100)
-        listed = _values(gcs, 7)
-        assert set(listed) == {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B", "MERL_LINK_BPS",
-                               "MERL_GATE", "MERL_ENHANCE"}
-        assert all(len(name) <= 16 and m.param_count == 7 for name, m in listed.items())
+        listed = _values(gcs, len(TUNABLES))
+        assert set(listed) == {t.name for t in TUNABLES} >= {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B",
+                                                              "MERL_LINK_BPS", "MERL_GATE", "MERL_ENHANCE"}
+        assert all(len(name) <= 16 and m.param_count == len(TUNABLES) for name, m in listed.items())
         assert listed["MERL_GATE"].param_value == pytest.approx(cfg.gate.threshold)
         assert listed["MERL_K"].param_value == 6 and listed["MERL_K"].param_type == mav.MAV_PARAM_TYPE_INT32
         assert listed["MERL_TAU_SS"].param_value == pytest.approx(0.5)
