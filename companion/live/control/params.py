@@ -81,6 +81,10 @@ def _gate(ctx: ControlContext, value: float) -> None:
     gate.threshold = max(0.0, float(value))
 
 
+def _gate_gap(ctx: ControlContext, value: float) -> None:
+    ctx.frame_gate.max_gap_s = float(value)
+
+
 def _enhance(ctx: ControlContext, value: float) -> None:
     if ctx.selective is not None:
         ctx.selective.on = bool(value)
@@ -119,6 +123,8 @@ TUNABLES: tuple[Tunable, ...] = (
             integer=True, doc="link budget, bytes/s"),
     Tunable("MERL_GATE", 0.0, 255.0, lambda c: gate_param(c.gate.mode, c.gate.threshold), _gate, "summary",
             doc="frame gate: 0 off, else the grey-level difference that gets a frame encoded"),
+    Tunable("MERL_GATE_GAP", 0.1, 600.0, lambda c: c.gate.max_gap_s, _gate_gap, "summary",
+            doc="frame gate: seconds after the last encoded frame when a frame is encoded whatever it shows"),
     Tunable("MERL_ENHANCE", 0, 1, lambda c: 0 if c.enhance.mode == "none" else 1, _enhance, "summary",
             integer=True, doc="enhancer off (0) or on (1)", check=_check_enhance),
 )
