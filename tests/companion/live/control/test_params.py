@@ -1,4 +1,4 @@
-"""The MERL_* table: every configured value lies inside its own parameter's range (docs/code-review.md, round 2)."""
+"""The MERL_* table: every configured value lies inside its own parameter's range (an item of docs/code-review.md)."""
 
 from __future__ import annotations
 
