@@ -14,7 +14,6 @@ Shutdown runs the other way round; the store is always consistent on disk, so a 
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -30,6 +29,7 @@ from companion.live.control.marks import MarksHandler
 from companion.live.control.notices import autopilot_notice, source_notice
 from companion.live.control.params import ParamHandler, default_params
 from companion.live.control.queries import QueriesHandler, follow_saved_queries
+from companion.live.control.summary_file import keeper_document, serve_keeper_document
 from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
@@ -60,8 +60,6 @@ from vehicle.link.connection import MavLink
 log = logging.getLogger(__name__)
 
 LIVE_PREFIXES = ("/dev/video", "/dev/v4l/", "v4l2://", "rtsp://", "rtsps://", "udp://")
-KEEPER_PATH = "/store/summary.json"
-"""The summary the keeper holds, with its recent history, over FTP (audits; see SummaryKeeper.document)."""
 CAPTURE_QUEUE = 4
 """Frames waiting for inference; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
 
@@ -225,7 +223,7 @@ class LiveCompanion:
         self.surface.on_queries_changed(self.on_queries)
         self.surface.on_marks_changed(self.on_marks)
         self.surface.set_marks(self.marks.like, self.marks.unlike)
-        self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper_document()).encode())
+        serve_keeper_document(self.control, self.on_marks)
         self.link.on_autopilot(lambda alive: autopilot_notice(self.control, alive))
         self.link.start()
         self.telemetry.start()
@@ -290,21 +288,8 @@ class LiveCompanion:
         return f"{summary}/{k}"
 
     def keeper_document(self) -> dict[str, Any]:
-        """/store/summary.json: the keeper's summary and history, each frame's topic, and what the encoder did,
-        all read under the keeper's lock (so the counts belong to the same moment as the summary).
-
-        ``encoder.images`` counts what the encoder itself was given; ``scored`` the images whose scores were
-        computed (each frame once, and with enhance.mode selective each enhanced version once more) and
-        ``marks`` the marked frames embedded. ``images == scored + marks`` however many topics are followed: one
-        encoder pass serves them all.
-        """
-        with self.keeper.lock:
-            doc = self.keeper.document()
-            doc["topics"] = {t.name: [f.image_index for f in t.summary] for t in self.pipeline.topics}
-            scored = self.pipeline.counts["encoded"] + (self.selective.scored if self.selective is not None else 0)
-            doc["encoder"] = {"images": self.encoder.images, "calls": self.encoder.calls, "scored": scored,
-                              "marks": self.on_marks.images if self.on_marks is not None else 0}
-        return doc
+        """/store/summary.json (companion.live.control.summary_file)."""
+        return keeper_document(self.control, self.on_marks)
 
     def report(self) -> dict[str, Any]:
         """Numbers for the demo report, the soak bench and logs."""
