@@ -1,7 +1,8 @@
 """The one writer of the summary and its store: every change goes through here, in order.
 
 Three threads change what the companion keeps: the inference loop (new frames and the trims they cause), the
-enhancer worker (enhanced frames) and the surface link (K, tau_ss, queries, enhancement on or off). Applying the
+enhancer worker (enhanced frames) and the keeper's own thread (what the surface asks: K, tau_ss, queries, marks,
+enhancement on or off). Applying the
 sampler's events to the store outside the lock that guarded the sampler let two threads interleave: a stale
 event's summary list could overwrite a newer one, leaving "ghost" frames on disk that the sampler no longer held,
 or missing ones it did. The keeper owns the pipeline's summary and the store together: a caller hands it a
