@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -97,3 +98,23 @@ def test_refusals_and_bad_saved_values():
     assert server.set("MERL_K", 8) and saved == [{"MERL_K": 8}]
     with pytest.raises(ValueError, match="longer than 16"):
         ParamServer([ParamSpec("MERL_THIS_IS_TOO_LONG", 1, 0, 2)], system_id=lambda: 1, component_id=100)
+
+
+def test_a_callback_runs_outside_the_servers_lock():
+    """A callback that waits on another thread which saves a parameter (as the companion's waits on its summary
+    keeper) must not hold the server's lock: the other save finishes while the callback waits."""
+    saved: list[dict] = []
+    server = ParamServer([ParamSpec("MERL_K", 6, 1, 10, integer=True), ParamSpec("MERL_GATE", 8.0, 0.0, 255.0)],
+                         system_id=lambda: 1, component_id=100, persist=saved.append)
+    other_done = threading.Event()
+
+    def waits_on_another_thread(name, value):
+        if name == "MERL_K":
+            other = threading.Thread(target=lambda: server.set("MERL_GATE", 4.0) and other_done.set())
+            other.start()
+            other.join(10)
+
+    server.on_change(waits_on_another_thread)
+    assert server.set("MERL_K", 7)
+    assert other_done.is_set(), "the other save waited for the callback: it ran under the server's lock"
+    assert server.values() == {"MERL_K": 7, "MERL_GATE": 4.0} and saved[-1] == {"MERL_K": 7, "MERL_GATE": 4.0}
