@@ -303,7 +303,3 @@ def load_config(
     if overrides:
         data = _merge(data, overrides)
     return build_config(data, origin=origin)
-
-
-def config_to_yaml(config: Config) -> str:
-    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

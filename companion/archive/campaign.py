@@ -19,9 +19,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tqdm import tqdm
+
 from companion.archive.dives import find_sources, make_dives
 from companion.archive.log_match import LogMatch, find_logs, match_logs, read_mapping
 from companion.archive.manifest import Manifest, dive_key
+from companion.archive.report import write_campaign_report
 from companion.archive.worker import DiveJob, summarize_dive
 from companion.config import Config
 from companion.errors import MerlionError
@@ -84,7 +87,7 @@ class FrameCounter:
 
 def _start_ray(opts: ArchiveOptions):
     try:
-        import ray
+        import ray  # 1.0 s (measured): only with --workers on ray
     except ImportError:
         raise MerlionError('merlion archive needs Ray: pip install "merlion-companion[archive]"') from None
     if opts.address:
@@ -109,8 +112,6 @@ def _check_resources(ray, opts: ArchiveOptions) -> None:
 
 
 def _bars(total_dives: int, total_frames: int, enabled: bool | None):
-    from tqdm import tqdm
-
     show = sys.stderr.isatty() if enabled is None else enabled
     videos = tqdm(total=total_dives, unit="video", desc="archive", disable=not show, file=sys.stderr, position=0)
     frames = tqdm(total=total_frames or None, unit="frame", desc="frames", disable=not show, file=sys.stderr,
@@ -145,8 +146,6 @@ def run_archive(cfg: Config, opts: ArchiveOptions) -> ArchiveRun:
     if todo:
         _run_tasks(cfg, opts, out_dir, manifest, todo, result)
     if opts.report:
-        from companion.archive.report import write_campaign_report
-
         names = [m.dive.name for m, _ in planned if m.dive.name in manifest.finished]
         result.report = write_campaign_report(out_dir, names)
     return result

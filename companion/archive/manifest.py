@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from companion.atomic_write import atomic_write
 from companion.config import Config
 from companion.errors import MerlionError
-from companion.storage.atomic_write import atomic_write
 
 VERSION = 1
 NAME = "manifest.json"

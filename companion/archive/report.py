@@ -15,8 +15,8 @@ import json
 from datetime import datetime, timezone
 from pathlib import Path
 
+from companion.atomic_write import atomic_write
 from companion.evaluation.plots import plot_depth, plot_scores
-from companion.storage.atomic_write import atomic_write
 
 INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
                 "file", "query")

@@ -97,12 +97,6 @@ def measure_speed(enhancer: Enhancer, frames: Sequence[np.ndarray], size: tuple[
             return n / elapsed, (time.process_time() - cpu_start) * 1000.0 / n
 
 
-def measure_fps(enhancer: Enhancer, frames: Sequence[np.ndarray], size: tuple[int, int], *,
-                seconds: float = 3.0, min_frames: int = 5) -> float:
-    """Frames per second of ``enhancer.enhance`` at ``size`` (see measure_speed)."""
-    return measure_speed(enhancer, frames, size, seconds=seconds, min_frames=min_frames)[0]
-
-
 def read_pairs(folder: str | Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """EUVP-style pairs: ``A/<name>`` degraded, ``GTr_A/<name>`` its reference (matched by file name)."""
     root = Path(folder)

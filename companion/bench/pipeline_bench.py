@@ -33,12 +33,14 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import psutil
 from tqdm import tqdm
 
 from companion.config import Config
 from companion.sources.factory import open_source
 from companion.sources.frame_feed import FrameFeed
 from companion.vision.encoders.base import Encoder
+from companion.vision.encoders.factory import make_encoder
 from companion.vision.encoders.peak_rss import peak_rss_mb
 from companion.vision.pipeline import Pipeline
 from companion.vision.presampler import PreSampler
@@ -154,8 +156,6 @@ def _round(value: float | None, digits: int) -> float | None:
 
 
 def rss_now_mb() -> float:
-    import psutil
-
     return psutil.Process().memory_info().rss / (1024.0 * 1024.0)
 
 
@@ -184,8 +184,6 @@ def _fp32_twin(cfg: Config, encoder: Encoder) -> Encoder:
     described = encoder.describe()
     if described.get("precision", "fp32") == "fp32" and described.get("runtime", "torch") == "torch":
         return encoder
-    from companion.vision.encoders.factory import make_encoder
-
     return make_encoder(cfg.encoder.model_copy(update={"precision": "fp32", "runtime": "torch", "batch": 1}))
 
 
@@ -244,8 +242,6 @@ def bench_pipeline(cfg: Config, *, frames: int = 256, encoder: Encoder | None = 
     ``paper_frames=0`` skips the paper-loop baseline; ``progress`` draws bars on stderr (for a terminal).
     """
     if encoder is None:
-        from companion.vision.encoders.factory import make_encoder
-
         encoder = make_encoder(cfg.encoder)
     load_peak = peak_rss_mb()
     batch = cfg.encoder.batch

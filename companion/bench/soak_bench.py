@@ -33,6 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.config import build_config
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
+from vehicle.sim.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
 
@@ -117,8 +118,6 @@ def encoder_rate(companion: LiveCompanion) -> float:
 
 def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_dir: str | None = None,
              progress=None, gate: str | None = None) -> SoakResult:
-    from vehicle.sim.vehicle import SimVehicle
-
     duration = minutes * 60.0
     warmup = 60.0 if duration > 90.0 else duration / 4
     surface = _Surface()

@@ -9,6 +9,7 @@ client) downloads the same thumbnails from the FTP server, push switched off.
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -16,12 +17,14 @@ from pathlib import Path
 
 import numpy as np
 from pymavlink import mavftp, mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import MavlinkConfig, SourceConfig, SurfaceConfig
 from companion.sources.factory import open_source
 from companion.vision.events import SummaryEvent, SummaryFrame
 from vehicle.autopilot.pose import Pose
 from vehicle.camera.downlink import Downlink
+from vehicle.camera.status import push_marker
 from vehicle.link.connection import MavLink
 from vehicle.protocol.image_push import CHUNK, ImageReceiver
 
@@ -43,10 +46,6 @@ def push_floor(sizes: list[int]) -> float:
     """The best efficiency the push protocol allows for thumbnails of these sizes: per image one MRL_PUSH marker
     and one handshake as packed on the wire, full chunks of 267 bytes and a last chunk cut after its data (MAVLink
     2 drops trailing zero bytes; a JPEG ends in 0xD9). The gap from ``LIMIT`` is per-image overhead, not waste."""
-    from pymavlink.dialects.v20 import ardupilotmega as mav
-
-    from vehicle.camera.status import push_marker
-
     packer = mav.MAVLink(None, srcSystem=1, srcComponent=100)
     wire = 0
     for size in sizes:
@@ -59,8 +58,6 @@ def push_floor(sizes: list[int]) -> float:
 
 
 def _free_port() -> int:
-    import socket
-
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]

@@ -30,8 +30,10 @@ def register(add_command) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
+    from companion.commands.arg_checks import require_positive
     from companion.live.demo import DemoOptions, main
 
+    require_positive("--duration", args.duration)
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,

@@ -307,8 +307,7 @@ def _labelled_items(paths: list[str], labels: dict[str, bool], labels_path: str)
     """(images, positive, names) in name order (images) or frame order (one video); every item needs a label."""
     import cv2
 
-    from companion.sources.folder import IMAGE_SUFFIXES
-    from companion.vision.score_images import collect_images
+    from companion.sources.folder import IMAGE_SUFFIXES, collect_images
 
     one = Path(paths[0])
     if len(paths) == 1 and one.is_file() and one.suffix.lower() not in IMAGE_SUFFIXES:

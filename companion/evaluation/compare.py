@@ -29,6 +29,7 @@ from companion.evaluation.runs import run_from_summary
 from companion.evaluation.srum import SrumParams
 from companion.evaluation.srum import score as srum_score
 from companion.vision.encoders.base import Encoder
+from companion.vision.summarize import summarize
 
 MERLION = "MERLION"
 UNGATED = "MERLION ungated"
@@ -83,8 +84,6 @@ def compare(
     if cfg.gate.mode != "none":
         plans.append((UNGATED, _with(base, gate={"mode": "none"})))
     plans.append((BASELINE, _with(base, encoder={"name": "visual"})))
-    from companion.vision.summarize import summarize
-
     result: dict = {"video": str(video), "labels": str(labels), "query": query, "k": cfg.sampler.k,
                     "fps": cfg.source.fps, "runs": {}}
     report_runs = []

@@ -14,7 +14,6 @@ Shutdown runs the other way round; the store is always consistent on disk, so a 
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -23,30 +22,46 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from companion import __version__
-from companion.config import Config, ConfigError, build_config
+from companion.config import Config, build_config
+from companion.live.control.context import ControlContext
+from companion.live.control.marks import MarksHandler
+from companion.live.control.notices import autopilot_notice, source_notice
+from companion.live.control.params import ParamHandler, default_params
+from companion.live.control.queries import QueriesHandler, follow_saved_queries
+from companion.live.control.summary_file import keeper_document, serve_keeper_document
+from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
 from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
 from companion.live.notify import Notifier
-from companion.live.query_answer import refusal_line, resolution_lines
 from companion.live.queues import DropOldestQueue
 from companion.live.quiet_notice import QuietNotice
+from companion.live.raw_gate import RawGate
 from companion.live.summary_keeper import SummaryKeeper
+from companion.live.watchdog import Watchdog
+from companion.sources.factory import open_source
 from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
-from companion.storage.queries_file import QueriesFile, SavedQueries, topic_dicts
-from companion.storage.store import Store
+from companion.storage.queries_file import QueriesFile
+from companion.storage.store import ResumeState, Store
+from companion.vision.encoders.counted import CountedEncoder
+from companion.vision.encoders.factory import make_encoder
+from companion.vision.enhancers.factory import make_enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
+from companion.vision.gate import FrameGate
+from companion.vision.pipeline import Pipeline
+from companion.vision.topics import TopicSpec
+from vehicle.autopilot.telemetry import VehicleTelemetry
+from vehicle.camera import status as st
+from vehicle.camera.downlink import Downlink
+from vehicle.link.budget import Priority
+from vehicle.link.connection import MavLink
 
 log = logging.getLogger(__name__)
 
 LIVE_PREFIXES = ("/dev/video", "/dev/v4l/", "v4l2://", "rtsp://", "rtsps://", "udp://")
-KEEPER_PATH = "/store/summary.json"
-"""The summary the keeper holds, with its recent history, over FTP (audits; see SummaryKeeper.document)."""
 CAPTURE_QUEUE = 4
 """Frames waiting for inference; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
 
@@ -66,6 +81,8 @@ class LiveOptions:
 
 
 class LiveCompanion:
+    """Wiring and start/stop order; what the surface asks is handled in ``companion.live.control``."""
+
     def __init__(self, cfg: Config, options: LiveOptions | None = None) -> None:
         self.cfg = cfg
         self.options = options or LiveOptions()
@@ -78,68 +95,63 @@ class LiveCompanion:
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
-        self._configured: list[dict[str, Any]] = []
-        self.marks = SavedMarks()
-        """The operator's marks in force (image indices), and the queries they were given under."""
-        self.mark_images = 0
-        """Marked frames the encoder embedded (beside the frames it scored)."""
-        self.pipeline = None
-        self.encoder = None
-        self._quiet: QuietNotice | None = None
-        self.link = None
-        self.telemetry = None
-        self.surface = None
+        self.pipeline: Pipeline | None = None
+        self.encoder: CountedEncoder | None = None
+        self.control: ControlContext | None = None
+        self.on_param: ParamHandler | None = None
+        self.on_queries: QueriesHandler | None = None
+        self.on_marks: MarksHandler | None = None
+        self.link: MavLink | None = None
+        self.telemetry: VehicleTelemetry | None = None
+        self.surface: Downlink | None = None
+        self._quiet = QuietNotice(cfg.queries.below_threshold_after_s)
         self.source: RetryingSource | None = None
         self.capture: CaptureLoop | None = None
         self.inference: InferenceLoop | None = None
-        self.selective = None
-        self.enhance_worker = None
-        self._monitor: threading.Thread | None = None
-        self._last_ping = 0.0
-        self.watchdog_pings = 0
-        self.watchdog_withheld = 0
-        self._stuck: list[str] = []
+        self.selective: SelectiveStage | None = None
+        self.enhance_worker: EnhanceWorker | None = None
+        self.watchdog = Watchdog(self.health, self.notifier, self.stop_event, self._update_status)
+
+    @property
+    def marks(self) -> SavedMarks:
+        """The operator's marks in force (image indices), and the queries they were given under."""
+        return self.on_marks.marks if self.on_marks is not None else SavedMarks()
 
     # ---- start-up -----------------------------------------------------------------------------------------------
     def start(self) -> None:
-        cfg = self.cfg
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
-        self.store = Store(cfg.store)
-        self._follow_saved_queries()
+        self.store = Store(self.cfg.store)
+        queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__)
+        self.cfg, configured = follow_saved_queries(self.cfg, queries_file)
         cfg = self.cfg
-        saved_marks = self._marks_file().load()
+        marks_file = MarksFile(self.store.dir / "marks.json", version=__version__)
+        saved_marks = marks_file.load()
         resume = self.store.resume_state()
         if resume.frames:
             log.info("resuming with %d summary frame(s); next image index %d", len(resume.frames),
                      resume.next_image_index)
         self._build_pipeline(resume)
-        self._restore_marks(saved_marks)
+        self.keeper.start()  # from here on, what the surface asks is applied by the keeper's thread
+        ctx = self.control = ControlContext(cfg, self.pipeline, self.keeper, self.encoder, self.store,
+                                            self.selective)
+        self.on_marks = MarksHandler(ctx, marks_file)
+        self.on_queries = QueriesHandler(ctx, queries_file, configured, self.on_marks)
+        self.on_param = ParamHandler(ctx)
+        self.on_marks.restore(saved_marks)
         self._start_vehicle(resume.next_image_index)
         self._start_loops()
-        self._monitor = threading.Thread(target=self._monitor_loop, name="health", daemon=True)
-        self._monitor.start()
+        self.watchdog.start()
         self.notifier.ready(self.status_line())
         log.info("companion running: source %s, encoder %s, mavlink %s, store %s", cfg.source.uri,
                  getattr(self.encoder, "name", "?"), cfg.mavlink.connection, self.store.dir)
 
-    def _build_pipeline(self, resume) -> None:
-        from companion.vision.pipeline import Pipeline
-
-        factory = self.options.make_encoder
-        if factory is None:
-            from companion.vision.encoders.factory import make_encoder as factory
-        from companion.vision.encoders.counted import CountedEncoder
-
+    def _build_pipeline(self, resume: ResumeState) -> None:
+        factory = self.options.make_encoder or make_encoder
         self.encoder = CountedEncoder(factory(self.cfg.encoder))  # counted: one pass serves every topic
         cfg = self.cfg
         if cfg.enhance.mode == "selective":
             # the pipeline samples enhanced frames behind a tau_ses gate; tau_ss is applied before the worker
-            from companion.live.enhance_worker import SelectiveStage
-            from companion.live.raw_gate import RawGate
-            from companion.vision.enhancers.factory import make_enhancer
-            from companion.vision.topics import TopicSpec
-
             data = cfg.model_dump()
             data["enhance"]["mode"] = "none"
             data["queries"]["tau_ss"] = cfg.enhance.tau_ses
@@ -152,8 +164,6 @@ class LiveCompanion:
             raw = RawGate(self.encoder, [TopicSpec.from_config(t) for t in cfg.queries.topic_list()],
                           cfg.queries.tau_ss)
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
-            from companion.vision.gate import FrameGate
-
             gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)  # ahead of the raw scoring
             self.selective = SelectiveStage(self.pipeline, raw, enhancer, queue_size=cfg.enhance.queue,
                                             lock=self.keeper.lock, gate=gate)
@@ -175,32 +185,6 @@ class LiveCompanion:
                 log.warning("frames of topic(s) %s left the summary: not in the queries in force",
                             ", ".join(dropped))
 
-    def _queries_file(self) -> QueriesFile:
-        return QueriesFile(self.store.dir / "queries.json", version=__version__)
-
-    def _follow_saved_queries(self) -> None:
-        """Take up the topics the surface uploaded before a restart, unless the configuration changed since."""
-        self._configured = topic_dicts(self.cfg.queries.topic_list())
-        """The configured topics, as the saved upload records them (never the uploaded ones)."""
-        path = self._queries_file().path
-        saved = self._queries_file().load()
-        if saved is None:
-            return
-        if saved.configured != self._configured:
-            log.warning("%s: the configuration's topics changed since that upload: following the configuration",
-                        path)
-            return
-        own_tau = {t.name: t.tau_ss for t in self.cfg.queries.topic_list()}
-        data = self.cfg.model_dump()
-        data["queries"]["topics"] = [{**t, "tau_ss": own_tau.get(t["name"])} for t in saved.topics]
-        try:
-            self.cfg = build_config(data, origin=str(path))
-        except ConfigError as err:
-            log.warning("saved queries not followed: %s", err)
-            return
-        log.info("following the topics uploaded before the restart (%s): %s", path,
-                 ", ".join(t["name"] for t in saved.topics))
-
     def _make_keeper(self) -> SummaryKeeper:
         def tags(frame: SummaryFrame) -> dict[str, Any]:
             topic = next((t for t in self.pipeline.topics if t.name == frame.topic), self.pipeline.topics[0])
@@ -217,81 +201,60 @@ class LiveCompanion:
 
     def _tell_quiet(self, event: SummaryEvent) -> None:
         """A topic's first stand-in (nothing passed for a while): say so once, as a warning the page shows."""
-        if self._quiet is None:
-            self._quiet = QuietNotice(self.cfg.queries.below_threshold_after_s)
         line = self._quiet.line_for(event)
         if line is not None:
-            from vehicle.camera import status as st
-
             self.surface.event(line, st.WARNING)
 
     def _params_file(self) -> ParamsFile:
         return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)
-
-    def _marks_file(self) -> MarksFile:
-        return MarksFile(self.store.dir / "marks.json", version=__version__)
 
     def _start_vehicle(self, image_count: int) -> None:
         cfg = self.cfg
         if not cfg.mavlink.connection:
             log.warning("mavlink.connection is null: no vehicle link, no surface link (store only)")
             return
-        from companion.live.tunables import default_params
-        from vehicle.camera.downlink import Downlink
-        from vehicle.link.connection import MavLink
-
         self.link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="companion")
         self.link.healthy = self.health.healthy
-        self.telemetry = _make_telemetry(self.link, cfg)
-        params_file = self._params_file()
+        self.telemetry = VehicleTelemetry(self.link, cfg.telemetry)
         specs = default_params(cfg)
         defaults = {spec.name: spec.value for spec in specs}  # before the saved values are applied to the specs
         self.surface = Downlink(
             self.link, cfg.surface, params=specs, saved_params=self.saved_params,
-            persist_params=params_file.save,
+            persist_params=self._params_file().save,
             loader=self.store.frame, image_count=image_count, stored_jpeg=self.store.frame_jpeg,
-            queries=self._query_topics(), default_topic=cfg.queries.name, version=__version__,
+            queries=self.on_queries.topics(), default_topic=cfg.queries.name, version=__version__,
             dive=self.store.dive,
         )
-        self.surface.on_param_changed(self._on_param, replay=False)
-        for name, value in self.surface.params.restored.items():  # what the operator set last time
-            try:
-                self._on_param(name, value)
-            except ValueError as err:  # refused now (e.g. MERL_ENHANCE after enhance.mode became none)
-                log.warning("saved parameter %s=%g not applied: %s", name, value, err)
-                self.surface.params.set(name, defaults[name])  # served and saved as what is in force
-        if self.telemetry is not None and hasattr(self.telemetry, "on_notice"):
-            self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
+        self.control.surface = self.surface
+        self.surface.on_param_changed(self.on_param, replay=False)
+        # what the operator set last time; a value refused now is served and saved as what is in force
+        self.on_param.restore(self.surface.params.restored, lambda name: self.surface.params.set(name, defaults[name]))
+        self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
         self.store.on_health(self._on_store_health)  # a full or read-only store, and its recovery, reach the surface
         if self.store.memory_only:
             self._on_store_health(True, self.store.memory_only_reason)
-        self.surface.on_queries_changed(self._on_queries)
-        self.surface.on_marks_changed(self._on_marks)
+        self.surface.on_queries_changed(self.on_queries)
+        self.surface.on_marks_changed(self.on_marks)
         self.surface.set_marks(self.marks.like, self.marks.unlike)
-        self.surface.tree.put(KEEPER_PATH, lambda: json.dumps(self.keeper_document()).encode())
-        self.link.on_autopilot(self._on_autopilot)
+        serve_keeper_document(self.control, self.on_marks)
+        self.link.on_autopilot(lambda alive: autopilot_notice(self.control, alive))
         self.link.start()
-        if self.telemetry is not None and hasattr(self.telemetry, "start"):
-            self.telemetry.start()
+        self.telemetry.start()
         self.surface.start()
         self.keeper.republish()  # the resumed summary is on the FTP tree again
 
     def _on_store_health(self, memory_only: bool, reason: str) -> None:
         """The store left the disk (a WARNING, once) or came back to it (INFO): one STATUSTEXT each."""
-        from vehicle.camera import status as st
-
         if memory_only:
             self.surface.event(f"Store {reason}: kept in memory", st.WARNING)
         else:
             self.surface.event("Store writable again: back on disk", st.INFO)
 
     def _start_loops(self) -> None:
-        from companion.sources.factory import open_source
-
         cfg = self.cfg.source
         self.source = RetryingSource(
             lambda: open_source(cfg), name=cfg.uri, live=is_live_uri(cfg.uri), loop=False,
-            initial_s=cfg.retry_initial_s, max_s=cfg.retry_max_s, on_state=self._on_source_state,
+            initial_s=cfg.retry_initial_s, max_s=cfg.retry_max_s, on_state=lambda state, _detail: source_notice(self.control, self.source, state),
             beat=lambda: self.health.beat("capture"),
         )
         self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event)
@@ -300,8 +263,6 @@ class LiveCompanion:
             batch=self.cfg.encoder.batch, pose_at=self._pose_at, keeper=self.keeper, selective=self.selective,
         )
         if self.selective is not None:
-            from companion.live.enhance_worker import EnhanceWorker
-
             self.enhance_worker = EnhanceWorker(self.selective, self.health, self.counters, self.stop_event,
                                                 batch=self.cfg.encoder.batch, keeper=self.keeper)
             self.enhance_worker.start()
@@ -318,270 +279,7 @@ class LiveCompanion:
             log.debug("pose lookup failed", exc_info=True)
             return None
 
-    # ---- live tuning from the surface -------------------------------------------------------------------------
-    def _on_param(self, name: str, value: float) -> None:
-        """A MERL_* change from the surface, applied by the keeper between two batches (ValueError refuses it)."""
-        if name == "MERL_ENHANCE":
-            self._check_enhance(bool(value))
-        if name in ("MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_ENHANCE", "MERL_GATE"):
-            self.keeper.change(lambda: self._tune(name, value))
-            log.info("parameter %s set to %g", name, value)
-
-    def _tune(self, name: str, value: float) -> list[SummaryEvent]:
-        """Runs inside the keeper: the pipeline changes and the trims it causes reach the store together."""
-        sel = self.selective
-        if name == "MERL_TAU_SS":
-            if sel is not None:
-                sel.raw.tau_ss = value  # every topic's raw gate
-                if not sel.on:
-                    self.pipeline.tau_ss = value
-            else:
-                self.pipeline.tau_ss = value
-        elif name == "MERL_TAU_SES":
-            self.pipeline.tau_ses = value
-            if sel is not None and sel.on:
-                self.pipeline.tau_ss = value  # the gate on enhanced frames
-        elif name == "MERL_K":
-            return self.pipeline.set_k(int(value))
-        elif name == "MERL_GATE":  # 0: off; otherwise the difference threshold in grey levels
-            gate = sel.gate if sel is not None else self.pipeline.gate  # selective: the gate before raw scoring
-            gate.mode = "difference" if value > 0 else "none"
-            gate.threshold = max(0.0, float(value))
-        elif name == "MERL_ENHANCE":
-            if sel is not None:
-                sel.on = bool(value)
-                self._selective_gates()
-            else:  # enhance.mode always: every frame enhanced, or none
-                self.pipeline.enhance_mode = "always" if value else "none"
-        return []
-
-    def _selective_gates(self) -> None:
-        """enhance.mode selective: the pipeline's gate is tau_ses while the enhancer runs, else each topic's own
-        tau_ss (the raw gate's), so switching MERL_ENHANCE off leaves every topic its threshold."""
-        sel = self.selective
-        for topic in self.pipeline.topics:
-            topic.presampler.tau_ss = self.pipeline.tau_ses if sel.on else sel.raw.tau_of(topic.name)
-
-    def _refuse(self, name: str, why: str, detail: str = "") -> None:
-        """Say on the surface why a parameter change is refused (``why``, short), then refuse it with ``detail``
-        for the log (the value stays as it was)."""
-        if self.surface is not None:
-            from vehicle.camera import status as st
-
-            self.surface.event(f"{name} refused: {why}"[:50], st.WARNING)
-        raise ValueError(detail or why)
-
-    def _check_enhance(self, on: bool) -> None:
-        """MERL_ENHANCE=1 needs an enhancer, loaded at start only when enhance.mode asks for one: refuse, and
-        say why on the surface, rather than accept a value that changes nothing."""
-        if on and self.cfg.enhance.mode == "none":
-            self._refuse("MERL_ENHANCE", "enhance.mode is none", "enhance.mode is none (no enhancer loaded); set "
-                         "enhance.mode: selective or always and restart")
-
-    def _query_topics(self) -> list:
-        """The topics in force as the queries file states them."""
-        from vehicle.protocol.queries import QueryTopic
-
-        return [QueryTopic(t.name, t.presampler.positive, tuple(t.presampler.negatives))
-                for t in self.pipeline.topics]
-
-    def _on_queries(self, topics: list) -> None:
-        """A queries file from the surface: the topics to follow from the next batch on (a topic no longer listed
-        leaves the summary; a kept one keeps its frames under its new queries)."""
-        from companion.vision.topics import TopicSpec
-
-        specs = [TopicSpec(t.name, t.positive, tuple(t.negatives)) for t in topics]
-        # all or nothing, before the keeper's lock: a query the encoder cannot score refuses the file with no
-        # topic changed, and a CLIP text not yet cached is encoded now (a child process, seconds) rather than
-        # while the inference loop waits; under the lock the texts are then in memory
-        self._check_queries(specs)
-        self._say_resolved(specs)
-
-        def set_topics() -> list[SummaryEvent]:
-            events = self.pipeline.set_topics(specs)
-            if self.selective is not None:  # the raw gate follows every topic, kept, new or dropped
-                self.selective.raw.set_topics(specs)
-                self._selective_gates()
-            return events
-
-        self.keeper.change(set_topics)
-        try:  # a restart goes on with these topics (and the frames they hold)
-            self._queries_file().save(SavedQueries(topic_dicts(specs), self._configured))
-        except OSError as err:  # a memory-only store: they hold for this run
-            log.warning("queries not saved: %s", err)
-        if len(specs) == 1:
-            log.info("queries set: %r against %r", specs[0].positive, list(specs[0].negatives))
-        else:
-            log.info("topics set: %s", ", ".join(f"{s.name}={s.positive!r}" for s in specs))
-        if self.marks:  # marks teach what this query should find: a new query starts untaught
-            self._on_marks([], [])
-            log.info("marks cleared with the queries")
-            if self.surface is not None:
-                self.surface.event("Marks cleared with the queries")
-
-    def _check_queries(self, specs) -> None:
-        """Refuse (ValueError, and why on the surface) queries the encoder cannot score, e.g. a concept the
-        packaged encoder does not know, before any topic changes."""
-        from companion.errors import MerlionError
-        from companion.vision.presampler import GENERIC_NEGATIVE
-
-        for spec in specs:
-            try:
-                self.encoder.encode_texts([spec.positive, *spec.negatives])
-                if not [n for n in spec.negatives if n.strip()]:
-                    try:  # the pre-sampler's own negative then: embedded now too, if the encoder can
-                        self.encoder.encode_texts([GENERIC_NEGATIVE])
-                    except MerlionError:
-                        pass  # the packaged encoder scores the positive alone
-            except MerlionError as err:
-                if self.surface is not None:
-                    from vehicle.camera import status as st
-
-                    self.surface.event(refusal_line(spec.name, err), st.WARNING)
-                raise ValueError(f"topic {spec.name}: {err}") from None
-
-    def _say_resolved(self, specs) -> None:
-        """Tell the surface what each query was read as (the packaged encoder's WordNet classes)."""
-        if self.surface is not None:
-            for line in resolution_lines(self.encoder, [(s.name, [s.positive, *s.negatives]) for s in specs]):
-                self.surface.event(line)
-
-    # ---- the operator's marks -----------------------------------------------------------------------------------
-    def _on_marks(self, like: list[int], unlike: list[int]) -> None:
-        """Marks from the surface (image indices): score by them from the next batch on, and keep them on disk.
-
-        ValueError (a frame the store no longer has) refuses the upload; the surface gets a NAK.
-        """
-        self._apply_marks(like, unlike)
-        self.marks = SavedMarks(list(like), list(unlike), self.pipeline.presampler.positive,
-                                {t.name: t.presampler.positive for t in self.pipeline.topics})
-        if self.surface is not None:
-            self.surface.set_marks(like, unlike)
-        try:
-            if self.marks:
-                self._marks_file().save(self.marks)
-            else:
-                self._marks_file().clear()
-        except OSError as err:  # a memory-only store: the marks hold for this run
-            log.warning("marks not saved: %s", err)
-        log.info("marks set: like %s, unlike %s", like, unlike)
-
-    def _restore_marks(self, saved: SavedMarks) -> None:
-        """Re-apply the marks an earlier run saved, each only if its topic's query is still the one in force."""
-        if not saved:
-            return
-        queries = {t.name: t.presampler.positive for t in self.pipeline.topics}
-
-        def current(indices: list[int]) -> list[int]:
-            kept = []
-            for index in indices:
-                topic = self._topic_of(index)
-                if topic is None or saved.query_of(topic) == queries.get(topic):
-                    kept.append(index)  # (a frame the store lacks: refused below, naming it)
-                else:
-                    log.info("saved marks were given for %r, not %r: not applied to image %d (topic %s)",
-                             saved.query_of(topic), queries.get(topic), index, topic)
-            return kept
-
-        like, unlike = current(saved.like), current(saved.unlike)
-        if not like and not unlike:
-            return
-        try:
-            self._apply_marks(like, unlike)
-        except ValueError as err:
-            log.warning("saved marks not applied: %s", err)
-            return
-        self.marks = SavedMarks(like, unlike, saved.query, {t: q for t, q in saved.topics.items() if t in queries})
-        log.info("restored marks: %d like, %d unlike", len(like), len(unlike))
-
-    def _topic_of(self, index: int) -> str | None:
-        """The topic a summary frame belongs to: the one holding it, else its sidecar's (a frame stored before
-        topics: the default topic, ``queries.name``); None when the store does not have it."""
-        held = self.pipeline.topic_of(index)
-        if held is not None:
-            return held.name
-        sidecar = self.store.sidecar(index)
-        if sidecar is None:
-            return None
-        return str(sidecar.get("topic") or self.pipeline.untagged_topic())
-
-    def _apply_marks(self, like: list[int], unlike: list[int]) -> None:
-        """Embed the marked frames' stored images and switch each topic's pre-sampler(s) to the combined score.
-
-        A mark teaches the topic of the frame it names (marking a coral frame says nothing about fish), so each
-        topic gets only its own marks, and a topic with none scores by its queries alone. Runs inside the
-        keeper: the encoder is the inference loop's, and the next batch sees the new scores.
-        """
-        from companion.vision.feedback import Marks
-
-        def images(indices: list[int]) -> dict[str, list]:
-            found: dict[str, list] = {t.name: [] for t in self.pipeline.topics}
-            for index in indices:
-                frame = self.store.frame(index)
-                if frame is None or frame.image is None:
-                    raise ValueError(f"image {index} is not in the store")
-                topic = self._topic_of(index)
-                if topic not in found:
-                    raise ValueError(f"image {index} is of topic {topic}, no longer followed")
-                found[topic].append(self.pipeline.prepare(frame.image))
-            return found
-
-        def apply() -> None:
-            liked, unliked = images(like), images(unlike)  # all checked before any topic changes
-            for topic in self.pipeline.topics:
-                if liked[topic.name] or unliked[topic.name]:
-                    marks = Marks.from_images(self.encoder, liked[topic.name], unliked[topic.name])
-                    self.mark_images += len(liked[topic.name]) + len(unliked[topic.name])
-                else:
-                    marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))
-                topic.presampler = _marked(topic.presampler, marks)
-                if self.selective is not None:
-                    raw = self.selective.raw.presamplers
-                    raw[topic.name] = _marked(raw[topic.name], marks)
-
-        self.keeper.change(apply)
-
-    def _on_autopilot(self, alive: bool) -> None:
-        if alive:
-            log.info("autopilot heartbeat back")
-        else:
-            log.warning("autopilot heartbeat lost; frames are tagged stale until it returns")
-        if self.surface is not None:
-            from vehicle.camera import status as st
-
-            self.surface.event(*st.link_text(alive))
-
-    def _on_source_state(self, state: str, detail: str) -> None:
-        if self.surface is None:
-            return
-        from vehicle.camera import status as st
-
-        if state == "retrying":
-            self.surface.event(*st.camera_text(False))
-        elif state == "running" and self.source is not None and self.source.failures:
-            self.surface.event(*st.camera_text(True))
-        elif state == "ended":
-            self.surface.event("Source ended; still serving", st.NOTICE)
-
-    # ---- health, status, watchdog ------------------------------------------------------------------------------
-    def _monitor_loop(self) -> None:
-        ping_every = self.notifier.ping_interval_s or 1.0
-        while not self.stop_event.wait(min(1.0, ping_every)):
-            stuck = self.health.stuck()
-            if stuck:
-                self.watchdog_withheld += 1
-                if stuck != self._stuck:
-                    log.warning("stage(s) %s stuck for over %.0f s: no watchdog ping until it moves again",
-                                ", ".join(stuck), self.health.stall_after_s)
-            elif self._stuck:
-                log.warning("stage(s) %s moving again: watchdog pings resume", ", ".join(self._stuck))
-            self._stuck = stuck
-            if not stuck and time.monotonic() - self._last_ping >= ping_every:
-                self.notifier.watchdog()
-                self.watchdog_pings += 1
-                self._last_ping = time.monotonic()
-            self._update_status()
-
+    # ---- health, status -----------------------------------------------------------------------------------------
     def _update_status(self) -> None:
         if self.store is not None:
             self.store.retry()  # a memory-only store tries the disk again (every few seconds)
@@ -613,21 +311,8 @@ class LiveCompanion:
         return f"{summary}/{k}"
 
     def keeper_document(self) -> dict[str, Any]:
-        """/store/summary.json: the keeper's summary and history, each frame's topic, and what the encoder did,
-        all read under the keeper's lock (so the counts belong to the same moment as the summary).
-
-        ``encoder.images`` counts what the encoder itself was given; ``scored`` the images whose scores were
-        computed (each frame once, and with enhance.mode selective each enhanced version once more) and
-        ``marks`` the marked frames embedded. ``images == scored + marks`` however many topics are followed: one
-        encoder pass serves them all.
-        """
-        with self.keeper.lock:
-            doc = self.keeper.document()
-            doc["topics"] = {t.name: [f.image_index for f in t.summary] for t in self.pipeline.topics}
-            scored = self.pipeline.counts["encoded"] + (self.selective.scored if self.selective is not None else 0)
-            doc["encoder"] = {"images": self.encoder.images, "calls": self.encoder.calls, "scored": scored,
-                              "marks": self.mark_images}
-        return doc
+        """/store/summary.json (companion.live.control.summary_file)."""
+        return keeper_document(self.control, self.on_marks)
 
     def report(self) -> dict[str, Any]:
         """Numbers for the demo report, the soak bench and logs."""
@@ -651,7 +336,7 @@ class LiveCompanion:
             "source_failures": self.source.failures if self.source is not None else 0,
             "store": self.store.describe() if self.store is not None else {},
             "encoder": getattr(self.encoder, "name", ""),
-            "watchdog_pings": self.watchdog_pings, "watchdog_withheld": self.watchdog_withheld,
+            "watchdog_pings": self.watchdog.pings, "watchdog_withheld": self.watchdog.withheld,
             "uptime_s": round(time.monotonic() - self.started_at, 1),
         }
 
@@ -683,7 +368,7 @@ class LiveCompanion:
             self.source.close()
         if self.selective is not None:
             self.selective.queue.close()
-        for thread in (self.capture, self.inference, self.enhance_worker, self._monitor):
+        for thread in (self.capture, self.inference, self.enhance_worker, self.watchdog):
             if thread is not None and thread.is_alive():
                 thread.join(timeout=15)
 
@@ -691,8 +376,6 @@ class LiveCompanion:
         """Wait (at most ``timeout``) until the thumbnails already queued for the surface are on the wire."""
         if self.surface is None:
             return True
-        from vehicle.link.budget import Priority
-
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.surface.budget.pending(Priority.THUMBNAIL) == 0 and self.surface.budget.pending(
@@ -707,25 +390,11 @@ class LiveCompanion:
         self.stop_pipeline()
         if self.surface is not None:
             self.surface.stop()
-        if self.telemetry is not None and hasattr(self.telemetry, "stop"):
+        if self.keeper is not None:
+            self.keeper.stop()  # after the surface link: a request it is answering gets its change applied
+        if self.telemetry is not None:
             self.telemetry.stop()
         if self.link is not None:
             self.link.stop()
         self.notifier.close()
 
-
-def _marked(presampler, marks):
-    """``presampler`` scoring with ``marks`` (wrapped once; later marks, or none, replace the examples)."""
-    from companion.vision.feedback import MarkedPreSampler
-
-    if isinstance(presampler, MarkedPreSampler):
-        presampler.set_marks(marks)
-        return presampler
-    return MarkedPreSampler(presampler, marks) if len(marks) else presampler
-
-
-def _make_telemetry(link, cfg: Config):
-    """The vehicle's pose history attached to the link (vehicle/autopilot/telemetry.py)."""
-    from vehicle.autopilot.telemetry import VehicleTelemetry
-
-    return VehicleTelemetry(link, cfg.telemetry)

@@ -20,6 +20,7 @@ import logging
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -30,13 +31,12 @@ from typing import Any
 
 import cv2
 
-from companion.commands.arg_checks import require_positive
+from companion.atomic_write import atomic_write
 from companion.config import Config, build_config
 from companion.errors import MerlionError, UsageError
 from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
-from companion.storage.atomic_write import atomic_write
 from companion.storage.store import Store
 from companion.vision.contact_sheet import Tile, contact_sheet
 
@@ -151,8 +151,6 @@ def write_contact_sheet(store: Store, path: Path) -> Path | None:
 
 
 def _free_udp_port() -> int:
-    import socket
-
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -281,7 +279,6 @@ def format_report(report: dict[str, Any], *, survey_hint: bool) -> str:
 
 
 def main(opts: DemoOptions) -> int:
-    require_positive("--duration", opts.duration)
     if not 0 <= opts.web_port <= 65535:
         raise UsageError(f"--web {opts.web_port}: not a port (0-65535; 0 picks a free one)")
     if opts.out.exists() and not opts.out.is_dir():

@@ -61,6 +61,12 @@ class SelectiveStage:
         """The frame gate (config ``gate:``, MERL_GATE) ahead of the raw scoring, enhancer on or off: the
         pipeline behind it samples sparse, already chosen candidates and gates nothing itself."""
 
+    def sync_gates(self) -> None:
+        """The pipeline's gate is tau_ses while the enhancer runs, else each topic's own tau_ss (the raw gate's),
+        so switching MERL_ENHANCE off leaves every topic its threshold. Called inside a keeper change."""
+        for topic in self.pipeline.topics:
+            topic.presampler.tau_ss = self.pipeline.tau_ses if self.on else self.raw.tau_of(topic.name)
+
     def admit(self, frames: list[Frame]) -> list[np.ndarray | None]:
         """The encoder's copy of each frame the gate lets through, None for a frame it skips."""
         small = [self.pipeline.prepare(f.image) for f in frames]

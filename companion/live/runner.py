@@ -11,6 +11,8 @@ from typing import Any
 from companion.config import Config, load_config
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.notify import Notifier
+from companion.sources.factory import check_source_uri
+from vehicle.link.connection import parse_connection
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +35,6 @@ def cli_overrides(*, source: str | None = None, mavlink: str | None = None, stor
 def build(config_path: str | None, overrides: dict[str, Any], environ: Mapping[str, str]) -> Config:
     """Everything validated before anything starts (a bad key: ConfigError, exit 2; a bad source URI or MAVLink
     connection string: exit 2), so that neither the store nor the encoder is touched for a typo."""
-    from companion.sources.factory import check_source_uri
-    from vehicle.link.connection import parse_connection
-
     cfg = load_config(config_path, overrides=overrides, environ=dict(environ))
     check_source_uri(cfg.source.uri)
     if cfg.mavlink.connection:

@@ -29,11 +29,6 @@ class UdpHub:
         """The connection string a client uses to join (``udpout:``)."""
         return f"udpout:{self.host}:{self.port}"
 
-    def add_output(self, host: str, port: int) -> None:
-        with self._lock:
-            if (host, port) not in self.peers:
-                self.peers.append((host, port))
-
     def start(self) -> UdpHub:
         self._thread = threading.Thread(target=self._run, name="udp-hub", daemon=True)
         self._thread.start()

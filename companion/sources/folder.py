@@ -9,12 +9,12 @@ from __future__ import annotations
 import logging
 import re
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import cv2
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.sources.base import FrameSource
 from companion.sources.frame import Frame
 from companion.sources.subsample import Pacer
@@ -32,6 +32,23 @@ def natural_key(name: str) -> list:
 def list_images(folder: Path) -> list[Path]:
     files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
     return sorted(files, key=lambda p: natural_key(p.name))
+
+
+def collect_images(paths: Sequence[str | Path]) -> list[Path]:
+    """Files as given and the images inside folders (natural order); a missing path is a usage error."""
+    out: list[Path] = []
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            found = list_images(path)
+            if not found:
+                raise UsageError(f"{path}: folder holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
+            out.extend(found)
+        elif path.is_file():
+            out.append(path)
+        else:
+            raise UsageError(f"{path}: no such file or folder")
+    return out
 
 
 class FolderSource(FrameSource):

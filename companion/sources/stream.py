@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+import threading
 from pathlib import Path
 
 import cv2
@@ -54,6 +55,9 @@ def gstreamer_pipeline(port: int) -> str:
     )
 
 
+FFMPEG_OPTIONS = "OPENCV_FFMPEG_CAPTURE_OPTIONS"
+"""OpenCV reads FFmpeg's options from this variable at each open, for every capture in the process."""
+_FFMPEG_OPTIONS_LOCK = threading.Lock()
 OPEN_TIMEOUT_MS = 8000
 """Waiting for a stream to start (RTP carries SPS/PPS with key frames, a second or two apart on a BlueROV2).
 Kept under health.stall_after_s (10 s) so that an absent stream is retried, not taken for a stuck process."""
@@ -90,9 +94,16 @@ class StreamSource(CaptureSource):
         super().__init__(cfg.uri, opener, fps=cfg.fps)
 
     def _open_sdp(self) -> cv2.VideoCapture:
-        # FFmpeg refuses to follow an SDP file to UDP/RTP unless those protocols are whitelisted
-        os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "protocol_whitelist;file,udp,rtp")
-        return _ffmpeg_capture(str(self._sdp))
+        """FFmpeg refuses to follow an SDP file to UDP/RTP unless those protocols are whitelisted: the option is
+        set for this open only (an operator's own options win), so no other capture of the process inherits it."""
+        with _FFMPEG_OPTIONS_LOCK:
+            if FFMPEG_OPTIONS in os.environ:
+                return _ffmpeg_capture(str(self._sdp))
+            os.environ[FFMPEG_OPTIONS] = "protocol_whitelist;file,udp,rtp"
+            try:
+                return _ffmpeg_capture(str(self._sdp))
+            finally:
+                del os.environ[FFMPEG_OPTIONS]
 
     def close(self) -> None:
         super().close()

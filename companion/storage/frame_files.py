@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from companion.storage.atomic_write import atomic_write
+from companion.atomic_write import atomic_write
 from companion.vision.events import SummaryFrame
 from vehicle.autopilot.pose import Pose
 

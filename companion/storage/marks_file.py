@@ -20,7 +20,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.storage.atomic_write import atomic_write
+from companion.atomic_write import atomic_write
 from companion.storage.versioned import upgrade
 
 log = logging.getLogger(__name__)

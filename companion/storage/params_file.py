@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from companion.storage.atomic_write import atomic_write
+from companion.atomic_write import atomic_write
 from companion.storage.versioned import upgrade
 
 log = logging.getLogger(__name__)

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from companion.atomic_write import TMP_PREFIX, atomic_write
 from companion.config import StoreConfig
-from companion.storage.atomic_write import TMP_PREFIX, atomic_write
 from companion.storage.frame_files import (
     FORMAT_VERSION,
     HeldFrame,

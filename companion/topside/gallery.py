@@ -27,8 +27,8 @@ import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
-from companion.storage.atomic_write import atomic_write
 
 LOG_COLUMNS = [
     "event", "wall_time", "dive", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",

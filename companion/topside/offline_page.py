@@ -11,7 +11,7 @@ import json
 from importlib import resources
 from pathlib import Path
 
-from companion.storage.atomic_write import atomic_write
+from companion.atomic_write import atomic_write
 
 PAGE_FILES = ("index.html", "app.js")
 

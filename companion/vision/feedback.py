@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from companion.errors import UsageError
+from companion.sources.folder import collect_images
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
 
@@ -126,8 +127,6 @@ class MarkedPreSampler(PreSampler):
 
 def read_mark_images(paths: Sequence[str | Path], option: str) -> list[np.ndarray]:
     """Images named by --like/--unlike (a folder means every image in it); one-line errors name the file."""
-    from companion.vision.score_images import collect_images
-
     images = []
     for path in collect_images(paths):
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)

@@ -42,6 +42,7 @@ from companion.vision import distances as dist
 from companion.vision.below_threshold import KEEP
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
+from companion.vision.enhancers.factory import make_enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.gate import FrameGate
 from companion.vision.presampler import PreSampler
@@ -103,7 +104,10 @@ class StageClock:
             self.items[name] = self.items.get(name, 0) + items
 
     def ms_per_item(self) -> dict[str, float]:
-        return {k: 1000.0 * self.seconds[k] / max(1, self.items.get(k, 0)) for k in self.seconds}
+        # copies first: the inference thread may add a stage while the status thread asks (dict.copy runs in C,
+        # without letting another thread in; iterating the live dict could raise "changed size during iteration")
+        seconds, items = self.seconds.copy(), self.items.copy()
+        return {k: 1000.0 * v / max(1, items.get(k, 0)) for k, v in seconds.items()}
 
 
 def downscale_for(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -164,8 +168,6 @@ class Pipeline:
                   for t in cfg.queries.topic_list()]
         enhancer = None
         if cfg.enhance.mode != "none":
-            from companion.vision.enhancers.factory import make_enhancer
-
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
         gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
         return cls(encoder, topics, default_tau_ss=cfg.queries.tau_ss, default_topic=cfg.queries.name,

@@ -15,8 +15,7 @@ import cv2
 import numpy as np
 
 from companion.config import Config
-from companion.errors import UsageError
-from companion.sources.folder import IMAGE_SUFFIXES, list_images
+from companion.sources.folder import collect_images
 from companion.vision.encoders.base import Encoder
 from companion.vision.feedback import read_mark_images, with_marks
 from companion.vision.presampler import PreSampler
@@ -32,23 +31,6 @@ class ImageScore:
     error: str = ""
     topics: dict[str, float] = field(default_factory=dict)
     """Each topic's score, by name (one entry with one topic)."""
-
-
-def collect_images(paths: Sequence[str | Path]) -> list[Path]:
-    """Files as given and the images inside folders (natural order); a missing path is a usage error."""
-    out: list[Path] = []
-    for raw in paths:
-        path = Path(raw)
-        if path.is_dir():
-            found = list_images(path)
-            if not found:
-                raise UsageError(f"{path}: folder holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
-            out.extend(found)
-        elif path.is_file():
-            out.append(path)
-        else:
-            raise UsageError(f"{path}: no such file or folder")
-    return out
 
 
 def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | None = None, *,

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+from tqdm import tqdm
 
 from companion.config import Config
 from companion.errors import MerlionError
@@ -30,6 +31,7 @@ from companion.sources.factory import open_source
 from companion.sources.frame_feed import FrameFeed
 from companion.vision.contact_sheet import Tile, contact_sheet
 from companion.vision.encoders.base import Encoder
+from companion.vision.encoders.factory import make_encoder
 from companion.vision.events import SummaryFrame
 from companion.vision.feedback import read_mark_images, with_marks
 from companion.vision.pipeline import FrameResult, Pipeline
@@ -86,8 +88,6 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
 
 
 def _progress(total: int | None, enabled: bool | None):
-    from tqdm import tqdm
-
     show = sys.stderr.isatty() if enabled is None else enabled
     return tqdm(total=total, unit="frame", desc="summarize", disable=not show, file=sys.stderr)
 
@@ -191,8 +191,6 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
     like_images, unlike_images = read_mark_images(like, "--like"), read_mark_images(unlike, "--unlike")
     source = open_source(cfg.source, realtime=False)
     if encoder is None:
-        from companion.vision.encoders.factory import make_encoder
-
         encoder = make_encoder(cfg.encoder)
     pipeline = Pipeline.from_config(cfg, encoder)
     # marks teach the default (first) topic: examples of one thing cannot stand for several

@@ -378,10 +378,6 @@ class FtpServer:
 
     # ---- bursts ---------------------------------------------------------------------------------------------
 
-    def has_burst(self) -> bool:
-        with self._lock:
-            return any(s.burst_offset is not None for s in self.sessions.values())
-
     def next_burst(self) -> tuple[Requester, bytes] | None:
         """The next bulk packet of the oldest running burst (signed links' first), or None when none is running."""
         with self._lock:
@@ -400,7 +396,3 @@ class FtpServer:
                 sess.used = self._clock()
                 return sess.requester, pkt.pack()
         return None
-
-    def close_all(self) -> None:
-        with self._lock:
-            self.sessions.clear()

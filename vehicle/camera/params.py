@@ -133,23 +133,26 @@ class ParamServer:
         return [self.param_value(name)]
 
     def set(self, name: str, value: float) -> bool:
-        """Apply, persist and announce a new value; False (nothing changed) when it is out of range or refused."""
+        """Apply, persist and announce a new value; False (nothing changed) when it is out of range or refused.
+
+        The callbacks run before the lock is taken: they apply the change (the companion's may wait for its
+        summary keeper's turn), and no other reader of the values waits behind them; the lock covers only the
+        new value and its save.
+        """
         spec = self._specs[name]
+        if not self._valid(spec, value):
+            log.warning("parameter %s=%r refused (range %g..%g)", name, value, spec.minimum, spec.maximum)
+            return False
+        if value == spec.value:
+            return True
+        try:
+            for callback in self._callbacks:
+                callback(name, value)
+        except ValueError as err:
+            log.warning("parameter %s=%r refused: %s", name, value, err)
+            return False
         with self._lock:
-            if not self._valid(spec, value):
-                log.warning("parameter %s=%r refused (range %g..%g)", name, value, spec.minimum, spec.maximum)
-                return False
-            if value == spec.value:
-                return True
-            old = spec.value
             spec.value = value
-            try:
-                for callback in self._callbacks:
-                    callback(name, value)
-            except ValueError as err:
-                spec.value = old
-                log.warning("parameter %s=%r refused: %s", name, value, err)
-                return False
             self._save()
         log.info("parameter %s set to %g", name, value)
         return True

@@ -28,10 +28,6 @@ class Thumbnail:
     height: int
     quality: int
 
-    @property
-    def mime(self) -> str:
-        return "image/jpeg" if self.format == "jpeg" else "image/webp"
-
 
 def _encode(image: np.ndarray, fmt: Format, quality: int) -> bytes:
     if fmt == "jpeg":

@@ -12,6 +12,7 @@ This is ``runtime: torch``, and the loader the torch child process (``clip_child
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from open_clip import factory as open_clip_factory
 from PIL import Image
+from torch.ao.quantization import quantize_dynamic
 
 from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
@@ -31,7 +33,12 @@ from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings
 from companion.vision.encoders.half_weights import store_weights_in_fp16
 from companion.vision.encoders.heap_trim import release_freed_memory
-from companion.vision.encoders.mapped_cast import cast_dropping_file_pages, drop_file_pages, module_tensors
+from companion.vision.encoders.mapped_cast import (
+    FilePages,
+    cast_dropping_file_pages,
+    drop_file_pages,
+    module_tensors,
+)
 from companion.vision.encoders.torch_runtime import (
     compute_dtype,
     configure_threads,
@@ -75,11 +82,6 @@ def quantize_image_tower(visual: torch.nn.Module, checkpoint: Path | None = None
     fp32 pages of a memory-mapped ``checkpoint`` each group was packed from are given back at once (the load
     peak is the int8 tower plus one group, not plus the whole fp32 tower).
     """
-    import warnings
-
-    from torch.ao.quantization import quantize_dynamic
-
-    from companion.vision.encoders.mapped_cast import FilePages
 
     pages = FilePages(checkpoint)
     parents = [m for m in visual.modules() if any(isinstance(c, torch.nn.Linear) for c in m.children())]

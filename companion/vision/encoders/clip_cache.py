@@ -11,6 +11,7 @@ cut short leaves no tower that looks complete.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 import os
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.storage.atomic_write import atomic_write
+from companion.atomic_write import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -100,8 +101,6 @@ class ClipCache:
     def put_text(self, text: str, embedding: np.ndarray) -> bool:
         """Keep one embedding for later starts; False (logged) when the cache cannot be written: the embedding
         still serves this run, which gets it from the child's answer."""
-        import io
-
         try:
             self.text_dir.mkdir(parents=True, exist_ok=True)
             buf = io.BytesIO()

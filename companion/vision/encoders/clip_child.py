@@ -4,7 +4,7 @@
 whole budget leaves. So whatever needs torch (resolving a pretrained tag, exporting the image tower the first
 time, encoding query texts not yet in the cache) runs here, in ``python -m companion.vision.encoders.clip_child``:
 it writes its results into the cache (``clip_cache.ClipCache``) and exits, so its memory goes back to the OS. The
-caller only waits for it (at start-up, or on the request worker of a query change, never on a receive loop).
+caller (``clip_child_runner``) only waits for it (at start-up, or on the request worker of a query change, never on a receive loop).
 
 The request is one JSON object on stdin; the answer one JSON line on stdout (with the child's own peak RSS, so a
 bench can report it apart from the main process's); a failure is one line on stderr and exit status 1.
@@ -15,61 +15,28 @@ from __future__ import annotations
 import json
 import logging
 import os
-import subprocess
 import sys
-import time
+import tempfile
+import warnings
 from pathlib import Path
 
+import open_clip  # this module runs only as the child process, whose whole job is torch's
+import torch
+import torch.nn.functional as F
+
 from companion.errors import MerlionError
+from companion.vision.encoders.clip import load_clip
+from companion.vision.encoders.clip_cache import ClipCache, cache_root
+from companion.vision.encoders.clip_pixels import as_pair
 from companion.vision.encoders.peak_rss import peak_rss_mb
+from companion.vision.encoders.torch_runtime import configure_threads
+from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
 log = logging.getLogger(__name__)
 
 
-CHILD_TIMEOUT_S = 900.0
-"""Longest a child may take (an export of a large tower on a slow CPU takes minutes): a hung one is killed."""
-
-
-def run_clip_child(request: dict, what: str, *, timeout_s: float = CHILD_TIMEOUT_S) -> dict:
-    """Run the child on ``request`` and return its answer; its one-line error becomes a MerlionError.
-
-    ``what`` says what it was for, in the log and the error ("export the image tower", "encode 2 queries").
-    """
-    import companion
-
-    env = dict(os.environ)  # the child imports this same checkout of the package, however the caller found it
-    root = str(Path(companion.__file__).resolve().parents[1])
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH", "")) if p)
-    start = time.monotonic()
-    log.info("CLIP: starting a torch child process to %s", what)
-    try:
-        proc = subprocess.run([sys.executable, "-m", "companion.vision.encoders.clip_child"],
-                              input=json.dumps(request), capture_output=True, text=True, env=env, check=False,
-                              timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        raise MerlionError(f"CLIP {request.get('model')}: could not {what}: the torch child process did not "
-                           f"finish within {timeout_s:.0f} s and was killed") from None
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    if proc.returncode < 0:  # killed (the OOM killer, most likely): its last stderr line is not the cause
-        raise MerlionError(f"CLIP {request.get('model')}: could not {what}: the torch child process was killed "
-                           f"by signal {-proc.returncode} (out of memory?)")
-    if proc.returncode != 0:
-        reason = lines[-1].strip() if lines else f"exit status {proc.returncode}"
-        raise MerlionError(f"CLIP {request.get('model')}: could not {what}: {reason}")
-    answer = json.loads(proc.stdout.strip().splitlines()[-1])
-    answer["seconds"] = round(time.monotonic() - start, 2)
-    log.info("CLIP: child process did %s in %.1f s (its peak RSS %.0f MB, now returned)", what,
-             answer["seconds"], answer["peak_rss_mb"])
-    return answer
-
-
 def _export_image_tower(visual, size: tuple[int, int], dest: Path) -> None:
     """The tower as ONNX (fp32, dynamic batch), through a temporary file renamed into place (whole or absent)."""
-    import tempfile
-    import warnings
-
-    import torch
-
     dest.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="merlion-onnx-", dir=dest.parent) as tmp:
         path = Path(tmp) / "image_tower.onnx"
@@ -83,16 +50,6 @@ def _export_image_tower(visual, size: tuple[int, int], dest: Path) -> None:
 
 def _serve(request: dict) -> dict:
     """Resolve the weights, export the tower if asked and not cached, encode the texts not cached."""
-    import open_clip
-    import torch
-    import torch.nn.functional as F
-
-    from companion.vision.encoders.clip import load_clip
-    from companion.vision.encoders.clip_cache import ClipCache, cache_root
-    from companion.vision.encoders.clip_pixels import as_pair
-    from companion.vision.encoders.torch_runtime import configure_threads
-    from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
-
     configure_threads()
     model_name = request["model"]
     if request.get("resolved"):  # the caller already knows the file (and the tag's preprocessing)

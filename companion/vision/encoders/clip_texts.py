@@ -17,7 +17,7 @@ import numpy as np
 
 from companion.errors import MerlionError
 from companion.vision.encoders.clip_cache import ClipCache
-from companion.vision.encoders.clip_child import run_clip_child
+from companion.vision.encoders.clip_child_runner import run_clip_child
 from companion.vision.encoders.weights import ResolvedWeights
 
 log = logging.getLogger(__name__)

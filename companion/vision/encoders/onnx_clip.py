@@ -20,16 +20,17 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.atomic_write import atomic_write
 from companion.config import EncoderConfig
 from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.clip_cache import ClipCache, cache_root
-from companion.vision.encoders.clip_child import run_clip_child
+from companion.vision.encoders.clip_child_runner import run_clip_child
 from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings, resolved_request
 from companion.vision.encoders.heap_trim import release_freed_memory
-from companion.vision.encoders.weights import ResolvedWeights
+from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ class OnnxClipEncoder(Encoder):
     """CLIP's image tower in ONNX Runtime (fp32), text embeddings from the cache; no torch in this process."""
 
     def __init__(self, cfg: EncoderConfig) -> None:
-        import onnxruntime as ort
+        import onnxruntime as ort  # 0.15 s and its memory (measured), only in a process that runs ONNX
 
         if cfg.precision not in ("auto", "fp32") or cfg.device == "cuda":
             raise UsageError(f"encoder.runtime onnx runs the fp32 export (precision {cfg.precision}, device "
@@ -114,8 +115,6 @@ class OnnxClipEncoder(Encoder):
         """``encoder.weights`` as is (no torch needed); a tag from the record of an earlier start, or a child."""
         cfg = self._cfg
         if cfg.weights or not cfg.pretrained:  # a file, or nothing to look up: says so in one line, torch-free
-            from companion.vision.encoders.weights import resolve_clip_weights
-
             return resolve_clip_weights(cfg.model, cfg.weights, cfg.pretrained)
         found = recorded_weights(cfg)
         if found is not None:
@@ -124,8 +123,6 @@ class OnnxClipEncoder(Encoder):
                              f"find the weights of {cfg.pretrained} and export the image tower")
         record = _resolution_record(self._root, cfg.model, cfg.pretrained)
         record.parent.mkdir(parents=True, exist_ok=True)
-        from companion.storage.atomic_write import atomic_write
-
         atomic_write(record, json.dumps({"weights": answer["weights"], "source": answer["source"],
                                          "preprocess": answer["preprocess"]}))
         return ResolvedWeights(path=Path(answer["weights"]), source=answer["source"],

@@ -5,6 +5,8 @@ from __future__ import annotations
 from companion.config import EnhanceConfig
 from companion.errors import MerlionError
 from companion.vision.enhancers.base import Enhancer
+from companion.vision.enhancers.classic import ClassicEnhancer
+from companion.vision.enhancers.model import ModelEnhancer
 
 METHODS = ("classic", "model")
 
@@ -15,12 +17,8 @@ def make_enhancer(cfg: EnhanceConfig, *, device: str = "auto") -> Enhancer:
     ``device`` (auto|cpu|cuda) only matters for ``model``; pass the encoder's device to keep both on one GPU.
     """
     if cfg.method == "classic":
-        from companion.vision.enhancers.classic import ClassicEnhancer
-
         return ClassicEnhancer()
     if cfg.method == "model":
-        from companion.vision.enhancers.model import ModelEnhancer
-
         return ModelEnhancer(cfg.model_path, input_size=cfg.model_input_size, value_range=cfg.model_value_range,
                              device=device)
     raise MerlionError(f"enhance.method: {cfg.method!r} is not one of {', '.join(METHODS)}", exit_code=2)

@@ -16,8 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from companion.atomic_write import TMP_PREFIX
 from companion.config import StoreConfig
-from companion.storage.atomic_write import TMP_PREFIX
 from companion.storage.store import Store
 from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
 

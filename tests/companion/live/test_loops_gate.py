@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 
 from companion.config import Config, EncoderConfig, StoreConfig
+from companion.live.control.params import default_params, gate_param
 from companion.live.health import Health
 from companion.live.loops import InferenceLoop, LiveCounters
 from companion.live.queues import DropOldestQueue
 from companion.live.summary_keeper import SummaryKeeper
-from companion.live.tunables import default_params, gate_param
 from companion.sources.frame import Frame
 from companion.storage.store import Store
 from companion.vision.encoders.visual import VisualEncoder

@@ -46,14 +46,14 @@ def test_saved_marks_come_back_only_under_their_query(tmp_path: Path, caplog) ->
     assert again.pipeline.presampler.weight == 0.5  # one mark of each kind: as much as the query
 
     marks.save(SavedMarks([held[0]], [], "underwater image of a wreck"))
-    with caplog.at_level(logging.INFO, logger="companion.live.companion"):
+    with caplog.at_level(logging.INFO, logger="companion.live"):
         other = _run(store)
     assert not other.marks
     assert not isinstance(other.pipeline.presampler, MarkedPreSampler)
     assert "saved marks were given for 'underwater image of a wreck'" in caplog.text
 
     marks.save(SavedMarks([10_000], [], QUERY))  # a frame the store never had: the start goes on unmarked
-    with caplog.at_level(logging.WARNING, logger="companion.live.companion"):
+    with caplog.at_level(logging.WARNING, logger="companion.live"):
         missing = _run(store)
     assert not missing.marks
     assert "image 10000 is not in the store" in caplog.text

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from pymavlink import mavftp
 
-from companion.storage.atomic_write import TMP_PREFIX
+from companion.atomic_write import TMP_PREFIX
 from tests.companion.live_harness import (
     Companion,
     ftp_get_json,

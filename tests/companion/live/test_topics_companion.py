@@ -60,7 +60,7 @@ def test_a_mark_teaches_only_the_topic_of_its_frame(tmp_path: Path, caplog) -> N
         with app.keeper.lock:  # between two changes: the status line's counts are the summaries'
             held = {t.name: len(t.summary) for t in app.pipeline.topics}
             assert f"summary fish {held['fish']}/3, coral {held['coral']}/3;" in app.status_line()
-        app._on_marks([fish], [coral])  # as an upload of /config/marks.json does
+        app.on_marks([fish], [coral])  # as an upload of /config/marks.json does
         assert _marks_of(app, "fish") == (1, 0) and _marks_of(app, "coral") == (0, 1)
         report = app.report()
     finally:
@@ -76,7 +76,7 @@ def test_a_mark_teaches_only_the_topic_of_its_frame(tmp_path: Path, caplog) -> N
     marks = MarksFile(store / "marks.json")
     marks.save(SavedMarks([fish], [coral], FISH["positive"], {"fish": "underwater image of a turtle",
                                                               "coral": CORAL["positive"]}))
-    with caplog.at_level(logging.INFO, logger="companion.live.companion"):
+    with caplog.at_level(logging.INFO, logger="companion.live"):
         changed = _start(store)  # fish's query is not the one its mark was given under: coral's mark only
         changed.stop()
     assert _marks_of(changed, "fish") == (0, 0) and _marks_of(changed, "coral") == (0, 1)
@@ -93,13 +93,15 @@ def test_uploaded_topics_survive_a_restart_until_the_configuration_changes(tmp_p
     store = tmp_path / "store"
     app = _start(store, until=_both_hold)
     try:
-        with app.keeper.lock:  # no batch in between: the upload's own change is what is checked
+        def upload() -> None:  # on the keeper's thread, no batch in between: the upload's own change is checked
             fish = [f.image_index for f in app.pipeline.topic("fish").summary]
-            app._on_queries([QueryTopic("fish", FISH["positive"], tuple(FISH["negatives"])),
-                             QueryTopic("wreck", "underwater image of a wreck", ("underwater image of sand",))])
+            app.on_queries([QueryTopic("fish", FISH["positive"], tuple(FISH["negatives"])),
+                            QueryTopic("wreck", "underwater image of a wreck", ("underwater image of sand",))])
             assert [t.name for t in app.pipeline.topics] == ["fish", "wreck"]
             assert [f.image_index for f in app.pipeline.topic("fish").summary] == fish
             assert app.store.summary == fish
+
+        app.keeper.submit(upload)
         assert wait_until(lambda: _both_hold(app), 30), "wreck frames stored"
     finally:
         app.stop()
@@ -109,7 +111,7 @@ def test_uploaded_topics_survive_a_restart_until_the_configuration_changes(tmp_p
     assert [t["name"] for t in saved["configured"]] == ["fish", "coral"]
 
     # a restart on the same configuration goes on with the uploaded topics and the frames they hold
-    with caplog.at_level(logging.INFO, logger="companion.live.companion"):
+    with caplog.at_level(logging.INFO, logger="companion.live"):
         again = _start(store)
         again.stop()
     assert [t.name for t in again.pipeline.topics] == ["fish", "wreck"]
@@ -121,7 +123,7 @@ def test_uploaded_topics_survive_a_restart_until_the_configuration_changes(tmp_p
 
     # someone changed the configuration since the upload: it wins, and wreck's frames leave (said so)
     caplog.clear()
-    with caplog.at_level(logging.INFO, logger="companion.live.companion"):
+    with caplog.at_level(logging.INFO, logger="companion.live"):
         third = _start(store, topics=(FISH, {**CORAL, "positive": "underwater image of corals"}))
         third.stop()
     assert [t.name for t in third.pipeline.topics] == ["fish", "coral"]
@@ -141,10 +143,10 @@ def test_selective_enhancement_serves_every_topic_and_follows_their_changes(tmp_
         assert app.selective.raw.names == ["fish", "coral"]
         assert [app.selective.raw.tau_of(n) for n in ("fish", "coral")] == [0.5, 0.2]
         assert [t.presampler.tau_ss for t in app.pipeline.topics] == [0.4, 0.4]  # enhanced frames face tau_ses
-        app._on_param("MERL_ENHANCE", 0)  # off: each topic's pipeline gate is its own tau_ss again
+        app.on_param("MERL_ENHANCE", 0)  # off: each topic's pipeline gate is its own tau_ss again
         assert [t.presampler.tau_ss for t in app.pipeline.topics] == [0.5, 0.2]
-        app._on_param("MERL_ENHANCE", 1)
-        app._on_queries([QueryTopic("fish", FISH["positive"], tuple(FISH["negatives"])),
+        app.on_param("MERL_ENHANCE", 1)
+        app.on_queries([QueryTopic("fish", FISH["positive"], tuple(FISH["negatives"])),
                          QueryTopic("wreck", "underwater image of a wreck", ("underwater image of sand",))])
         assert app.selective.raw.names == ["fish", "wreck"] == [t.name for t in app.pipeline.topics]
         doc = app.keeper_document()

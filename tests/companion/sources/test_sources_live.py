@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import threading
@@ -235,6 +236,24 @@ def test_rtp_h264_stream_is_received_lost_and_reopened() -> None:
         sender.kill()
         sender.wait(10)
         reader.join(30)
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed (apt-get install ffmpeg)")
+def test_the_rtp_whitelist_is_set_for_the_stream_only(monkeypatch) -> None:
+    """FFmpeg's protocol whitelist (needed to follow the SDP file to UDP) is not left set for the process: a
+    later capture of another kind (an RTSP camera over TCP) would be refused by it."""
+    monkeypatch.delenv("OPENCV_FFMPEG_CAPTURE_OPTIONS", raising=False)
+    port = free_udp_port()
+    sender = stream_rtp(shared_file("aquarium_fish/fish.mp4"), port)
+    source = StreamSource(SourceConfig(uri=f"udp://127.0.0.1:{port}", fps=5))
+    try:
+        frame = next(iter(source))
+        assert frame.image.ndim == 3  # the stream opened: the whitelist was in force while it did
+        assert "OPENCV_FFMPEG_CAPTURE_OPTIONS" not in os.environ
+    finally:
+        source.close()
+        sender.kill()
+        sender.wait(10)
 
 
 def test_a_failure_names_the_source_once() -> None:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+import threading
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import Config, SurfaceConfig
-from companion.live.tunables import default_params
+from companion.live.control.params import TUNABLES, default_params
 from companion.storage.params_file import FILE_VERSION, ParamsFile
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import companion_link, ground_station, wait_for
@@ -39,10 +40,10 @@ def test_list_read_set_and_restart(tmp_path):
     gcs = ground_station(port)
     try:
         gcs.mav.param_request_list_send(1, 100)
-        listed = _values(gcs, 7)
-        assert set(listed) == {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B", "MERL_LINK_BPS",
-                               "MERL_GATE", "MERL_ENHANCE"}
-        assert all(len(name) <= 16 and m.param_count == 7 for name, m in listed.items())
+        listed = _values(gcs, len(TUNABLES))
+        assert set(listed) == {t.name for t in TUNABLES} >= {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B",
+                                                              "MERL_LINK_BPS", "MERL_GATE", "MERL_ENHANCE"}
+        assert all(len(name) <= 16 and m.param_count == len(TUNABLES) for name, m in listed.items())
         assert listed["MERL_GATE"].param_value == pytest.approx(cfg.gate.threshold)
         assert listed["MERL_K"].param_value == 6 and listed["MERL_K"].param_type == mav.MAV_PARAM_TYPE_INT32
         assert listed["MERL_TAU_SS"].param_value == pytest.approx(0.5)
@@ -97,3 +98,23 @@ def test_refusals_and_bad_saved_values():
     assert server.set("MERL_K", 8) and saved == [{"MERL_K": 8}]
     with pytest.raises(ValueError, match="longer than 16"):
         ParamServer([ParamSpec("MERL_THIS_IS_TOO_LONG", 1, 0, 2)], system_id=lambda: 1, component_id=100)
+
+
+def test_a_callback_runs_outside_the_servers_lock():
+    """A callback that waits on another thread which saves a parameter (as the companion's waits on its summary
+    keeper) must not hold the server's lock: the other save finishes while the callback waits."""
+    saved: list[dict] = []
+    server = ParamServer([ParamSpec("MERL_K", 6, 1, 10, integer=True), ParamSpec("MERL_GATE", 8.0, 0.0, 255.0)],
+                         system_id=lambda: 1, component_id=100, persist=saved.append)
+    other_done = threading.Event()
+
+    def waits_on_another_thread(name, value):
+        if name == "MERL_K":
+            other = threading.Thread(target=lambda: server.set("MERL_GATE", 4.0) and other_done.set())
+            other.start()
+            other.join(10)
+
+    server.on_change(waits_on_another_thread)
+    assert server.set("MERL_K", 7)
+    assert other_done.is_set(), "the other save waited for the callback: it ran under the server's lock"
+    assert server.values() == {"MERL_K": 7, "MERL_GATE": 4.0} and saved[-1] == {"MERL_K": 7, "MERL_GATE": 4.0}

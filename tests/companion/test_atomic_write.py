@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from companion.storage.atomic_write import TMP_PREFIX, atomic_write
+from companion.atomic_write import TMP_PREFIX, atomic_write
 
 
 def test_replaces_content_and_leaves_no_temp_file(tmp_path):
