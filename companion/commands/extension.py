@@ -40,6 +40,8 @@ def router_address(text: str | None) -> tuple[str, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here: the runner brings the surface tool and MAVLink (1.1 s measured with -X importtime), which
+    # every other merlion command would pay at start-up
     from companion.extension.runner import ExtensionOptions, run_extension
 
     if not 0 <= args.port < 65536:

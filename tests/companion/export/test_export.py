@@ -18,7 +18,9 @@ import pytest
 
 from companion.archive.report import write_campaign_report
 from companion.config import StoreConfig
+from companion.commands.export import FORMAT_NAMES
 from companion.export.viame_csv import HEADER
+from companion.export.writer import FORMATS
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent, SummaryFrame
 from tests.conftest import run_merlion, shared_file
@@ -203,6 +205,7 @@ def one_error_line(stderr: str) -> str:
 
 
 def test_bad_input_is_one_line_and_exit_2_and_never_overwrites_the_store(store, tmp_path):
+    assert FORMAT_NAMES == tuple(FORMATS)  # the command's help names what the writer writes
     cases = [
         ((str(tmp_path / "nowhere"), "--format", "coco", "--out", str(tmp_path / "x.json")), "nowhere: not a store"),
         ((str(store), "--format", "yaml", "--out", str(tmp_path / "x.json")), "--format yaml: not one of"),
