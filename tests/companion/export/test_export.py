@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from companion.archive.report import write_campaign_report
-from companion.config import StoreConfig
 from companion.commands.export import FORMAT_NAMES
+from companion.config import StoreConfig
 from companion.export.viame_csv import HEADER
 from companion.export.writer import FORMATS
 from companion.storage.store import Store
