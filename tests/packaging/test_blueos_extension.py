@@ -87,6 +87,7 @@ def docker_or_skip() -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)  # PyPI's wheels (torch among them) are downloaded into the image
 def test_image_builds_from_a_debian_base_and_serves_register_service():
     docker = docker_or_skip()
     arch = {"x86_64": "amd64", "aarch64": "arm64"}.get(subprocess.run(["uname", "-m"], capture_output=True,
