@@ -17,6 +17,7 @@ from pathlib import Path
 
 from companion.atomic_write import atomic_write
 from companion.evaluation.plots import plot_depth, plot_scores
+from companion.export.writer import write_campaign_exports
 
 INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
                 "file", "query")
@@ -94,10 +95,13 @@ def write_campaign_report(out_dir: Path, names: list[str]) -> Path:
     writer.writerows(rows)
     atomic_write(out_dir / "index.csv", buf.getvalue())
     atomic_write(out_dir / "index.json", json.dumps(rows, indent=2) + "\n")
+    exports = write_campaign_exports(out_dir, names)
     parts = [f"<!doctype html><meta charset='utf-8'><title>MERLION campaign</title>"
              f"<h1>MERLION campaign: {len(names)} dives, {len(rows)} summary frames</h1>"
              f"<p>Index of every summary frame: <a href='index.csv'>index.csv</a>, "
-             f"<a href='index.json'>index.json</a></p>"]
+             f"<a href='index.json'>index.json</a></p>"
+             f"<p>For science tools: <a href='{exports['fathomnet'].name}'>FathomNet image records</a>, "
+             f"<a href='{exports['coco'].name}'>COCO</a>, <a href='{exports['csv'].name}'>VIAME/DIVE CSV</a></p>"]
     for name in names:
         summary, tags, scores = _load(out_dir, name)
         esc = html.escape(name)

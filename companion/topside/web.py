@@ -20,6 +20,7 @@ import re
 import secrets
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from http import HTTPStatus
 from importlib import resources
 from pathlib import Path
@@ -28,7 +29,7 @@ from companion.errors import MerlionError
 from companion.topside.http_bounds import BoundedHandler, BoundedHTTPServer
 from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal
 
-__all__ = ["TOKEN_HEADER", "WebServer"]
+__all__ = ["TOKEN_HEADER", "Pages", "WebServer"]
 
 log = logging.getLogger("merlion.surface.web")
 
@@ -49,9 +50,21 @@ Action = Callable[[dict], dict]
 """A state-changing request: the JSON body in, a JSON answer out (a ValueError is a 400 with its message)."""
 
 
+@dataclass(frozen=True)
+class Pages:
+    """What a host of the page adds (the BlueOS extension, companion/extension/): more GET routes (path -> a function
+    of the request's path and query giving the body and its content type, looked up before the page's own), and
+    which of them are pages like the page itself (no state in them: served whatever the origin)."""
+
+    routes: dict[str, Callable[[str], tuple[bytes, str]]] = field(default_factory=dict)
+    open_paths: frozenset[str] = frozenset()
+
+
 def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, hosts: HostPolicy,
-                  actions: dict[str, Action], full_frame: FullFrame | None = None) -> type[BoundedHandler]:
+                  actions: dict[str, Action], full_frame: FullFrame | None = None,
+                  pages: Pages | None = None) -> type[BoundedHandler]:
     root = gallery_dir.resolve()
+    pages = pages or Pages()
 
     class Handler(BoundedHandler):
         server_version = "merlion-surface"
@@ -90,7 +103,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
 
         def do_GET(self) -> None:  # noqa: N802 (http.server's name)
             path = self.path.split("?", 1)[0]
-            if not self._guard(page=path in STATIC):
+            if not self._guard(page=path in STATIC or path in pages.open_paths):
                 return
             try:
                 self._get(path)
@@ -99,7 +112,9 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
                 self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
 
         def _get(self, path: str) -> None:
-            if path in STATIC:
+            if path in pages.routes:
+                self._send(*pages.routes[path](self.path))
+            elif path in STATIC:
                 name, ctype = STATIC[path]
                 body = resources.files("companion.topside").joinpath("static", name).read_bytes()
                 self._send(body, ctype)
@@ -186,13 +201,16 @@ class WebServer:
 
     def __init__(self, state: Callable[[], dict], gallery_dir: str | Path, port: int, host: str = "127.0.0.1",
                  actions: dict[str, Action] | None = None, *, full_frame: FullFrame | None = None,
-                 allowed_hosts: tuple[str, ...] | list[str] = ()) -> None:
+                 allowed_hosts: tuple[str, ...] | list[str] = (), pages: Pages | None = None,
+                 token: str | None = None) -> None:
         """``allowed_hosts``: Host headers to answer besides this machine's own names at its port (``name`` or
-        ``name:port``), e.g. a reverse proxy's name in front of the page."""
-        self.token = secrets.token_urlsafe(18)
+        ``name:port``), e.g. a reverse proxy's name in front of the page. ``pages``: routes a host of the page adds;
+        ``token``: this run's token when the host needs it first (default: a new one)."""
+        self.token = token or secrets.token_urlsafe(18)
         self.host = host
         self._hosts = HostPolicy(host, port, allowed_hosts)
-        handler = _make_handler(state, Path(gallery_dir), self.token, self._hosts, dict(actions or {}), full_frame)
+        handler = _make_handler(state, Path(gallery_dir), self.token, self._hosts, dict(actions or {}), full_frame,
+                                pages)
         try:
             self._server = BoundedHTTPServer((host, port), handler)
         except OSError as err:

@@ -36,6 +36,11 @@ class Pose:
     """LOCAL_POSITION_NED, only with a position source (DVL, USBL)."""
     east_m: float | None = None
     down_m: float | None = None
+    time_boot_ms: int | None = None
+    """The autopilot's own clock at ``time`` (milliseconds since its boot), beside the companion's ``time``."""
+    autopilot_unix_usec: int | None = None
+    """The autopilot's UTC at ``time`` (SYSTEM_TIME's time_unix_usec carried forward on its boot clock), when it has
+    one: a frame's time that survives a companion clock that is wrong or jumps."""
 
     def to_dict(self) -> dict:
         return asdict(self)

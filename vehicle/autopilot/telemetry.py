@@ -97,6 +97,8 @@ class VehicleTelemetry:
         self._depth_seen: dict[str, float] = {}
         self._unsubscribe: Callable[[], None] | None = None
         self._changed = threading.Condition()
+        self._boot_epoch_s: float | None = None
+        """The autopilot's UTC at its boot (SYSTEM_TIME.time_unix_usec - time_boot_ms), once it has UTC."""
 
     @staticmethod
     def wanted_rates(cfg: TelemetryConfig) -> dict[str, float]:
@@ -143,7 +145,10 @@ class VehicleTelemetry:
         offset = self.boot_clock.offset
         if offset is None:
             return Pose(time=t, age_s=math.inf, stale=True)
-        return replace(self.history.pose_at(t - offset), time=t)
+        boot_s = t - offset
+        epoch = self._boot_epoch_s
+        return replace(self.history.pose_at(boot_s), time=t, time_boot_ms=max(0, round(boot_s * 1000.0)),
+                       autopilot_unix_usec=None if epoch is None else round((epoch + boot_s) * 1e6))
 
     def wait_for(self, predicate: Callable[[TelemetrySnapshot], bool], timeout: float) -> bool:
         """Block until ``predicate(latest)`` holds (for start-up, tools and tests)."""
@@ -189,6 +194,7 @@ class VehicleTelemetry:
         if self.boot_clock.observe(boot_ms, arrival):
             log.warning("autopilot rebooted (time_boot_ms went back to %d): time mapping restarted", boot_ms)
             self.history.clear()
+            self._boot_epoch_s = None  # the new boot's UTC comes with its next SYSTEM_TIME
         return boot_ms / 1000.0
 
     def _on_message(self, msg: mav2.MAVLink_message) -> None:
@@ -205,6 +211,7 @@ class VehicleTelemetry:
         elif mtype == "SYSTEM_TIME":
             if msg.time_unix_usec > 0:
                 update["autopilot_utc"] = msg.time_unix_usec / 1e6
+                self._boot_epoch_s = msg.time_unix_usec / 1e6 - msg.time_boot_ms / 1000.0
         elif mtype == "ATTITUDE":
             q = euler_to_quaternion(msg.roll, msg.pitch, msg.yaw)
             if h is not None:

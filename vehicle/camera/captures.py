@@ -58,8 +58,10 @@ def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg"
                      dive: str = "") -> mav.MAVLink_camera_image_captured_message:
     """CAMERA_IMAGE_CAPTURED for a summary frame; fields the pose lacks are 0 (position) or NaN (attitude)."""
     pose = None if frame.pose is None or frame.pose.stale else frame.pose
-    lat = int(round(pose.lat * 1e7)) if pose is not None and _finite(pose.lat) else 0
-    lon = int(round(pose.lon * 1e7)) if pose is not None and _finite(pose.lon) else 0
+    placed = pose is not None and _finite(pose.lat) and _finite(pose.lon) and abs(pose.lat) <= 90 \
+        and abs(pose.lon) <= 180  # QGroundControl marks the map at lat/lon: both valid, or both 0 (unknown)
+    lat = int(round(pose.lat * 1e7)) if placed else 0
+    lon = int(round(pose.lon * 1e7)) if placed else 0
     alt = int(round(pose.alt_m * 1000)) if pose is not None and _finite(pose.alt_m) else 0
     rel = int(round(-pose.depth_m * 1000)) if pose is not None and _finite(pose.depth_m) else 0
     return mav.MAVLink_camera_image_captured_message(

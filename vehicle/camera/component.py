@@ -32,8 +32,19 @@ _SUPPORTED = {CMD_REQUEST_MESSAGE, CMD_REQUEST_CAMERA_INFORMATION, CMD_REQUEST_C
 
 
 def _text(value: str, size: int) -> list[int]:
-    raw = value.encode("ascii", errors="replace")[:size]
+    """A char[size] field that always keeps its NUL: QGroundControl reads vendor_name and model_name as C strings."""
+    raw = value.encode("ascii", errors="replace")[:size - 1]
     return list(raw.ljust(size, b"\0"))
+
+
+def firmware_version_of(version: str) -> int:
+    """A version string packed as CAMERA_INFORMATION.firmware_version wants: Major | Minor << 8 | Patch << 16 (dev 0);
+    0 when it is not numbers ("Use 0 if not known")."""
+    parts = (version.split("+")[0].split("-")[0].split(".") + ["0", "0", "0"])[:3]
+    if not all(p.isdigit() for p in parts):
+        return 0
+    major, minor, patch = (int(p) & 0xFF for p in parts)
+    return major | minor << 8 | patch << 16
 
 
 def param_index(value: float) -> int | None:
@@ -48,8 +59,8 @@ class CameraIdentity:
     model: str = "Summary camera"
     width: int = 0
     height: int = 0
-    firmware_version: int = 0x00010000
-    """Packed major.minor.patch.dev as the spec wants (1.0.0.0)."""
+    firmware_version: int = 0
+    """Packed as the spec wants (``firmware_version_of``); 0: not known. The Downlink fills in the companion's."""
 
 
 class CameraComponent:

@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from vehicle.camera import status as st
 from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
-from vehicle.camera.component import CameraComponent, CameraIdentity
+from vehicle.camera.component import CameraComponent, CameraIdentity, firmware_version_of
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
 from vehicle.camera.params import REQUEST_TYPES as PARAM_REQUESTS
 from vehicle.camera.params import ParamServer, ParamSpec
@@ -160,7 +160,8 @@ class Downlink:
         """(image index, raw) -> the frame's JPEG as the app stored it; served as is, so downloads equal the store."""
         self._earlier_runs = image_count
         self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
-                                      component_id=link.component_id, identity=identity)
+                                      component_id=link.component_id,
+                                      identity=identity or CameraIdentity(firmware_version=firmware_version_of(version)))
         self.status = st.StatusReporter(self.captures.time_boot_ms)
         self.params = ParamServer(params or [], system_id=lambda: link.system_id,
                                   component_id=link.component_id, saved=saved_params,

@@ -1,0 +1,81 @@
+"""What the widget's buttons and Cockpit's actions do: mark a frame (or the newest one), follow a preset topic,
+start or stop the companion. Each is a web server action (JSON in, JSON out; a ValueError is a 400)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+from companion.config import MavlinkConfig, TopicConfig
+from companion.errors import MerlionError
+from companion.topside.queries_upload import queries_from_options, upload_queries
+from companion.topside.tool import SurfaceTool
+from companion.topside.web import Action
+
+UPLOADER = MavlinkConfig(system_id=254, component_id=191)
+"""The topic switch's own connection: the surface tool's system, another component."""
+
+
+class CompanionProcess(Protocol):
+    @property
+    def running(self) -> bool: ...
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+
+
+def _mark(tool: SurfaceTool, index: object, kind: object) -> dict:
+    if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+        raise ValueError(f"mark: index {index!r} is not an image index")
+    error = tool.mark(index, str(kind))
+    if error:
+        raise ValueError(f"marks not set: {error}")
+    return {"marks": tool.snapshot()["marks"]}
+
+
+def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConfig],
+                      companion: CompanionProcess | None = None) -> dict[str, Action]:
+    """``connect``: how the topic switch reaches the companion (the extension's hub); ``companion``: the process
+    start/stop controls (None: not run by this extension, no such action)."""
+    presets = {t.name: t for t in topics}
+
+    def mark(body: dict) -> dict:
+        return _mark(tool, body.get("index"), body.get("kind"))
+
+    def mark_newest(body: dict) -> dict:
+        held = [f["image_index"] for f in tool.snapshot()["summary"]]
+        if not held:
+            raise ValueError("mark: no summary frame yet")
+        return _mark(tool, max(held), body.get("kind"))
+
+    def topic(body: dict) -> dict:
+        name = body.get("topic")
+        if name not in presets:
+            raise ValueError(f"topic {name!r}: not one of {', '.join(presets) or 'the configured topics (none)'}")
+        ident = tool.snapshot()["companion"]["id"]
+        if not ident:
+            raise ValueError("topic: no companion heard yet")
+        chosen = presets[name]
+        data = queries_from_options(None, [], [{"name": chosen.name, "positive": chosen.positive,
+                                                "negatives": list(chosen.negatives)}])
+        try:
+            answer = upload_queries(connect, UPLOADER, (ident[0], ident[1]), data, timeout=15.0)
+        except MerlionError as err:
+            raise ValueError(str(err)) from None
+        if not answer.accepted:
+            raise ValueError(f"topic {name}: {answer.error or 'refused'} {' '.join(answer.status)}".strip())
+        return {"topic": name, "status": answer.status}
+
+    actions: dict[str, Callable[[dict], dict]] = {"mark": mark, "mark-newest": mark_newest, "topic": topic}
+    if companion is not None:
+        def run(body: dict) -> dict:
+            wanted = body.get("run")
+            if not isinstance(wanted, bool):
+                raise ValueError(f"companion: run must be true or false, got {wanted!r}")
+            if wanted:
+                companion.start()
+            else:
+                companion.stop()
+            return {"companion_running": companion.running}
+
+        actions["companion"] = run
+    return actions
