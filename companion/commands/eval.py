@@ -81,6 +81,16 @@ def register(add_command) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_auroc)
 
+    p = add_command("train-head", "train the packaged encoder's learned fish head on the shared data's labelled "
+                    "frames (strength chosen leave-one-group-out) and print its held-out AUROC", group=GROUP)
+    p.add_argument("--data", required=True, metavar="DIR", help="the shared data folder (../shared/data)")
+    p.add_argument("--out", metavar="FILE", help="write the head here (the shipped one: "
+                                                 "companion/vision/encoders/heads/fish.json)")
+    p.add_argument("--nested", action="store_true",
+                   help="also report each group with the strength chosen without it (slow: one SVD per inner fold)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_train_head)
+
     p = add_command("feedback", "AUROC with and without the operator's marks: the first N positive and N "
                     "negative items become marks, the rest are scored", group=GROUP)
     p.add_argument("items", metavar="IMAGES", nargs="+",
@@ -394,4 +404,38 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     for row in result.get("leave_one_group_out", []):
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
+    return 0
+
+
+def _cmd_train_head(args: argparse.Namespace) -> int:
+    from companion.config import EncoderConfig
+    from companion.evaluation.head_training import nested_holdout, pooled_features, train_head
+    from companion.evaluation.holdout import per_group, spread
+    from companion.evaluation.sources import DEEPFISH, load_sources
+    from companion.vision.encoders.imagenet import ImageNetEncoder
+
+    frames = load_sources(args.data)
+    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
+    classes = np.flatnonzero(encoder.encode_texts(["fish"])[0, :1000] > 0)
+    features = pooled_features(encoder, frames)
+    head, figures = train_head(frames, features, concept="fish", classes=classes)
+    figures["deepfish_habitats"] = spread(figures["groups"], DEEPFISH)
+    if args.nested:
+        y = np.array([f.fish for f in frames])
+        scores, chosen = nested_holdout(features, y, np.array([f.group for f in frames]))
+        groups = per_group(scores, frames)
+        figures["nested"] = {"groups": groups, "lambda": chosen, "deepfish_habitats": spread(groups, DEEPFISH)}
+    if args.out:
+        figures["file"] = str(head.save(args.out))
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    d = figures["deepfish_habitats"]
+    print(f"fish head: {len(frames)} frames, lambda {figures['lambda']:g}; leave-one-group-out: group mean AUROC "
+          f"{figures['group_mean_auroc']:.3f}, pooled {figures['pooled_auroc']:.3f}; DeepFish habitats mean "
+          f"{d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f}")
+    for g, v in figures["groups"].items():
+        print(f"  held out {g:20s} AUROC {v:.3f}")
+    if "file" in figures:
+        print(f"head: {figures['file']}")
     return 0
