@@ -75,6 +75,12 @@ def register(add_command) -> None:
                    help="with --data: add a synthetic murky green-cast copy of every frame (sources NAME~murky)")
     p.add_argument("--sweep", action="store_true",
                    help="with --data: the packaged encoder's settings, leave-one-group-out (slow: 6 encoder passes)")
+    p.add_argument("--holdout", action="store_true",
+                   help="with --data: a learned head (the fish head) is retrained without each group and scores "
+                        "that group, so no figure comes from a group the head learned from")
+    p.add_argument("--marks", type=int, metavar="N", help="with --data: in each group the first N positive and N "
+                                                          "negative frames become marks; the rest are scored with "
+                                                          "and without them (with --holdout: by the held-out head)")
     p.add_argument("--config", help="YAML configuration (encoder and queries)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="override encoder.name")
     p.add_argument("--query", help="the label that counts as positive (default: fish when present, else any)")
@@ -377,8 +383,9 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
     import sys
 
-    from companion.evaluation.holdout import leave_one_group_out, per_source
-    from companion.evaluation.sources import load_sources
+    from companion.evaluation.head_training import held_out_head
+    from companion.evaluation.holdout import leave_one_group_out, per_group, per_source, spread
+    from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.presampler import PreSampler
 
     frames = load_sources(args.data, stress=args.stress)
@@ -386,9 +393,26 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     encoder = make_encoder(cfg)
     presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
     batch = cfg.encoder.batch
-    scores = np.concatenate([presampler.scores(encoder.encode_images([f.image for f in frames[i:i + batch]]))
-                             for i in range(0, len(frames), batch)])
+    if args.marks is not None and args.marks < 1:
+        raise UsageError(f"--marks {args.marks}: must be 1 or more")
+    scores, features, kept = [], [], []
+    for i in range(0, len(frames), batch):
+        emb = encoder.encode_images([f.image for f in frames[i:i + batch]])
+        scores.append(presampler.scores(emb))
+        features.append(encoder.sampler_features(emb))
+        if args.marks:
+            kept.append(emb)
+    scores = np.concatenate(scores)
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
+    result["by_group"] = per_group(scores, frames)
+    result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
+    if args.holdout:
+        result["holdout"] = held_out_head(encoder, presampler, np.concatenate(features), frames)
+    if args.marks:
+        from companion.evaluation.group_feedback import marks_by_group
+
+        result["marks"] = marks_by_group(encoder, presampler, np.concatenate(kept), frames, args.marks,
+                                         held_out=args.holdout)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
 
@@ -401,6 +425,30 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     print(f"encoder {encoder.name}, {len(frames)} frames")
     for source, value in result["auroc"].items():
         print(f"  {source:24s} AUROC {value:.3f}")
+    for name in ("deepfish_habitats",):
+        d = result[name]
+        if d:
+            print(f"DeepFish habitats: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
+                  f"spread {d['spread']:.3f} ({d['groups']} habitats)")
+    if "holdout" in result:
+        h = result["holdout"]
+        print(f"held out ({h['method']}):")
+        for group, value in h["by_group"].items():
+            print(f"  {group:24s} AUROC {value:.3f}")
+        d = h["deepfish_habitats"]
+        if d:
+            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
+                  f"spread {d['spread']:.3f}")
+    if "marks" in result:
+        m = result["marks"]
+        print(f"{m['marks']} + {m['marks']} marks from each group's first frames"
+              f"{' (held-out head)' if m['held_out'] else ''}:")
+        for group, r in m["groups"].items():
+            print(f"  {group:24s} query {r['auroc_query']:.3f}  marked {r['auroc_marked']:.3f}  "
+                  f"gain {r['gain']:+.3f}  trust {r['trust']:.2f}")
+        if m["groups"]:
+            print(f"  mean gain {m['mean_gain']:+.3f}  worst {m['worst_gain']:+.3f}  "
+                  f"mean AUROC {m['mean_query']:.3f} -> {m['mean_marked']:.3f}")
     for row in result.get("leave_one_group_out", []):
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
