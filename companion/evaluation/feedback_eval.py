@@ -77,7 +77,8 @@ def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, p
         raise MerlionError(f"--marks {n}: the items left to score hold only one class")
     feats = encoder.object_features(embeddings, presampler.text_embeddings)
     own = presampler.scores(embeddings)
-    marked = MarkedPreSampler(presampler, Marks.from_features(feats[pos], feats[neg], own[pos], own[neg]))
+    marked = MarkedPreSampler(presampler, Marks.from_features(feats[pos], feats[neg], own[pos], own[neg],
+                                                              objects=True))
     query = own[rest]
     combined = marked.scores(embeddings[rest])
     return FeedbackResult(n, len(rest), int(y[rest].sum()), auroc(query, y[rest]), auroc(combined, y[rest]),

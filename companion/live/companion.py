@@ -497,7 +497,8 @@ class LiveCompanion:
             liked, unliked = images(like), images(unlike)  # all checked before any topic changes
             for topic in self.pipeline.topics:
                 if liked[topic.name] or unliked[topic.name]:
-                    marks = Marks.from_images(self.encoder, liked[topic.name], unliked[topic.name])
+                    marks = Marks.from_images(self.encoder, liked[topic.name], unliked[topic.name],
+                                              topic.presampler.text_embeddings)
                     self.mark_images += len(liked[topic.name]) + len(unliked[topic.name])
                 else:
                     marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))

@@ -51,17 +51,19 @@ class Marks:
     unlike: np.ndarray
     like_query: np.ndarray | None = None
     unlike_query: np.ndarray | None = None
+    objects: bool = False
+    """True: rows are ``Encoder.object_features`` (frames are then scored by theirs); False: sampler features."""
 
     def __len__(self) -> int:
         return len(self.like) + len(self.unlike)
 
     @classmethod
     def from_features(cls, like: np.ndarray, unlike: np.ndarray, like_query: np.ndarray | None = None,
-                      unlike_query: np.ndarray | None = None) -> Marks:
+                      unlike_query: np.ndarray | None = None, *, objects: bool = False) -> Marks:
         dim = like.shape[-1] if len(like) else unlike.shape[-1]
         return cls(_normalised(np.reshape(like, (len(like), dim))), _normalised(np.reshape(unlike, (len(unlike), dim))),
                    None if like_query is None else np.asarray(like_query, np.float64),
-                   None if unlike_query is None else np.asarray(unlike_query, np.float64))
+                   None if unlike_query is None else np.asarray(unlike_query, np.float64), objects)
 
     @classmethod
     def from_images(cls, encoder: Encoder, like: Sequence[np.ndarray], unlike: Sequence[np.ndarray],
@@ -76,7 +78,7 @@ class Marks:
             return encoder.object_features(emb, text_embeddings), encoder.semantic_scores(emb, text_embeddings)
 
         (like_f, like_q), (unlike_f, unlike_q) = feats(like), feats(unlike)
-        return cls.from_features(like_f, unlike_f, like_q, unlike_q)
+        return cls.from_features(like_f, unlike_f, like_q, unlike_q, objects=text_embeddings is not None)
 
     def _loo_example_scores(self) -> np.ndarray | None:
         """Each mark's example score from the other marks (like rows first); None when a side has one mark."""
@@ -87,7 +89,7 @@ class Marks:
             rows = getattr(self, side)
             for i in range(len(rows)):
                 rest = np.delete(rows, i, axis=0)
-                others = Marks(rest, self.unlike) if side == "like" else Marks(self.like, rest)
+                others = Marks(rest, self.unlike) if side == "like" else Marks(self.like, rest)  # rows as given
                 out.append(ExampleScorer(others).scores(rows[i:i + 1])[0])
         return np.array(out)
 
@@ -181,6 +183,7 @@ class MarkedPreSampler(PreSampler):
 
     def set_marks(self, marks: Marks) -> None:
         self.examples = ExampleScorer(marks)
+        self.objects = marks.objects
         self.trust = marks.trust()
         self.weight = self.trust * mark_weight(len(marks))
 
@@ -191,7 +194,8 @@ class MarkedPreSampler(PreSampler):
         text = self.text_scores(image_embeddings)
         if len(image_embeddings) == 0 or self.weight == 0.0:
             return text
-        feats = self.encoder.object_features(image_embeddings, self.text_embeddings)
+        feats = (self.encoder.object_features(image_embeddings, self.text_embeddings) if self.objects
+                 else self.encoder.sampler_features(image_embeddings))
         self.examples.observe(feats)
         ex = self.examples.scores(feats)
         return ((1.0 - self.weight) * text + self.weight * ex).astype(np.float32)

@@ -111,3 +111,25 @@ def test_summarize_keeps_frames_by_the_combined_score(tmp_path):
     assert doc["params"]["marks"] == {"like": marks["--like"], "unlike": marks["--unlike"]}
     kept = [fish[f["index"]] for f in doc["frames"]]
     assert kept and not any(kept)  # only no-fish frames, although the query asks for fish
+
+
+def test_marks_that_contradict_each_other_are_not_trusted():
+    like = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    unlike = np.array([[0.0, 1.0, 0.05], [1.0, 0.0, 0.05]])  # each unlike mark sits on a like mark
+    marks = Marks.from_features(like, unlike, np.array([0.6, 0.6]), np.array([0.4, 0.4]))
+    assert marks.agreement() == 0.0 and marks.trust() == 0.0
+
+
+def test_marks_are_trusted_only_where_they_rank_the_marked_frames_better_than_the_query():
+    like = np.array([[1.0, 0.1, 0.0], [1.0, 0.0, 0.1], [0.9, 0.0, 0.0]])
+    unlike = np.array([[0.0, 1.0, 0.1], [0.1, 1.0, 0.0], [0.0, 0.9, 0.0]])
+    assert Marks.from_features(like, unlike).agreement() == 1.0
+    # the query already ranks the marks right: the marks add nothing and weigh nothing
+    agrees = Marks.from_features(like, unlike, np.array([0.9, 0.8, 0.7]), np.array([0.3, 0.2, 0.1]))
+    assert agrees.trust() == 0.0
+    # the query ranks them backwards (raw cyan footage): the marks correct it and are trusted
+    backwards = Marks.from_features(like, unlike, np.array([0.2, 0.3, 0.1]), np.array([0.7, 0.8, 0.9]))
+    assert backwards.trust() > 0.0
+    base = PreSampler(ImageNetEncoder(EncoderConfig(name="imagenet")), "fish")
+    assert MarkedPreSampler(base, agrees).weight == 0.0
+    assert MarkedPreSampler(base, backwards).weight == pytest.approx(backwards.trust() * mark_weight(6))
