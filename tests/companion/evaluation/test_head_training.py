@@ -92,6 +92,8 @@ def encoded():
     return encoder, frames, emb
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # encodes the 803 labelled frames once (~40 s on an idle 2-core CPU)
 def test_training_reproduces_the_shipped_head(encoded):
     encoder, frames, emb = encoded
     shipped = load_head(HEADS_DIR / "fish.json")
@@ -103,6 +105,8 @@ def test_training_reproduces_the_shipped_head(encoded):
     assert np.abs(p_new - p_old).max() < 0.02
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # encodes the 803 labelled frames once (~40 s on an idle 2-core CPU)
 def test_held_out_head_beats_the_lexical_mapping_on_deepfish_habitats(encoded):
     encoder, frames, emb = encoded
     presampler = PreSampler(encoder, "fish")
@@ -120,6 +124,8 @@ def test_held_out_head_beats_the_lexical_mapping_on_deepfish_habitats(encoded):
     assert auroc(scores[deep], y[deep]) > auroc(plain[deep], y[deep]) + 0.1
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # encodes the 803 labelled frames once (~40 s on an idle 2-core CPU)
 def test_marks_never_lower_a_held_out_habitat_by_more_than_002(encoded):
     encoder, frames, emb = encoded
     deep = [i for i, f in enumerate(frames) if f.source.startswith(DEEPFISH)]
