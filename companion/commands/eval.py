@@ -75,11 +75,27 @@ def register(add_command) -> None:
                    help="with --data: add a synthetic murky green-cast copy of every frame (sources NAME~murky)")
     p.add_argument("--sweep", action="store_true",
                    help="with --data: the packaged encoder's settings, leave-one-group-out (slow: 6 encoder passes)")
+    p.add_argument("--holdout", action="store_true",
+                   help="with --data: a learned head (the fish head) is retrained without each group and scores "
+                        "that group, so no figure comes from a group the head learned from")
+    p.add_argument("--marks", type=int, metavar="N", help="with --data: in each group the first N positive and N "
+                                                          "negative frames become marks; the rest are scored with "
+                                                          "and without them (with --holdout: by the held-out head)")
     p.add_argument("--config", help="YAML configuration (encoder and queries)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="override encoder.name")
     p.add_argument("--query", help="the label that counts as positive (default: fish when present, else any)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_auroc)
+
+    p = add_command("train-head", "train the packaged encoder's learned fish head on the shared data's labelled "
+                    "frames (strength chosen leave-one-group-out) and print its held-out AUROC", group=GROUP)
+    p.add_argument("--data", required=True, metavar="DIR", help="the shared data folder (../shared/data)")
+    p.add_argument("--out", metavar="FILE", help="write the head here (the shipped one: "
+                                                 "companion/vision/encoders/heads/fish.json)")
+    p.add_argument("--nested", action="store_true",
+                   help="also report each group with the strength chosen without it (slow: one SVD per inner fold)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_train_head)
 
     p = add_command("feedback", "AUROC with and without the operator's marks: the first N positive and N "
                     "negative items become marks, the rest are scored", group=GROUP)
@@ -366,8 +382,9 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
     import sys
 
-    from companion.evaluation.holdout import leave_one_group_out, per_source
-    from companion.evaluation.sources import load_sources
+    from companion.evaluation.head_training import held_out_head
+    from companion.evaluation.holdout import leave_one_group_out, per_group, per_source, spread
+    from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.presampler import PreSampler
 
     frames = load_sources(args.data, stress=args.stress)
@@ -375,9 +392,26 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     encoder = make_encoder(cfg)
     presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
     batch = cfg.encoder.batch
-    scores = np.concatenate([presampler.scores(encoder.encode_images([f.image for f in frames[i:i + batch]]))
-                             for i in range(0, len(frames), batch)])
+    if args.marks is not None and args.marks < 1:
+        raise UsageError(f"--marks {args.marks}: must be 1 or more")
+    scores, features, kept = [], [], []
+    for i in range(0, len(frames), batch):
+        emb = encoder.encode_images([f.image for f in frames[i:i + batch]])
+        scores.append(presampler.scores(emb))
+        features.append(encoder.sampler_features(emb))
+        if args.marks:
+            kept.append(emb)
+    scores = np.concatenate(scores)
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
+    result["by_group"] = per_group(scores, frames)
+    result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
+    if args.holdout:
+        result["holdout"] = held_out_head(encoder, presampler, np.concatenate(features), frames)
+    if args.marks:
+        from companion.evaluation.group_feedback import marks_by_group
+
+        result["marks"] = marks_by_group(encoder, presampler, np.concatenate(kept), frames, args.marks,
+                                         held_out=args.holdout)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
 
@@ -390,7 +424,65 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     print(f"encoder {encoder.name}, {len(frames)} frames")
     for source, value in result["auroc"].items():
         print(f"  {source:24s} AUROC {value:.3f}")
+    for name in ("deepfish_habitats",):
+        d = result[name]
+        if d:
+            print(f"DeepFish habitats: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
+                  f"spread {d['spread']:.3f} ({d['groups']} habitats)")
+    if "holdout" in result:
+        h = result["holdout"]
+        print(f"held out ({h['method']}):")
+        for group, value in h["by_group"].items():
+            print(f"  {group:24s} AUROC {value:.3f}")
+        d = h["deepfish_habitats"]
+        if d:
+            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
+                  f"spread {d['spread']:.3f}")
+    if "marks" in result:
+        m = result["marks"]
+        print(f"{m['marks']} + {m['marks']} marks from each group's first frames"
+              f"{' (held-out head)' if m['held_out'] else ''}:")
+        for group, r in m["groups"].items():
+            print(f"  {group:24s} query {r['auroc_query']:.3f}  marked {r['auroc_marked']:.3f}  "
+                  f"gain {r['gain']:+.3f}  trust {r['trust']:.2f}")
+        if m["groups"]:
+            print(f"  mean gain {m['mean_gain']:+.3f}  worst {m['worst_gain']:+.3f}  "
+                  f"mean AUROC {m['mean_query']:.3f} -> {m['mean_marked']:.3f}")
     for row in result.get("leave_one_group_out", []):
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
+    return 0
+
+
+def _cmd_train_head(args: argparse.Namespace) -> int:
+    from companion.config import EncoderConfig
+    from companion.evaluation.head_training import nested_holdout, pooled_features, train_head
+    from companion.evaluation.holdout import per_group, spread
+    from companion.evaluation.sources import DEEPFISH, load_sources
+    from companion.vision.encoders.imagenet import ImageNetEncoder
+
+    frames = load_sources(args.data)
+    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
+    classes = np.flatnonzero(encoder.encode_texts(["fish"])[0, :1000] > 0)
+    features = pooled_features(encoder, frames)
+    head, figures = train_head(frames, features, concept="fish", classes=classes)
+    figures["deepfish_habitats"] = spread(figures["groups"], DEEPFISH)
+    if args.nested:
+        y = np.array([f.fish for f in frames])
+        scores, chosen = nested_holdout(features, y, np.array([f.group for f in frames]))
+        groups = per_group(scores, frames)
+        figures["nested"] = {"groups": groups, "lambda": chosen, "deepfish_habitats": spread(groups, DEEPFISH)}
+    if args.out:
+        figures["file"] = str(head.save(args.out))
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    d = figures["deepfish_habitats"]
+    print(f"fish head: {len(frames)} frames, lambda {figures['lambda']:g}; leave-one-group-out: group mean AUROC "
+          f"{figures['group_mean_auroc']:.3f}, pooled {figures['pooled_auroc']:.3f}; DeepFish habitats mean "
+          f"{d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f}")
+    for g, v in figures["groups"].items():
+        print(f"  held out {g:20s} AUROC {v:.3f}")
+    if "file" in figures:
+        print(f"head: {figures['file']}")
     return 0

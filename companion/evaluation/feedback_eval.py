@@ -28,6 +28,8 @@ class FeedbackResult:
     positives: int
     auroc_query: float
     auroc_marked: float
+    trust: float = 1.0
+    """How far the marks were trusted (``companion.vision.feedback``): their weight's share of n / (n + 2)."""
 
     def as_dict(self) -> dict:
         return self.__dict__.copy()
@@ -73,8 +75,11 @@ def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, p
     pos, neg, rest = split_marks(list(y), n)
     if not y[rest].any() or y[rest].all():
         raise MerlionError(f"--marks {n}: the items left to score hold only one class")
-    feats = encoder.sampler_features(embeddings)
-    marked = MarkedPreSampler(presampler, Marks.from_features(feats[pos], feats[neg]))
-    query = presampler.scores(embeddings[rest])
+    feats = encoder.object_features(embeddings, presampler.text_embeddings)
+    own = presampler.scores(embeddings)
+    marked = MarkedPreSampler(presampler, Marks.from_features(feats[pos], feats[neg], own[pos], own[neg],
+                                                              objects=True))
+    query = own[rest]
     combined = marked.scores(embeddings[rest])
-    return FeedbackResult(n, len(rest), int(y[rest].sum()), auroc(query, y[rest]), auroc(combined, y[rest]))
+    return FeedbackResult(n, len(rest), int(y[rest].sum()), auroc(query, y[rest]), auroc(combined, y[rest]),
+                          marked.trust)

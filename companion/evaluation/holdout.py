@@ -54,3 +54,21 @@ def leave_one_group_out(variants: Mapping[str, Sequence[float]], frames: Sequenc
                      "held_out_auroc": subset_auroc(np.asarray(variants[best], np.float64), fish, held),
                      "all": {n: subset_auroc(np.asarray(s, np.float64), fish, held) for n, s in variants.items()}})
     return rows
+
+
+def per_group(scores: Sequence[float], frames: Sequence[LabelledFrame]) -> dict[str, float]:
+    """{group: AUROC} (a source shared by two groups counts in both), plus "pooled" over every frame."""
+    s = np.asarray(scores, dtype=np.float64)
+    fish = np.array([f.fish for f in frames])
+    out = {g: subset_auroc(s, fish, np.array([_in_group(f, g) for f in frames])) for g in groups_of(frames)}
+    out["pooled"] = auroc(s, fish)
+    return out
+
+
+def spread(aurocs: Mapping[str, float], prefix: str) -> dict[str, float]:
+    """Mean, min, max and max - min of the groups whose name starts with ``prefix`` (e.g. DeepFish habitats)."""
+    values = [v for k, v in aurocs.items() if k.startswith(prefix)]
+    if not values:
+        return {}
+    return {"groups": len(values), "mean": float(np.mean(values)), "min": float(np.min(values)),
+            "max": float(np.max(values)), "spread": float(np.max(values) - np.min(values))}

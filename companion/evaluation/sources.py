@@ -3,7 +3,8 @@
 A score tuned on frames of one video and reported on other frames of the same video says little about a dive
 the project has never seen, so every frame here carries the source it came from, and a source is held out
 whole. ``survey`` is cut from the aquarium video and the ROV clips, so it belongs to both of those groups and
-is held out with them. ``euvp_pairs`` has no fish labels and is not used.
+is held out with them. ``euvp_pairs`` has no fish labels and is not used. DeepFish frames are one source per
+habitat (``deepfish:7117``...): each habitat is one camera drop, its own group.
 
 ``murky`` makes a synthetic stress copy of a frame (RUIE-style green cast, haze, softness, lower resolution):
 real murky labelled frames are what the shared data lacks, and these are documented as synthetic wherever
@@ -27,6 +28,7 @@ ROV_STEP = 6
 GROUPS = {"suim": "suim", "aquarium_frames": "aquarium", "aquarium_video": "aquarium", "rov_clips": "rov",
           "survey": "aquarium+rov"}
 """Source -> independent group: sources of one group share footage and are held out together."""
+DEEPFISH = "deepfish:"
 
 
 @dataclass(frozen=True)
@@ -38,7 +40,8 @@ class LabelledFrame:
 
     @property
     def group(self) -> str:
-        return GROUPS[self.source.removesuffix("~murky")]
+        source = self.source.removesuffix("~murky")
+        return source if source.startswith(DEEPFISH) else GROUPS[source]
 
 
 def murky(image: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -80,12 +83,24 @@ def _video_frames(path: Path, step: int) -> Iterator[tuple[int, np.ndarray]]:
         cap.release()
 
 
-def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False) -> list[LabelledFrame]:
+def load_deepfish(root: Path) -> list[LabelledFrame]:
+    """DeepFish frames (``root/deepfish``), one source per habitat; none when the folder is absent."""
+    labels = root / "deepfish" / "labels.csv"
+    if not labels.is_file():
+        return []
+    with labels.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    return [LabelledFrame(f"{DEEPFISH}{r['habitat_id']}", r["file"], r["fish_present"] == "1",
+                          _read(root / "deepfish" / r["file"])) for r in rows]
+
+
+def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False,
+                 deepfish: bool = True) -> list[LabelledFrame]:
     """Every labelled frame of the shared data set folder ``data``; with ``stress`` also a murky copy of each."""
     root = Path(data)
     if not (root / "suim" / "labels.csv").is_file():
         raise MerlionError(f"{root}: not the shared data folder (no suim/labels.csv)")
-    out: list[LabelledFrame] = []
+    out: list[LabelledFrame] = load_deepfish(root) if deepfish else []
     for row in csv.DictReader((root / "suim" / "labels.csv").open()):
         out.append(LabelledFrame("suim", row["image"], row["fish_present"] == "1",
                                  _read(root / "suim" / "images" / row["image"])))

@@ -5,10 +5,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from companion.atomic_write import atomic_write
 from companion.errors import UsageError
 from companion.export import coco, fathomnet, viame_csv
 from companion.export.records import FrameRecord, campaign_records, read_records
-from companion.atomic_write import atomic_write
 
 FORMATS: dict[str, Callable[[list[FrameRecord], Path], str]] = {
     "fathomnet": fathomnet.render,

@@ -1,15 +1,22 @@
 """The operator's marked examples ("more like this" / "not this") combined with the text or concept score.
 
 No text query knows what this operator wants on this dive, and no vocabulary covers every target; a few marked
-frames do. They are embedded with the encoder's own sampler features (CLIP's image embedding, the packaged
-encoder's pooled features), and a nearest-centroid rule scores every frame: ``d = (f - mid) . w / (|w|^2 / 2)``
+frames do. Marks teach the object, not the scene: each frame is represented by the features of its most
+query-like part (``Encoder.object_features``: the packaged encoder's region where the query is strongest; CLIP's
+whole-frame embedding), so marks from the first minutes of a dive do not learn its sea bed. A nearest-centroid
+rule scores every frame: ``d = (f - mid) . w / (|w|^2 / 2)``
 with ``w = like - unlike`` (the two prototypes), so ``d`` is +1 at the "like" prototype, -1 at the "unlike"
 one and 0 half way, whatever the feature scale. With marks on one side only, the other prototype is the running
 mean of the frames scored so far ("not this" = "what this dive usually looks like").
 
-The combined score is ``(1 - w) * text + w * sigmoid(GAIN * d)`` with ``w = n / (n + 2)`` for n marks: one
-mark of each kind weighs as much as the query, five of each 0.83. It stays in (0, 1), so tau_ss keeps its
-meaning. The same ``MarkedPreSampler`` serves ``merlion score``, ``merlion summarize`` and the live companion.
+The combined score is ``(1 - w) * text + w * sigmoid(GAIN * d)`` with ``w = trust * n / (n + 2)`` for n marks:
+one mark of each kind weighs as much as the query, five of each 0.83, as far as the marks are trusted. Trust
+comes from the marks checked against each other, leave-one-out: each mark is scored by the prototypes of the
+other marks, combined with its own query score at a few trial weights, and the marks are trusted only at the
+largest trial weight that ranks the marked frames better than the query alone does (0 when none does: marks from
+a dive's first minutes that only repeat what the query already says, or that contradict each other, then weigh
+nothing). Without the marks' query scores, trust is the marks' leave-one-out agreement, ``max(0, 2 * accuracy -
+1)``. The score stays in (0, 1), so tau_ss keeps its meaning. The same ``MarkedPreSampler`` serves ``merlion score``, ``merlion summarize`` and the live companion.
 """
 
 from __future__ import annotations
@@ -26,6 +33,8 @@ from companion.sources.folder import collect_images
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
 
+TRIAL_TRUST = (0.25, 0.5, 0.75, 1.0)
+"""Fractions of ``mark_weight`` tried, leave-one-out on the marks, to decide how far they are trusted."""
 GAIN = 3.0
 """Slope of the example score at the mid point: d = +1 (the like prototype) maps to sigmoid(3) = 0.95."""
 
@@ -37,27 +46,86 @@ def _normalised(features: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Marks:
-    """Sampler features of the marked frames, L2-normalised, one row per mark."""
+    """Object features of the marked frames, L2-normalised, one row per mark, and their query scores (if known)."""
 
     like: np.ndarray
     unlike: np.ndarray
+    like_query: np.ndarray | None = None
+    unlike_query: np.ndarray | None = None
+    objects: bool = False
+    """True: rows are ``Encoder.object_features`` (frames are then scored by theirs); False: sampler features."""
 
     def __len__(self) -> int:
         return len(self.like) + len(self.unlike)
 
     @classmethod
-    def from_features(cls, like: np.ndarray, unlike: np.ndarray) -> Marks:
+    def from_features(cls, like: np.ndarray, unlike: np.ndarray, like_query: np.ndarray | None = None,
+                      unlike_query: np.ndarray | None = None, *, objects: bool = False) -> Marks:
         dim = like.shape[-1] if len(like) else unlike.shape[-1]
-        return cls(_normalised(np.reshape(like, (len(like), dim))), _normalised(np.reshape(unlike, (len(unlike), dim))))
+        return cls(_normalised(np.reshape(like, (len(like), dim))), _normalised(np.reshape(unlike, (len(unlike), dim))),
+                   None if like_query is None else np.asarray(like_query, np.float64),
+                   None if unlike_query is None else np.asarray(unlike_query, np.float64), objects)
 
     @classmethod
-    def from_images(cls, encoder: Encoder, like: Sequence[np.ndarray], unlike: Sequence[np.ndarray]) -> Marks:
-        def feats(images: Sequence[np.ndarray]) -> np.ndarray:
+    def from_images(cls, encoder: Encoder, like: Sequence[np.ndarray], unlike: Sequence[np.ndarray],
+                    text_embeddings: np.ndarray | None = None) -> Marks:
+        """Marks from images: with the queries (``text_embeddings``), object features and query scores."""
+        def feats(images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None]:
             if not images:
-                return np.zeros((0, 1))
-            return encoder.sampler_features(encoder.encode_images(list(images)))
+                return np.zeros((0, 1)), None if text_embeddings is None else np.zeros(0)
+            emb = encoder.encode_images(list(images))
+            if text_embeddings is None:
+                return encoder.sampler_features(emb), None
+            return encoder.object_features(emb, text_embeddings), encoder.semantic_scores(emb, text_embeddings)
 
-        return cls.from_features(feats(like), feats(unlike))
+        (like_f, like_q), (unlike_f, unlike_q) = feats(like), feats(unlike)
+        return cls.from_features(like_f, unlike_f, like_q, unlike_q, objects=text_embeddings is not None)
+
+    def _loo_example_scores(self) -> np.ndarray | None:
+        """Each mark's example score from the other marks (like rows first); None when a side has one mark."""
+        if len(self.like) < 2 or len(self.unlike) < 2:
+            return None
+        out = []
+        for side in ("like", "unlike"):
+            rows = getattr(self, side)
+            for i in range(len(rows)):
+                rest = np.delete(rows, i, axis=0)
+                others = Marks(rest, self.unlike) if side == "like" else Marks(self.like, rest)  # rows as given
+                out.append(ExampleScorer(others).scores(rows[i:i + 1])[0])
+        return np.array(out)
+
+    def trust(self) -> float:
+        """How far the marks are trusted, in [0, 1] (module docstring)."""
+        agreement = self.agreement()
+        loo = self._loo_example_scores()
+        if loo is None or self.like_query is None or self.unlike_query is None or agreement == 0.0:
+            return agreement
+        query = np.concatenate([self.like_query, self.unlike_query])
+        positive = np.arange(len(query)) < len(self.like)
+        weight = mark_weight(len(self))
+        best, trusted = _pair_auroc(query, positive), 0.0
+        for t in TRIAL_TRUST:
+            area = _pair_auroc((1.0 - t * weight) * query + t * weight * loo, positive)
+            if area > best + 1e-9:
+                best, trusted = area, t
+        return trusted * agreement
+
+    def agreement(self) -> float:
+        """Leave-one-out agreement in [0, 1]: 1 when every checkable mark falls on its own side of the others'
+        prototypes, 0 at chance or worse; 1 when no mark can be checked (one mark on a side, or one side)."""
+        right = checked = 0
+        for side, other in ((self.like, self.unlike), (self.unlike, self.like)):
+            if len(side) < 2 or not len(other):
+                continue
+            for i in range(len(side)):
+                rest = np.delete(side, i, axis=0).mean(axis=0)
+                centre = other.mean(axis=0)
+                d = (side[i] - (rest + centre) / 2.0) @ (rest - centre)  # > 0: on its own side
+                right += int(d > 0)
+                checked += 1
+        if not checked:
+            return 1.0
+        return max(0.0, 2.0 * right / checked - 1.0)
 
 
 @dataclass
@@ -94,6 +162,12 @@ class ExampleScorer:
         return 1.0 / (1.0 + np.exp(-GAIN * d))
 
 
+def _pair_auroc(scores: np.ndarray, positive: np.ndarray) -> float:
+    """Share of (positive, negative) pairs ranked right, ties half: the AUROC of a handful of marks."""
+    diff = scores[positive][:, None] - scores[~positive][None, :]
+    return float(((diff > 0) + 0.5 * (diff == 0)).mean())
+
+
 def mark_weight(n: int) -> float:
     """Share of the combined score given to the marks: n / (n + 2)."""
     return n / (n + 2.0)
@@ -110,7 +184,9 @@ class MarkedPreSampler(PreSampler):
 
     def set_marks(self, marks: Marks) -> None:
         self.examples = ExampleScorer(marks)
-        self.weight = mark_weight(len(marks))
+        self.objects = marks.objects
+        self.trust = marks.trust()
+        self.weight = self.trust * mark_weight(len(marks))
 
     def text_scores(self, image_embeddings: np.ndarray) -> np.ndarray:
         return super().scores(image_embeddings)
@@ -119,7 +195,8 @@ class MarkedPreSampler(PreSampler):
         text = self.text_scores(image_embeddings)
         if len(image_embeddings) == 0 or self.weight == 0.0:
             return text
-        feats = self.encoder.sampler_features(image_embeddings)
+        feats = (self.encoder.object_features(image_embeddings, self.text_embeddings) if self.objects
+                 else self.encoder.sampler_features(image_embeddings))
         self.examples.observe(feats)
         ex = self.examples.scores(feats)
         return ((1.0 - self.weight) * text + self.weight * ex).astype(np.float32)
@@ -140,4 +217,5 @@ def with_marks(presampler: PreSampler, like: Sequence[np.ndarray], unlike: Seque
     """The pre-sampler to use given the marked images (unchanged when there are none)."""
     if not like and not unlike:
         return presampler
-    return MarkedPreSampler(presampler, Marks.from_images(presampler.encoder, like, unlike))
+    return MarkedPreSampler(presampler, Marks.from_images(presampler.encoder, like, unlike,
+                                                          presampler.text_embeddings))

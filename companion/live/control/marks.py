@@ -112,7 +112,8 @@ class MarksHandler:
         liked, unliked = images(like), images(unlike)  # all checked before any topic changes
         for topic in pipeline.topics:
             if liked[topic.name] or unliked[topic.name]:
-                marks = Marks.from_images(ctx.encoder, liked[topic.name], unliked[topic.name])
+                marks = Marks.from_images(ctx.encoder, liked[topic.name], unliked[topic.name],
+                                          topic.presampler.text_embeddings)
                 self.images += len(liked[topic.name]) + len(unliked[topic.name])
             else:
                 marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))

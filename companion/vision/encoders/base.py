@@ -38,6 +38,11 @@ class Encoder(ABC):
         """The part of the embedding the informative sampler compares (all of it unless an encoder says otherwise)."""
         return image_embeddings
 
+    def object_features(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
+        """Features of the part of each frame that looks most like the positive query, for the operator's marks
+        (the object, not the scene); encoders without regions give their sampler features."""
+        return self.sampler_features(image_embeddings)
+
     def describe(self) -> dict:
         """What went into the scores (architecture, weights, precision, device), for summary.json and status."""
         return {"name": self.name}

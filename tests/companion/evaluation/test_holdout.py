@@ -56,7 +56,7 @@ def test_murky_copy_is_green_cast_softer_and_same_size():
 
 def test_shared_data_split_by_source():
     shared_file("suim/labels.csv")
-    frames = load_sources(SHARED_DATA, survey=False)
+    frames = load_sources(SHARED_DATA, survey=False, deepfish=False)
     by = {}
     for f in frames:
         by.setdefault(f.source, []).append(f.fish)
@@ -71,8 +71,14 @@ def test_eval_auroc_by_source_with_the_visual_baseline_is_chance(tmp_path):
     r = run_merlion("eval", "auroc", "--data", str(SHARED_DATA), "--encoder", "visual", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    assert set(out["auroc"]) == {"suim", "aquarium_frames", "aquarium_video", "rov_clips", "survey", "pooled"}
+    habitats = {k for k in out["auroc"] if k.startswith("deepfish:")}
+    assert set(out["auroc"]) - habitats == {"suim", "aquarium_frames", "aquarium_video", "rov_clips", "survey",
+                                            "pooled"}
+    assert len(habitats) == (10 if (SHARED_DATA / "deepfish" / "labels.csv").is_file() else 0)
     assert all(v == 0.5 for v in out["auroc"].values())
+    assert set(out["by_group"]) == habitats | {"suim", "aquarium", "rov", "pooled"}
+    if habitats:
+        assert out["deepfish_habitats"] == {"groups": 10, "mean": 0.5, "min": 0.5, "max": 0.5, "spread": 0.0}
     bad = run_merlion("eval", "auroc", "--data", str(tmp_path), "--encoder", "visual")
     assert bad.returncode == 1
     assert bad.stderr.strip() == f"merlion: error: {tmp_path}: not the shared data folder (no suim/labels.csv)"

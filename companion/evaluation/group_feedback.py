@@ -1,0 +1,64 @@
+"""The marks' effect per group: in each labelled group (a DeepFish habitat, a source), the first N positive and N
+negative frames become the operator's marks and the rest are scored with and without them.
+
+With ``held_out`` the learned head that answers the query is retrained without the group first, so neither the
+query score nor the marks' effect comes from a head that saw the group. Used by ``merlion eval auroc --data
+--marks N``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from companion.errors import MerlionError
+from companion.evaluation.feedback_eval import evaluate
+from companion.evaluation.head_training import fit
+from companion.evaluation.holdout import groups_of
+from companion.evaluation.sources import LabelledFrame
+from companion.vision.encoders.imagenet import ImageNetEncoder
+from companion.vision.encoders.learned_head import LinearHead
+from companion.vision.presampler import PreSampler
+
+
+def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: np.ndarray) -> LinearHead:
+    lam = float(head.trained_on.get("lambda", 1e4))
+    refit = fit(features[keep], y[keep], lam)
+    return LinearHead(head.concept, head.classes, head.backbone, head.colour, refit.w, refit.b,
+                      {"lambda": lam, "held_out": True})
+
+
+def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, embeddings: np.ndarray,
+                   frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True) -> dict:
+    """{"groups": {group: {auroc_query, auroc_marked, gain, trust}}, "mean_gain", "worst_gain", ...}; groups
+    without n + n frames and something left of each class are skipped (listed under "skipped")."""
+    y = np.array([f.fish for f in frames])
+    in_group = {g: np.array([g in f.group.split("+") for f in frames]) for g in groups_of(frames)}
+    head = encoder.head_of(presampler.text_embeddings) if hasattr(encoder, "head_of") else None
+    features = encoder.sampler_features(embeddings).astype(np.float64)
+    shipped = list(getattr(encoder, "heads", []))
+    rows, skipped = {}, []
+    try:
+        for g, mask in in_group.items():
+            idx = np.flatnonzero(mask)
+            if min(y[idx].sum(), (~y[idx]).sum()) < n + 1:
+                skipped.append(g)
+                continue
+            if held_out and head is not None:
+                encoder.heads = [_head_without(head, features, y, ~mask)]
+            try:
+                r = evaluate(encoder, presampler, embeddings[idx], y[idx], n)
+            except MerlionError:
+                skipped.append(g)
+                continue
+            rows[g] = {"auroc_query": r.auroc_query, "auroc_marked": r.auroc_marked,
+                       "gain": r.auroc_marked - r.auroc_query, "trust": r.trust}
+    finally:
+        if hasattr(encoder, "heads"):
+            encoder.heads = shipped
+    gains = [r["gain"] for r in rows.values()]
+    return {"marks": n, "held_out": bool(held_out and head is not None), "groups": rows, "skipped": skipped,
+            "mean_gain": float(np.mean(gains)) if gains else None, "worst_gain": float(min(gains)) if gains else None,
+            "mean_query": float(np.mean([r["auroc_query"] for r in rows.values()])) if rows else None,
+            "mean_marked": float(np.mean([r["auroc_marked"] for r in rows.values()])) if rows else None}

@@ -1,0 +1,88 @@
+"""Small learned heads on the packaged encoder's pooled features: a concept scored from real underwater data.
+
+ImageNet's fish classes were learned from air-lit photos of fish held by anglers; on sea-bed footage their
+probability mass ranks fish frames at chance (DeepFish AUROC 0.49). A logistic regression on the same
+network's 1280 pooled features, trained on labelled underwater frames (``companion.evaluation.head_training``),
+ranks them far better on habitats it never saw (docs/encoders.md). A head stands for one concept: it applies
+when the positive query's ImageNet classes are (nearly) the classes the head was trained for, so "fish" uses the
+head and "shark" or "coral" keep the lexical class mapping.
+
+A head is a JSON file (a few KB): the concept, its ImageNet classes, the colour handling its features were
+taken with, weights ``w`` and bias ``b`` on raw pooled features (standardisation is folded in), and what it was
+trained on. Shipped heads live in ``companion/vision/encoders/heads/``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from companion.errors import MerlionError
+
+HEADS_DIR = Path(__file__).with_name("heads")
+MIN_OVERLAP = 0.5
+"""Jaccard overlap between a query's classes and a head's classes above which the head answers the query."""
+
+
+@dataclass(frozen=True)
+class LinearHead:
+    """``p = sigmoid(features . w + b)``: the probability that a frame shows the concept."""
+
+    concept: str
+    classes: tuple[int, ...]
+    backbone: str
+    colour: str
+    w: np.ndarray
+    b: float
+    trained_on: dict = field(default_factory=dict)
+
+    def logits(self, features: np.ndarray) -> np.ndarray:
+        return np.asarray(features, dtype=np.float64) @ self.w + self.b
+
+    def probabilities(self, features: np.ndarray) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-self.logits(features)))
+
+    def matches(self, class_weights: np.ndarray) -> bool:
+        """Whether a query's class weights (1000,) name this head's concept (Jaccard of the class sets)."""
+        query = set(np.flatnonzero(np.asarray(class_weights) > 0).tolist())
+        mine = set(self.classes)
+        union = query | mine
+        return bool(union) and len(query & mine) / len(union) >= MIN_OVERLAP
+
+    def to_json(self) -> dict:
+        return {"concept": self.concept, "classes": list(self.classes), "backbone": self.backbone,
+                "colour": self.colour,
+                "b": round(float(self.b), 6), "w": [float(f"{v:.5g}") for v in self.w],
+                "trained_on": self.trained_on}
+
+    def save(self, path: str | Path) -> Path:
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(self.to_json(), separators=(",", ":")) + "\n", encoding="utf-8")
+        return p
+
+
+def load_head(path: str | Path) -> LinearHead:
+    """A head from its JSON file; MerlionError naming the file when it is unreadable or malformed."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+        return LinearHead(concept=str(data["concept"]), classes=tuple(int(c) for c in data["classes"]),
+                          backbone=str(data.get("backbone", "lite0")), colour=str(data.get("colour", "none")), w=np.asarray(data["w"], dtype=np.float64),
+                          b=float(data["b"]), trained_on=dict(data.get("trained_on") or {}))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise MerlionError(f"{p}: not a readable learned head ({err})") from None
+
+
+def shipped_heads(backbone: str, features: int, colour: str) -> list[LinearHead]:
+    """The heads shipped with the package that fit an encoder with this backbone, feature size and colour."""
+    heads = [load_head(p) for p in sorted(HEADS_DIR.glob("*.json"))]
+    return [h for h in heads if h.backbone == backbone and h.w.shape == (features,) and h.colour == colour]
+
+
+def head_for(heads: list[LinearHead], class_weights: np.ndarray) -> LinearHead | None:
+    """The first head whose concept the query names, else None (the lexical class mapping answers)."""
+    return next((h for h in heads if h.matches(class_weights)), None)
