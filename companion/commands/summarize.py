@@ -39,4 +39,6 @@ def run(args: argparse.Namespace) -> int:
     sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
     print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
           f"({result.frames_passed} passed the query{lost}); see summary.json and {sheets}")
+    for note in result.document["params"]["short"]:
+        print(f"{result.out_dir}: {note}")
     return 0

@@ -574,7 +574,9 @@ class LiveCompanion:
         if len(held) > 1:
             return ", ".join(f"{name} {n}/{k}" for name, n in held.items())
         summary = len(self.store.summary) if self.store is not None else 0
-        return f"{summary}/{k}"
+        duplicates = self.pipeline.counts["duplicates"] if self.pipeline is not None else 0
+        # a summary short of K with duplicates refused: the dive has no more distinct views (issue 25)
+        return f"{summary}/{k}" + (f" ({duplicates} duplicates not kept)" if duplicates else "")
 
     def keeper_document(self) -> dict[str, Any]:
         """/store/summary.json: the keeper's summary and history, each frame's topic, and what the encoder did,

@@ -146,7 +146,7 @@ class Pipeline:
         self.encode_size = encoder.input_size
         self.clock = StageClock()
         self.gate = gate if gate is not None else FrameGate("none")
-        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0}
+        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0, "duplicates": 0}
 
     @classmethod
     def from_config(cls, cfg: Config, encoder: Encoder, *, first_image_index: int = 0) -> Pipeline:
@@ -425,6 +425,7 @@ class Pipeline:
         key = self.next_image_index
         decision = topic.sampler.offer(key, feature, prepared=True)
         if not decision.added:
+            self.counts["duplicates"] += decision.duplicate
             return []
         self.next_image_index += 1
         self.counts["added"] += 1
