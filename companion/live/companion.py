@@ -86,6 +86,7 @@ class LiveCompanion:
         self.link = None
         self.telemetry = None
         self.surface = None
+        self._autopilot_seen = False
         self.source: RetryingSource | None = None
         self.capture: CaptureLoop | None = None
         self.inference: InferenceLoop | None = None
@@ -509,14 +510,18 @@ class LiveCompanion:
         self.keeper.change(apply)
 
     def _on_autopilot(self, alive: bool) -> None:
-        if alive:
+        first = alive and not self._autopilot_seen  # the first contact is "up"; only after a loss is it "back"
+        self._autopilot_seen = self._autopilot_seen or alive
+        if first:
+            log.info("autopilot heartbeat up")
+        elif alive:
             log.info("autopilot heartbeat back")
         else:
             log.warning("autopilot heartbeat lost; frames are tagged stale until it returns")
         if self.surface is not None:
             from vehicle.camera import status as st
 
-            self.surface.event(*st.link_text(alive))
+            self.surface.event(*st.link_text(alive, first))
 
     def _on_source_state(self, state: str, detail: str) -> None:
         if self.surface is None:

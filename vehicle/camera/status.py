@@ -63,8 +63,11 @@ def started_text(version: str) -> tuple[str, int]:
     return f"MERLION {version} started", INFO
 
 
-def link_text(alive: bool) -> tuple[str, int]:
-    return ("Autopilot link back", INFO) if alive else ("Autopilot link lost", WARNING)
+def link_text(alive: bool, first: bool = False) -> tuple[str, int]:
+    """``first``: the first heartbeat since start is "up", not "back" (nothing was lost before it)."""
+    if alive:
+        return ("Autopilot link up" if first else "Autopilot link back"), INFO
+    return "Autopilot link lost", WARNING
 
 
 def camera_text(alive: bool) -> tuple[str, int]:
