@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any, get_args
 
-from companion.commands.overrides import Overrides, add_topic_option, put_queries_and_encoder
+from companion.commands.overrides import OPTION_NAMES, Overrides, add_topic_option, put_queries_and_encoder
 from companion.config import Precision, load_config
 
 
@@ -43,7 +43,7 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from companion.vision.score_images import score_images
 
-    cfg = load_config(args.config, overrides=overrides_from(args))
+    cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
     failed = 0
     for item in score_images(cfg, args.paths, like=args.like, unlike=args.unlike):
         if item.score is None:

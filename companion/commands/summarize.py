@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
+from companion.commands.overrides import OPTION_NAMES, Overrides, add_summary_options, put_summary_options
 from companion.config import load_config
 
 
@@ -33,7 +33,7 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from companion.vision.summarize import summarize
 
-    cfg = load_config(args.config, overrides=overrides_from(args))
+    cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
     result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
     sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])

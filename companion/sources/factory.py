@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from companion.config import SourceConfig
-from companion.errors import MerlionError
+from companion.errors import UsageError
 from companion.sources.base import FrameSource
 
 
@@ -49,4 +49,4 @@ def open_source(cfg: SourceConfig, *, realtime: bool | None = None) -> FrameSour
         from companion.sources.video import VideoSource
 
         return VideoSource(path, fps=cfg.fps, realtime=paced, loop=cfg.loop)
-    raise MerlionError(f"source {cfg.uri}: no such file or folder")
+    raise UsageError(f"source {cfg.uri}: no such file or folder")
