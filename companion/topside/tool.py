@@ -28,6 +28,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import MavlinkConfig
+from companion.topside.boot_clock import BootClock
 from companion.topside.ftp_client import FtpClient, crc32_mavftp
 from companion.topside.gallery import Capture, Gallery
 from companion.topside.messages import (
@@ -146,6 +147,7 @@ class SurfaceTool:
         """The marks this tool last had accepted by the companion (the page shows them on the cards)."""
         self._requests: queue.Queue = queue.Queue()  # work handed to the receive loop by other threads (web)
         self._offline_at = -1e9
+        self._boot_clock = BootClock()  # the companion's time_boot_ms on this clock: the depth track's times
 
     # --- connection ----------------------------------------------------------------------------------------
 
@@ -249,11 +251,12 @@ class SurfaceTool:
             if kind == "NAMED_VALUE_INT" and name == PUSH_MARKER:
                 self._marker = int(msg.value)
                 return
+            measured = self._boot_clock.local(int(msg.time_boot_ms), now)  # not its arrival: see boot_clock
             with self.lock:
                 self.status.values[name] = float(msg.value)
                 self.status.values_at = now
                 if name == DEPTH_VALUE and math.isfinite(float(msg.value)):
-                    self.status.depth_track.append((round(now, 2), round(float(msg.value), 2)))
+                    self.status.depth_track.append((round(measured, 2), round(float(msg.value), 2)))
         elif kind == "FILE_TRANSFER_PROTOCOL" and self._ftp is not None:
             self._ftp.handle(msg)
 
