@@ -134,7 +134,12 @@ class Pipeline:
         self.encoder = encoder
         self.topics: list[Topic] = list(topics)
         """The topics followed, the default (first) one first."""
-        self._sampler_args = (topics[0].sampler.k, topics[0].sampler.distance, topics[0].sampler.threshold)
+        duplicate = getattr(encoder, "duplicate_cosine", None)
+        if duplicate is not None:  # the encoder knows how close its features come for the same picture
+            for topic in topics:
+                topic.sampler.duplicate_cosine = duplicate
+        self._sampler_args = (topics[0].sampler.k, topics[0].sampler.distance, topics[0].sampler.threshold,
+                              topics[0].sampler.duplicate_cosine)
         self.default_tau_ss = topics[0].presampler.tau_ss if default_tau_ss is None else default_tau_ss
         """tau_ss of a topic without its own (``queries.tau_ss``, then MERL_TAU_SS): a topic added live takes it."""
         self.default_topic = topics[0].name if default_topic is None else default_topic

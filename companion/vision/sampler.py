@@ -60,9 +60,12 @@ class Decision:
 class InformativeSampler:
     """Online K-summary over sampler features; members are identified by integer keys chosen by the caller."""
 
-    def __init__(self, k: int = 6, distance: str = "js", threshold: str = "mean") -> None:
+    def __init__(self, k: int = 6, distance: str = "js", threshold: str = "mean",
+                 duplicate_cosine: float = DUPLICATE_COSINE) -> None:
         self._check(k, distance, threshold)
         self.k = k
+        self.duplicate_cosine = duplicate_cosine
+        """Frames at most this cosine distance from a member are the same picture (the encoder may say)."""
         self.distance = distance
         self.threshold = threshold
         self._keys: list[int] = []
@@ -156,7 +159,7 @@ class InformativeSampler:
             return Decision(True, key, float("inf"), float("nan"), True)
         row = self._to_members(v, v_h)
         alpha = float(row.min())
-        if float(dist.cosine_many(v, self._feat).min()) <= DUPLICATE_COSINE:
+        if float(dist.cosine_many(v, self._feat).min()) <= self.duplicate_cosine:
             return Decision(False, key, alpha, float("nan"), len(self._keys) < self.k, duplicate=True)
         if len(self._keys) < self.k:
             self._insert(key, v, v_h, row, self._from_members(v, row))
