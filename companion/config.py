@@ -165,8 +165,9 @@ class GateConfig(_Section):
     docs/vision.md, the frame gate); none: every frame is encoded."""
     threshold: float = Field(8.0, ge=0, le=255)
     """Mean absolute difference in grey levels (0-255) on 32x18 copies above which a frame is encoded."""
-    max_gap_s: float = Field(1.0, gt=0)
-    """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows."""
+    max_gap_s: float = Field(0.5, gt=0)
+    """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows (0.5: the
+    gated summary then keeps the ungated one's segments, `merlion bench gate`)."""
 
 
 class StoreConfig(_Section):
