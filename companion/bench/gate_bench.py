@@ -23,6 +23,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
+
 from companion.config import Config, build_config
 from companion.evaluation.datasets import LabelTable
 from companion.evaluation.labels_eval import oracle_summary
@@ -82,8 +84,6 @@ def _deepfish_labels(folder: Path) -> tuple[dict[int, str], dict[int, bool]]:
 
 
 def _frame_count(uri: str) -> int:
-    import cv2
-
     cap = cv2.VideoCapture(uri)
     try:
         return int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
@@ -202,8 +202,6 @@ def _source_fps(case: GateCase) -> float:
     """SRUM counts time in source frames: the source's own rate (a folder of images: the case's rate)."""
     if Path(case.uri).is_dir():
         return case.fps
-    import cv2
-
     cap = cv2.VideoCapture(case.uri)
     try:
         return float(cap.get(cv2.CAP_PROP_FPS) or 0.0) or 30.0
