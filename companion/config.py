@@ -167,8 +167,9 @@ class GateConfig(_Section):
     docs/vision.md, the frame gate); none: every frame is encoded."""
     threshold: float = Field(8.0, ge=0, le=255)
     """Mean absolute difference in grey levels (0-255) on 32x18 copies above which a frame is encoded."""
-    max_gap_s: float = Field(1.0, gt=0)
-    """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows."""
+    max_gap_s: float = Field(0.5, gt=0)
+    """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows (0.5: the
+    gated summary then keeps the ungated one's segments, `merlion bench gate`)."""
 
 
 class StoreConfig(_Section):
@@ -225,7 +226,23 @@ def _describe(err: ValidationError) -> str:
         msg = "unknown key"
     value = first.get("input")
     shown = "" if first["type"] == "extra_forbidden" or isinstance(value, dict) else f" (got {value!r})"
+    if shown and f"got {value}" in msg:  # the validator's own message already names the value
+        shown = ""
     return f"{key}: {msg}{shown}"
+
+
+def _error_key(err: ValidationError) -> tuple[str, ...]:
+    return tuple(str(p) for p in err.errors()[0]["loc"])
+
+
+def _given(over: dict[str, Any], key: tuple[str, ...]) -> bool:
+    """Whether ``key`` (a dotted path) was set by these overrides."""
+    node: Any = over
+    for part in key:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
 
 
 def _env_overrides(environ: dict[str, str]) -> dict[str, Any]:
@@ -269,8 +286,13 @@ def load_config(
     *,
     overrides: dict[str, Any] | None = None,
     environ: dict[str, str] | None = None,
+    options: dict[str, str] | None = None,
 ) -> Config:
-    """The file (if any), then MERLION__* environment variables, then command-line overrides (nested dicts)."""
+    """The file (if any), then MERLION__* environment variables, then command-line overrides (nested dicts).
+
+    ``options`` names the command-line option of a dotted key (``{"sampler.k": "-k"}``): a bad value given on the
+    command line is blamed on that option (else on "command line"), not on the file or the defaults.
+    """
     data: dict[str, Any] = {}
     origin = "defaults"
     if path is not None:
@@ -302,4 +324,11 @@ def load_config(
         origin = f"{origin} (with {ENV_PREFIX}* environment overrides)"
     if overrides:
         data = _merge(data, overrides)
-    return build_config(data, origin=origin)
+    try:
+        return Config.model_validate(data or {})
+    except ValidationError as err:
+        key = _error_key(err)
+        if overrides and _given(overrides, key):  # the command line's value: blame its option, not the file
+            option = (options or {}).get(".".join(key))
+            raise ConfigError(f"{option or 'command line'}: {_describe(err)}") from None
+        raise ConfigError(f"{origin}: {_describe(err)}") from None

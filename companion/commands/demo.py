@@ -12,7 +12,9 @@ def register(add_command) -> None:
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds to run (default 60)")
     p.add_argument("--out", type=Path, default=Path("merlion-demo"), metavar="DIR",
                    help="where the surface gallery (DIR/surface), store (DIR/store) and report go "
-                        "(default ./merlion-demo; an existing store is resumed)")
+                        "(default ./merlion-demo; an earlier run there is moved aside to DIR.previous-TIME)")
+    p.add_argument("--resume", action="store_true", help="continue the earlier run's store and gallery in DIR "
+                   "instead of starting fresh")
     p.add_argument("--source", metavar="PATH", help="real video or a folder of frames instead of the generated dive "
                    "(played in a loop)")
     p.add_argument("--tau-ss", type=float, metavar="T", help="semantic threshold (default 0.3 on the generated "
@@ -37,4 +39,4 @@ def run(args: argparse.Namespace) -> int:
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,
-                            encoder=args.encoder, web_port=args.web, signing_key=args.signing_key))
+                            encoder=args.encoder, web_port=args.web, signing_key=args.signing_key, resume=args.resume))

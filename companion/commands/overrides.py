@@ -12,6 +12,10 @@ from typing import Any
 Overrides = dict[str, dict[str, Any]]
 
 ENCODER_OPTIONS = ("model", "weights", "pretrained", "precision", "batch")
+OPTION_NAMES = {"sampler.k": "-k", "queries.tau_ss": "--threshold", "source.fps": "--fps", "encoder.batch": "--batch",
+                "queries.positive": "--query", "queries.negatives": "--negative", "queries.topics": "--topic",
+                "encoder.model": "--model", "encoder.weights": "--weights", "enhance.mode": "--enhance"}
+"""The option that sets each key, so a bad value is blamed on what the user typed (``load_config(options=)``)."""
 
 
 def put(over: Overrides, section: str, key: str, value: Any) -> None:

@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any, get_args
 
-from companion.commands.overrides import Overrides, add_topic_option, put_queries_and_encoder
+from companion.commands.overrides import OPTION_NAMES, Overrides, add_topic_option, put_queries_and_encoder
 from companion.config import Precision, load_config
 
 
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from companion.vision.query_explain import explain_queries
     from companion.vision.score_images import score_images
 
-    cfg = load_config(args.config, overrides=overrides_from(args))
+    cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
     if args.explain:
         print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
     failed = 0

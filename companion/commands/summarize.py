@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
+from companion.commands.overrides import OPTION_NAMES, Overrides, add_summary_options, put_summary_options
 from companion.config import load_config
 
 
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from companion.vision.query_explain import explain_queries
     from companion.vision.summarize import summarize
 
-    cfg = load_config(args.config, overrides=overrides_from(args))
+    cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
     if args.explain:
         print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
     result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
@@ -46,4 +46,6 @@ def run(args: argparse.Namespace) -> int:
     below_text = f"; {below} below the threshold, the best seen" if below else ""
     print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
           f"({result.frames_passed} passed the query{lost}{below_text}); see summary.json and {sheets}")
+    for note in result.document["params"]["short"]:
+        print(f"{result.out_dir}: {note}")
     return 0

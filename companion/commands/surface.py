@@ -8,7 +8,7 @@ import signal
 import socket
 import threading
 
-from companion.commands.arg_checks import require_positive
+from companion.commands.arg_checks import require_positive, require_resolvable_host
 from companion.commands.station_options import check_station_ids, companion_ids
 from companion.errors import MerlionError
 from companion.topside.gallery import Gallery
@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     check_station_ids(args.system_id, args.component_id)
     require_positive("--duration", args.duration)
     require_positive("--push-timeout", args.push_timeout)
+    require_resolvable_host("--connect", args.connect)
     check_port_free(args.connect)
     if args.signing_key:  # before the gallery folder is made
         load_key(args.signing_key)

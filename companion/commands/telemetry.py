@@ -24,11 +24,10 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.commands.arg_checks import require_positive
+    from companion.commands.arg_checks import require_positive, require_resolvable_host
     from companion.config import load_config
     from companion.errors import UsageError
     from vehicle.autopilot.telemetry_watch import watch_telemetry
-    from vehicle.link.connection import parse_connection
 
     require_positive("--duration", args.duration)
     overrides = {"mavlink": {"connection": args.connect}} if args.connect else {}
@@ -37,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, overrides=overrides, environ=dict(os.environ))
     if not cfg.mavlink.connection:
         raise UsageError("mavlink.connection is null: give --connect")
-    parse_connection(cfg.mavlink.connection)
+    require_resolvable_host("--connect" if args.connect else "mavlink.connection", cfg.mavlink.connection)
     if cfg.mavlink.signing_key_file:
         from vehicle.link.signing import load_key
 

@@ -26,7 +26,7 @@ from companion import __version__
 from companion.config import Config, build_config
 from companion.live.control.context import ControlContext
 from companion.live.control.marks import MarksHandler
-from companion.live.control.notices import autopilot_notice, source_notice
+from companion.live.control.notices import AutopilotNotice, source_notice
 from companion.live.control.params import ParamHandler, default_params
 from companion.live.control.queries import QueriesHandler, follow_saved_queries
 from companion.live.control.summary_file import keeper_document, serve_keeper_document
@@ -237,7 +237,7 @@ class LiveCompanion:
         self.surface.on_marks_changed(self.on_marks)
         self.surface.set_marks(self.marks.like, self.marks.unlike)
         serve_keeper_document(self.control, self.on_marks)
-        self.link.on_autopilot(lambda alive: autopilot_notice(self.control, alive))
+        self.link.on_autopilot(AutopilotNotice(self.control))
         self.link.start()
         self.telemetry.start()
         self.surface.start()
@@ -308,7 +308,9 @@ class LiveCompanion:
         if len(held) > 1:
             return ", ".join(f"{name} {n}/{k}" for name, n in held.items())
         summary = len(self.store.summary) if self.store is not None else 0
-        return f"{summary}/{k}"
+        duplicates = self.pipeline.counts["duplicates"] if self.pipeline is not None else 0
+        # a summary short of K with duplicates refused: the dive has no more distinct views (issue 25)
+        return f"{summary}/{k}" + (f" ({duplicates} duplicates not kept)" if duplicates else "")
 
     def keeper_document(self) -> dict[str, Any]:
         """/store/summary.json (companion.live.control.summary_file)."""

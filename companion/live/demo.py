@@ -64,6 +64,8 @@ class DemoOptions:
     """The surface tool's live page (0: a free port); its URL is printed at the start."""
     signing_key: str | None = None
     """MAVLink 2 signing key file shared by the simulator, the companion and the surface tool."""
+    resume: bool = False
+    """Continue the store and gallery of an earlier run in ``out``; by default that run is moved aside."""
 
 
 def check_source(opts: DemoOptions) -> None:
@@ -278,11 +280,37 @@ def format_report(report: dict[str, Any], *, survey_hint: bool) -> str:
     return "\n".join(lines)
 
 
+def set_aside_previous_run(out: Path) -> Path | None:
+    """A demo starts fresh: an earlier run's output in ``out`` is renamed to a sibling ``<out>.previous-<time>``
+    (never deleted); returns where it went, or None when ``out`` held nothing."""
+    if not out.is_dir() or not any(out.iterdir()):
+        return None
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    target = out.with_name(f"{out.name}.previous-{stamp}")
+    n = 1
+    while target.exists():
+        n += 1
+        target = out.with_name(f"{out.name}.previous-{stamp}-{n}")
+    try:
+        out.rename(target)
+    except OSError as err:
+        raise MerlionError(f"--out {out}: holds an earlier run that cannot be moved aside ({err.strerror or err}); "
+                           f"pass --resume to continue it or choose another --out") from None
+    return target
+
+
 def main(opts: DemoOptions) -> int:
     if not 0 <= opts.web_port <= 65535:
         raise UsageError(f"--web {opts.web_port}: not a port (0-65535; 0 picks a free one)")
     if opts.out.exists() and not opts.out.is_dir():
         raise UsageError(f"--out {opts.out}: exists and is not a folder")
+    if opts.resume:
+        if opts.out.is_dir() and any(opts.out.iterdir()):
+            _say(opts, f"merlion demo: resuming the earlier run in {opts.out} (its store and gallery go on)")
+    else:
+        moved = set_aside_previous_run(opts.out)
+        if moved is not None:
+            _say(opts, f"merlion demo: starting fresh; the earlier run in {opts.out} was moved to {moved}")
     stop = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():  # Ctrl-C ends the demo early, with its report

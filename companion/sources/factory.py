@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from companion.config import SourceConfig
-from companion.errors import MerlionError
+from companion.errors import UsageError
 from companion.sources.base import FrameSource
 from companion.sources.folder import FolderSource
 from companion.sources.stream import StreamSource, parse_udp
@@ -40,4 +40,4 @@ def open_source(cfg: SourceConfig, *, realtime: bool | None = None) -> FrameSour
         return FolderSource(path, fps=cfg.fps, realtime=paced, loop=cfg.loop)
     if path.is_file():
         return VideoSource(path, fps=cfg.fps, realtime=paced, loop=cfg.loop)
-    raise MerlionError(f"source {cfg.uri}: no such file or folder")
+    raise UsageError(f"source {cfg.uri}: no such file or folder")

@@ -26,6 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import MavlinkConfig
 from companion.topside.actions import SurfaceActions
+from companion.topside.boot_clock import BootClock
 from companion.topside.ftp_client import FtpClient
 from companion.topside.gallery import Gallery
 from companion.topside.gallery_sync import GallerySync
@@ -83,6 +84,7 @@ class SurfaceTool:
         self._cameras: set[tuple[int, int]] = set()
         self._offline_at = -1e9
         self._signed_only = self._link.signing.enabled
+        self._boot_clock = BootClock()  # the companion's time_boot_ms on this clock: the depth track's times
 
     # the context's parts, as other code and tests name them
     options = property(lambda self: self.ctx.options)
@@ -211,12 +213,13 @@ class SurfaceTool:
         if kind == "NAMED_VALUE_INT" and name == PUSH_MARKER:
             self.pairing.on_marker(int(msg.value))
             return
+        measured = self._boot_clock.local(int(msg.time_boot_ms), now)  # not its arrival: see boot_clock
         with self.ctx.lock:
             status = self.ctx.status
             status.values[name] = float(msg.value)
             status.values_at = now
             if name == DEPTH_VALUE and math.isfinite(float(msg.value)):
-                status.depth_track.append((round(now, 2), round(float(msg.value), 2)))
+                status.depth_track.append((round(measured, 2), round(float(msg.value), 2)))
 
     def _on_heartbeat(self, msg, source: tuple[int, int], now: float) -> None:
         status = self.ctx.status

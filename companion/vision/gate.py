@@ -35,7 +35,7 @@ class FrameGate:
     between calls (live tuning); a change takes effect with the next frame.
     """
 
-    def __init__(self, mode: str = "difference", threshold: float = 8.0, max_gap_s: float = 1.0, *,
+    def __init__(self, mode: str = "difference", threshold: float = 8.0, max_gap_s: float = 0.5, *,
                  size: tuple[int, int] = TINY_SIZE) -> None:
         if mode not in GATE_MODES:
             raise ValueError(f"gate.mode: {mode!r} is not one of {', '.join(GATE_MODES)}")

@@ -142,7 +142,12 @@ class Pipeline:
         self.encoder = encoder
         self.topics: list[Topic] = list(topics)
         """The topics followed, the default (first) one first."""
-        self._sampler_args = (topics[0].sampler.k, topics[0].sampler.distance, topics[0].sampler.threshold)
+        duplicate = getattr(encoder, "duplicate_cosine", None)
+        if duplicate is not None:  # the encoder knows how close its features come for the same picture
+            for topic in topics:
+                topic.sampler.duplicate_cosine = duplicate
+        self._sampler_args = (topics[0].sampler.k, topics[0].sampler.distance, topics[0].sampler.threshold,
+                              topics[0].sampler.duplicate_cosine)
         self.default_tau_ss = topics[0].presampler.tau_ss if default_tau_ss is None else default_tau_ss
         """tau_ss of a topic without its own (``queries.tau_ss``, then MERL_TAU_SS): a topic added live takes it."""
         self.default_topic = topics[0].name if default_topic is None else default_topic
@@ -156,7 +161,7 @@ class Pipeline:
         self.gate = gate if gate is not None else FrameGate("none")
         self.quiet_s = float(quiet_s)
         """Footage seconds with nothing passing after which an empty topic shows its best frames (stand-ins)."""
-        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0}
+        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0, "duplicates": 0}
 
     @classmethod
     def from_config(cls, cfg: Config, encoder: Encoder, *, first_image_index: int = 0) -> Pipeline:
@@ -489,6 +494,7 @@ class Pipeline:
         key = self.next_image_index
         decision = topic.sampler.offer(key, feature, prepared=True)
         if not decision.added:
+            self.counts["duplicates"] += decision.duplicate
             return []
         self.next_image_index += 1
         self.counts["added"] += 1

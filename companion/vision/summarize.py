@@ -118,6 +118,7 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
             "encoder": encoder.describe(),
             "stats": stats,
             "topics": topics,
+            "short": short_notes(topics, pipeline.sampler.k),
         },
         "frames": [
             {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
@@ -125,6 +126,13 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
             for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index, f.topic))
         ],
     }
+
+
+def short_notes(topics: list[dict], k: int) -> list[str]:
+    """One sentence per topic holding fewer than K frames: the dive had fewer distinct views that passed the
+    query (duplicates never take a place), so the summary is smaller rather than padded with copies."""
+    return [f"{t['name']}: {t['frames']} of K={k} frames, the video has no more distinct views that passed "
+            f"the query" for t in topics if t["frames"] < k]
 
 
 def _write(out_tmp: Path, document: dict, frames: list[SummaryFrame]) -> None:
@@ -217,7 +225,7 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
     frames = pipeline.summary
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
              "frames_added": pipeline.counts["added"], "frames_encoded": pipeline.counts["encoded"],
-             "frames_skipped": pipeline.counts["skipped"],
+             "frames_skipped": pipeline.counts["skipped"], "frames_duplicate": pipeline.counts["duplicates"],
              "encoder_images": pipeline.clock.items.get("encode", 0) + pipeline.clock.items.get("reencode", 0)}
     document = build_document(cfg, encoder, pipeline, frames, stats)
     if like or unlike:

@@ -63,8 +63,11 @@ def started_text(version: str) -> tuple[str, int]:
     return f"MERLION {version} started", INFO
 
 
-def link_text(alive: bool) -> tuple[str, int]:
-    return ("Autopilot link back", INFO) if alive else ("Autopilot link lost", WARNING)
+def link_text(alive: bool, first: bool = False) -> tuple[str, int]:
+    """``first``: the first heartbeat since start is "up", not "back" (nothing was lost before it)."""
+    if alive:
+        return ("Autopilot link up" if first else "Autopilot link back"), INFO
+    return "Autopilot link lost", WARNING
 
 
 def camera_text(alive: bool) -> tuple[str, int]:
@@ -87,6 +90,8 @@ class StatusReporter:
         self._time_boot_ms = time_boot_ms
         self._lock = threading.Lock()
         self.values = StatusValues()
+        self._depth_ms: int | None = None
+        """When depth_m was measured: its message carries that time, not the send tick's (up to a period later)."""
 
     def update(self, **values: float | None) -> None:
         """Set any of fps, score, summary, link_bps, depth_m; None means unknown (sent as NaN)."""
@@ -95,11 +100,14 @@ class StatusReporter:
                 if not hasattr(self.values, key):
                     raise TypeError(f"unknown status value {key!r}")
                 setattr(self.values, key, math.nan if value is None else float(value))
+            if "depth_m" in values:
+                self._depth_ms = self._time_boot_ms()
 
     def messages(self) -> list[mav.MAVLink_named_value_float_message]:
         with self._lock:
             v = StatusValues(**vars(self.values))
+            depth_ms = self._depth_ms
         now = self._time_boot_ms()
         return [named_value(NAME_FPS, v.fps, now), named_value(NAME_SCORE, v.score, now),
                 named_value(NAME_SUMMARY, v.summary, now), named_value(NAME_LINK, v.link_bps, now),
-                named_value(NAME_DEPTH, v.depth_m, now)]
+                named_value(NAME_DEPTH, v.depth_m, now if depth_ms is None else depth_ms)]

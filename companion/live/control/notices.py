@@ -11,13 +11,24 @@ from vehicle.camera import status as st
 log = logging.getLogger(__name__)
 
 
-def autopilot_notice(ctx: ControlContext, alive: bool) -> None:
-    """The link's on_autopilot callback: logged, and said on the surface."""
-    if alive:
-        log.info("autopilot heartbeat back")
-    else:
-        log.warning("autopilot heartbeat lost; frames are tagged stale until it returns")
-    ctx.say(*st.link_text(alive))
+class AutopilotNotice:
+    """The link's on_autopilot callback: logged, and said on the surface. The first contact is "up"; only a
+    heartbeat after a loss is "back" (nothing was lost before the first one)."""
+
+    def __init__(self, ctx: ControlContext) -> None:
+        self.ctx = ctx
+        self.seen = False
+
+    def __call__(self, alive: bool) -> None:
+        first = alive and not self.seen
+        self.seen = self.seen or alive
+        if first:
+            log.info("autopilot heartbeat up")
+        elif alive:
+            log.info("autopilot heartbeat back")
+        else:
+            log.warning("autopilot heartbeat lost; frames are tagged stale until it returns")
+        self.ctx.say(*st.link_text(alive, first))
 
 
 def source_notice(ctx: ControlContext, source: RetryingSource | None, state: str) -> None:

@@ -276,11 +276,15 @@ function render(state) {
   const link = state.link, comp = state.companion;
   document.getElementById("dive").textContent = "dive " + (state.dive || "?");
   document.getElementById("clock").textContent = timeText(state.time) + (LIVE ? "" : " \u2014 saved page");
-  setLight("link", ageState(link.last_message_age_s, 2),
+  // a saved page shows what was, not what is: its lights are grey ("saved"), never a green "live"
+  const light = (age, staleAfter) => (LIVE ? ageState(age, staleAfter) : "saved");
+  const when = LIVE ? "" : " (when saved)";
+  setLight("link", light(link.last_message_age_s, 2),
     "link: " + (!known(link.last_message_age_s) ? "no data" : link.messages + " msgs, last "
-      + link.last_message_age_s + " s ago") + (link.lost_packets ? ", " + link.lost_packets + " lost" : ""));
-  setLight("companion", ageState(comp.heartbeat_age_s, 3),
-    "companion: " + (comp.id ? comp.id.join("/") + ", heartbeat " + comp.heartbeat_age_s + " s ago" : "not seen"));
+      + link.last_message_age_s + " s ago") + (link.lost_packets ? ", " + link.lost_packets + " lost" : "") + when);
+  setLight("companion", light(comp.heartbeat_age_s, 3),
+    "companion: " + (comp.id ? comp.id.join("/") + ", heartbeat " + comp.heartbeat_age_s + " s ago" : "not seen")
+      + when);
   document.getElementById("counts").textContent =
     "thumbnails: push " + link.pushed_ok + " ok (" + link.verified + " CRC-checked) / " + link.pushed_lost
     + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";

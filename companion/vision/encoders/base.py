@@ -16,6 +16,9 @@ import numpy as np
 class Encoder(ABC):
     name: str
     """e.g. "clip:ViT-B-32", "imagenet:efficientnet-lite0", "visual"."""
+    duplicate_cosine: float | None = None
+    """How close (cosine of sampler features) two frames must be to count as the same picture; None: the
+    sampler's measured default (``companion.vision.sampler.DUPLICATE_COSINE``)."""
 
     @property
     @abstractmethod

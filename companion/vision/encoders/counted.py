@@ -23,6 +23,7 @@ class CountedEncoder(Encoder):
     def __init__(self, inner: Encoder) -> None:
         self.inner = inner
         self.name = inner.name
+        self.duplicate_cosine = inner.duplicate_cosine
         self.images = 0
         self.calls = 0
         self._lock = threading.Lock()  # the inference loop, the enhancer worker and marks may encode

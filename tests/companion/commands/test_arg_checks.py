@@ -35,3 +35,15 @@ def test_commands_refuse_nan_and_negative_numbers(args: tuple[str, ...], message
     done = run_merlion(*args, timeout=60)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [message]
+
+
+@pytest.mark.parametrize("command", [("telemetry", "--connect", "udpout:no-such-host.invalid:14550"),
+                                     ("surface", "--connect", "udpin:no-such-host.invalid:14550")])
+def test_an_unresolvable_host_fails_at_once_naming_it(tmp_path, command):
+    proc = run_merlion(*command, "--out", str(tmp_path / "g"), timeout=60) if command[0] == "surface" else \
+        run_merlion(*command, timeout=60)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("merlion: error:")]
+    assert len(lines) == 1 and lines[0].startswith(f"merlion: error: --connect {command[2]}: cannot resolve host "
+                                                   "'no-such-host.invalid' ("), proc.stderr
+    assert "open" not in proc.stdout and not (tmp_path / "g").exists()

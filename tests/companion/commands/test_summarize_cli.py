@@ -94,8 +94,8 @@ def test_bad_input_is_one_line_and_nonzero(tmp_path):
     out = tmp_path / "out"
     missing = tmp_path / "missing.mp4"
     proc = run_merlion("summarize", str(missing), "--out", str(out), "--encoder", "visual")
-    assert proc.returncode != 0
-    assert str(missing) in one_error_line(proc.stderr)
+    assert proc.returncode == 2  # bad input: exit 2, as every other bad input
+    assert one_error_line(proc.stderr) == f"merlion: error: source {missing}: no such file or folder"
     assert not out.exists()
     broken = tmp_path / "broken.mp4"
     data = shared_file(SURVEY).read_bytes()
@@ -107,6 +107,19 @@ def test_bad_input_is_one_line_and_nonzero(tmp_path):
     proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--threshold", "-0.2")  # 0 is valid (no gate); below 0 is not
     assert proc.returncode == 2
     assert "tau_ss" in one_error_line(proc.stderr)
+
+
+def test_a_bad_option_is_blamed_on_the_option_and_its_value_shown_once(tmp_path):
+    out = tmp_path / "out"
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "-k", "-3")
+    assert proc.returncode == 2
+    assert one_error_line(proc.stderr) == ("merlion: error: -k: sampler.k: Input should be greater than or equal "
+                                           "to 1 (got -3)")
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--threshold", "-1")
+    line = one_error_line(proc.stderr)
+    assert proc.returncode == 2 and line.startswith("merlion: error: --threshold: queries.tau_ss: ")
+    assert line.count("-1.0") == 1, line
+    assert not out.exists()
 
 
 def test_an_output_folder_that_cannot_be_written_fails_before_the_work():

@@ -1,8 +1,10 @@
 """The vehicle gets a wheel, not a checkout: build one, install it in a fresh venv, stage the service, run the demo.
 
-The venv reuses the system's packages (torch and the rest: ``--system-site-packages``), but the project itself
-comes only from the wheel: the test checks that ``companion`` imports from the venv, and runs everything outside
-the repository with PYTHONPATH cleared.
+The venv reuses the running Python's packages (torch and the rest), but the project itself comes only from the
+wheel: the test checks that ``companion`` imports from the venv, and runs everything outside the repository with
+PYTHONPATH cleared. Under the system Python that is ``--system-site-packages``; under a venv (the README's
+``python3 -m venv`` route) that flag would reach the base interpreter's site, which has none of the dependencies,
+so the child venv gets a .pth file naming the running venv's site-packages instead.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import configparser
 import json
 import os
 import shutil
+import site
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +25,19 @@ from tests.conftest import REPO
 
 def _run(args: list[str], *, cwd: Path, env: dict, timeout: float) -> subprocess.CompletedProcess:
     return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+def make_venv(venv: Path, *, cwd: Path, env: dict) -> Path:
+    """A venv that sees the running interpreter's packages (not the project: it is installed from the wheel)."""
+    in_venv = sys.prefix != sys.base_prefix
+    flags = [] if in_venv else ["--system-site-packages"]
+    made = _run([sys.executable, "-m", "venv", *flags, "--without-pip", str(venv)], cwd=cwd, env=env, timeout=120)
+    assert made.returncode == 0, made.stderr
+    if in_venv:
+        # plain directory lines: the parent's own .pth files (its editable install of the project) are not run
+        (child_site,) = (venv / "lib").glob("python*/site-packages")
+        (child_site / "parent_venv.pth").write_text("".join(f"{d}\n" for d in site.getsitepackages()))
+    return venv
 
 
 @pytest.mark.slow
@@ -39,10 +55,7 @@ def test_wheel_installs_the_service_and_runs_the_demo(tmp_path: Path) -> None:
                   "-w", str(wheels)], cwd=tmp_path, env=env, timeout=180)
     assert built.returncode == 0, built.stdout + built.stderr
     (wheel,) = wheels.glob("merlion_companion-*.whl")
-    venv = tmp_path / "venv"
-    made = _run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(venv)], cwd=tmp_path,
-                env=env, timeout=120)
-    assert made.returncode == 0, made.stderr
+    venv = make_venv(tmp_path / "venv", cwd=tmp_path, env=env)
     python, merlion = venv / "bin" / "python", venv / "bin" / "merlion"
     # the system's pip installs into the venv (no copy of pip needed); --no-index: dependencies come from the
     # system site, nothing is downloaded

@@ -53,13 +53,15 @@ def test_kl_direction_and_floor():
     assert np.isfinite(dist.kl_many(p, np.array([[1.0, 0.0, 0.0]]))).all()
 
 
-def test_warmup_takes_the_first_k_frames_unconditionally():
+def test_warmup_takes_the_first_k_distinct_frames_unconditionally():
     s = InformativeSampler(k=3, distance="cosine")
-    decisions = [s.offer(i, at(0)) for i in range(5)]
-    assert [d.added for d in decisions] == [True, True, True, False, False]
-    assert all(d.warmup for d in decisions[:3])
-    assert s.keys == [0, 1, 2]
-    assert s.gamma == 0.0  # identical members: an identical frame is not strictly more surprising
+    angles = [0, 0, 20, 21, 22, 60, 80]  # 21 is 1 degree from 20 (a duplicate); 22 is 2 from 20 and 1 from 21
+    decisions = [s.offer(i, at(a)) for i, a in enumerate(angles)]
+    assert [d.added for d in decisions][:6] == [True, False, True, False, False, True]
+    assert [d.duplicate for d in decisions][:5] == [False, True, False, True, True]
+    assert all(d.warmup for d in decisions[:6])
+    assert s.keys[:3] == [0, 2, 5]
+    assert not decisions[6].warmup
 
 
 def test_alpha_must_be_strictly_greater_than_gamma():
@@ -198,8 +200,9 @@ def test_changing_k_at_runtime():
     assert removed == [1, 2]  # seeded with the newest (90), the farthest from it is 0
     assert s.keys == [0, 3]
     s.set_k(3)
-    d = s.offer(4, at(89))  # not full: enters as in warm-up, however close
-    assert d.added and d.warmup and s.keys == [0, 3, 4]
+    assert s.offer(4, at(89)).duplicate  # not full, but the same picture as 90 never enters
+    d = s.offer(5, at(80))  # not full: enters as in warm-up, however close
+    assert d.added and d.warmup and s.keys == [0, 3, 5]
     with pytest.raises(ValueError):
         s.set_k(0)
 

@@ -19,6 +19,8 @@ def test_lines_and_names_follow_the_rules():
     assert len(long.text) == 50
     assert st.link_text(False)[1] == mav.MAV_SEVERITY_WARNING and st.link_text(True)[1] == mav.MAV_SEVERITY_INFO
     assert st.camera_text(False)[1] == mav.MAV_SEVERITY_WARNING
+    assert [st.link_text(True, first=True)[0], st.link_text(False)[0], st.link_text(True)[0]] == [
+        "Autopilot link up", "Autopilot link lost", "Autopilot link back"]
     assert all(len(n) <= 10 and n not in st.RESERVED_NAMES for n in st.VALUE_NAMES)
     with pytest.raises(ValueError):
         st.named_value("CamTilt", 1.0, 0)

@@ -1,0 +1,44 @@
+"""`merlion bench gate` on the survey video: the gated summary covers the same segments as the ungated one and is
+within 0.02 SRUM of it (issue 25 item 3), and the command prints the comparison."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from companion.bench.gate_bench import compare_case, default_cases
+from companion.config import load_config
+from companion.vision.encoders.factory import make_encoder
+from tests.conftest import run_merlion, shared_file
+
+
+@pytest.fixture(scope="module")
+def survey_10fps():
+    data = shared_file("survey/survey_480x270.mp4").parent.parent
+    (case,) = [c for c in default_cases(data) if c.name == "survey 10 fps"]
+    return case
+
+
+def test_the_gated_survey_summary_covers_the_ungated_segments_within_002_srum(survey_10fps):
+    cfg = load_config(None, overrides={"encoder": {"name": "imagenet"}, "queries": {"tau_ss": 0.0}})
+    row = compare_case(cfg, survey_10fps, make_encoder(cfg.encoder))
+    gated, ungated = row["gated"], row["ungated"]
+    assert ungated["encoder_calls"] == 93 and gated["encoder_calls"] < 93  # the gate still saves encoder calls
+    assert gated["segments"] == ungated["segments"], row
+    assert len(gated["segments"]) >= 4 and row["segments_total"] == 5
+    assert abs(row["srum_delta"]) <= 0.02, row
+
+
+def test_the_command_prints_the_table_and_json(tmp_path):
+    data = shared_file("survey/survey_480x270.mp4").parent.parent
+    proc = run_merlion("bench", "gate", "--data", str(data), "--case", "ROV clip 1 30", "--encoder", "visual",
+                       "--json", timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert lines[0].startswith("gate: difference > 8, max gap 0.5 s; tau_ss 0; K 6; encoder visual")
+    assert lines[2].startswith("ROV clip 1 30 fps")
+    (row,) = json.loads(lines[-1])["rows"]
+    assert row["case"] == "ROV clip 1 30 fps" and row["ungated"]["encoder_calls"] == row["frames"]
+    proc = run_merlion("bench", "gate", "--data", str(data), "--case", "no such video", timeout=60)
+    assert proc.returncode == 2 and "no such case" in proc.stderr
