@@ -11,7 +11,7 @@ from __future__ import annotations
 from companion.config import MavlinkConfig
 from companion.errors import MerlionError
 from companion.topside.station_upload import upload_file
-from vehicle.camera.downlink import MARKS_PATH, format_marks, parse_marks
+from vehicle.protocol.marks import MARKS_PATH, format_marks, parse_marks
 
 __all__ = ["MARKS_PATH", "marks_document", "upload_marks"]
 

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import json
 
-import pytest
 from pymavlink import mavftp
 
 from companion.config import SurfaceConfig
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import companion_link, ground_station
-from vehicle.camera.downlink import MARKS_MAX, Downlink, parse_marks
+from vehicle.camera.downlink import Downlink
 
 
 def _settings() -> mavftp.MAVFTPSettings:
@@ -18,28 +17,6 @@ def _settings() -> mavftp.MAVFTPSettings:
               "write_size": 80, "write_qsize": 5, "idle_detection_time": 1.5, "read_retry_time": 0.6,
               "retry_time": 0.4}
     return mavftp.MAVFTPSettings([(k, type(v), v) for k, v in values.items()])
-
-
-def test_parse_marks_accepts_the_format_and_drops_repeats():
-    assert parse_marks(b'{"like": [5, 3, 5], "unlike": [7]}') == ([5, 3], [7])
-    assert parse_marks(b'{"like": []}') == ([], [])
-
-
-@pytest.mark.parametrize("data, says", [
-    (b"not json", "not JSON"),
-    (b"[1, 2]", "must be an object"),
-    (b'{"like": [1], "maybe": [2]}', "unknown key 'maybe'"),
-    (b'{"like": [-1]}', "like must be a list of image indices"),
-    (b'{"unlike": [1.5]}', "unlike must be a list"),
-    (b'{"like": [true]}', "like must be a list"),
-    (b'{"like": "3"}', "like must be a list"),
-    (b'{"like": [4], "unlike": [4]}', "image 4 is both like and unlike"),
-    (json.dumps({"like": list(range(MARKS_MAX + 1))}).encode(), "more than"),
-    (b" " * 5000, "bytes, more than"),
-])
-def test_parse_marks_refuses_bad_files_naming_the_problem(data, says):
-    with pytest.raises(ValueError, match=says):
-        parse_marks(data)
 
 
 def test_uploading_marks_reaches_the_app_and_a_refusal_is_a_nak(companion, tmp_path):
