@@ -23,6 +23,10 @@ import numpy as np
 from companion.errors import MerlionError
 
 HEADS_DIR = Path(__file__).with_name("heads")
+SURE = 0.998
+"""The most (and 1 - SURE the least) a head's probability may say. A head fitted on a few hundred frames is
+overconfident on footage like what it was trained on (sigmoid 1.0 in float32), which made the top of tau_ss's
+range (MERL_TAU_SS up to 0.999) a gate that such frames still passed; an affine squash keeps every ranking."""
 MIN_OVERLAP = 0.5
 """Jaccard overlap between a query's classes and a head's classes above which the head answers the query."""
 
@@ -43,7 +47,8 @@ class LinearHead:
         return np.asarray(features, dtype=np.float64) @ self.w + self.b
 
     def probabilities(self, features: np.ndarray) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-self.logits(features)))
+        sure = 1.0 / (1.0 + np.exp(-self.logits(features)))
+        return (1.0 - SURE) + (2.0 * SURE - 1.0) * sure
 
     def matches(self, class_weights: np.ndarray) -> bool:
         """Whether a query's class weights (1000,) name this head's concept (Jaccard of the class sets)."""

@@ -16,7 +16,7 @@ def test_short_demo_leaves_gallery_store_and_report(tmp_path: Path) -> None:
     # the packaged encoder (what a fresh machine has), a quick dive, and a low threshold so a short run fills
     # the summary whatever the machine's speed
     done = run_merlion("demo", "--duration", "20", "--out", str(out), "--source", "synthetic://dive?seconds=2",
-                       "--tau-ss", "0.1", "--encoder", "imagenet", timeout=240)
+                       "--tau-ss", "0.02", "--encoder", "imagenet", timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "merlion demo: done" in done.stdout
     report = json.loads((out / "report.json").read_text())

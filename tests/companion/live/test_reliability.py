@@ -48,7 +48,7 @@ def test_autopilot_silent_then_back_then_rebooted(tmp_path: Path, vehicle) -> No
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url, "heartbeat_timeout_s": 1.5},
                        store={"dir": str(tmp_path / "store")})
     companion = Companion("--config", str(cfg))
-    companion.wait_for("autopilot heartbeat back")
+    companion.wait_for("autopilot heartbeat up")
     listener.wait_for(lambda m: m.get_type() == "NAMED_VALUE_FLOAT" and m.name == "MRL_DEPTH"
                       and math.isfinite(m.value), 30, "a depth in the status values")
     mark = companion.mark()
@@ -154,7 +154,7 @@ def test_random_and_truncated_mavlink_on_its_socket(tmp_path: Path) -> None:
     sim = SimVehicle(f"udpout:127.0.0.1:{port}")
     sim.start()
     try:
-        companion.wait_for("autopilot heartbeat back", 30)
+        companion.wait_for("autopilot heartbeat up", 30)
         assert companion.alive()
     finally:
         sim.stop()

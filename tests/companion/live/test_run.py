@@ -60,7 +60,7 @@ def test_run_tags_frames_stores_them_sends_captures_and_stops_cleanly_then_resum
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)})
     first = Companion("--config", str(cfg))
     first.wait_for("companion running")
-    first.wait_for("autopilot heartbeat back")
+    first.wait_for("autopilot heartbeat up")
     wait_until(lambda: len(store_summary(store).get("summary", [])) >= 4, 90, "four summary frames on disk")
     # frames taken once telemetry flows carry the simulated ArduSub's pose (depth, attitude), never a made-up one
     wait_until(lambda: any(json.loads(p.read_text())["pose"]["depth_m"] is not None

@@ -14,7 +14,8 @@ from tests.conftest import shared_file
 
 @pytest.fixture(scope="module")
 def encoder():
-    return ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), regions=False)
+    # the lexical class mapping (no learned head): these tests are about the stand-ins, on scores that rise slowly
+    return ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), regions=False, heads=False)
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.vision.encoders.imagenet import FEATURES, ImageNetEncoder
-from companion.vision.encoders.learned_head import HEADS_DIR, LinearHead, head_for, load_head
+from companion.vision.encoders.learned_head import HEADS_DIR, SURE, LinearHead, head_for, load_head
 
 
 def _head(classes=(1, 2, 3, 4)) -> LinearHead:
@@ -28,11 +28,16 @@ def test_a_head_answers_a_query_whose_classes_are_nearly_its_own():
     assert head_for([head], _mask([1, 2, 3])) is head and head_for([head], _mask([9])) is None
 
 
-def test_probability_is_the_sigmoid_of_the_linear_score():
+def test_probability_is_the_sigmoid_of_the_linear_score_kept_below_certainty():
     head = _head()
-    x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 2.0]])
-    assert np.allclose(head.logits(x), [0.25, 2.25])
-    assert np.allclose(head.probabilities(x), 1 / (1 + np.exp(-np.array([0.25, 2.25]))))
+    x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 2.0], [100.0, 0.0, 0.0], [-100.0, 0.0, 0.0]])
+    assert np.allclose(head.logits(x), [0.25, 2.25, 100.25, -99.75])
+    sigmoid = 1 / (1 + np.exp(-head.logits(x)))
+    p = head.probabilities(x)
+    assert np.allclose(p, (1 - SURE) + (2 * SURE - 1) * sigmoid)
+    assert np.all(np.diff(p[[3, 0, 1, 2]]) > 0)  # the same order as the sigmoid
+    # however sure the features look, the top of tau_ss's range (0.998 and up) still passes nothing
+    assert np.float32(p[2]) <= SURE and np.float32(p[3]) >= 1 - SURE
 
 
 def test_a_head_survives_its_file(tmp_path):

@@ -178,11 +178,14 @@ def statustext_sites() -> list[tuple[str, str, int]]:
             func = node.func
             name = func.attr if isinstance(func, ast.Attribute) else func.id if isinstance(func, ast.Name) else ""
             where = f"{path.relative_to(REPO)}:{node.lineno}"
-            if name in ("event", "notify") and node.args and isinstance(node.args[0], ast.Starred):
+            if name == "event" and len(node.args) > 1 and isinstance(node.args[1], ast.Name) \
+                    and node.args[1].id == "severity":
+                continue  # a forwarder (ControlContext.say): its callers' lines are audited where they are written
+            if name in ("event", "notify", "say") and node.args and isinstance(node.args[0], ast.Starred):
                 lines = _helper_severities(node.args[0].value)
                 assert lines is not None, f"{where}: a STATUSTEXT whose severity this audit cannot read"
                 sites.extend((where, text, sev) for text, sev in lines)
-            elif (name == "event" and isinstance(func, ast.Attribute)) or \
+            elif (name in ("event", "say") and isinstance(func, ast.Attribute)) or \
                     (name == "notify" and path.name.startswith("telemetry")):
                 sev_node = node.args[1] if len(node.args) > 1 else next(
                     (k.value for k in node.keywords if k.arg == "severity"), None)

@@ -105,7 +105,7 @@ def test_only_the_signed_station_changes_the_companion(setup) -> None:
     stations += [good, unsigned, wrong]
     for s in stations:
         s.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
-    companion.wait_for("autopilot heartbeat back")
+    companion.wait_for("autopilot heartbeat up")
 
     # the companion's own rate requests reach the signed autopilot only because they are signed
     wait_until(lambda: any(c[0] == mav2.MAV_CMD_SET_MESSAGE_INTERVAL and c[3] == mav2.MAV_RESULT_ACCEPTED
@@ -157,7 +157,7 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
     stations.append(listener)
     listener.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
     first = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    first.wait_for("autopilot heartbeat back")
+    first.wait_for("autopilot heartbeat up")
     wait_until(lambda: len(listener.from_companion()) >= 10, 30, "ten messages from the companion")
     first.kill()  # no clean shutdown: the timestamps were reserved on disk before they were used
     reserved = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load()
@@ -182,7 +182,7 @@ def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(
     stations.append(good)
     good.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
     first = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    first.wait_for("autopilot heartbeat back")
+    first.wait_for("autopilot heartbeat up")
     recorded = good.set_k(7)
     first.wait_for(r"parameter MERL_K set to 7\b", 30)
     good.set_k(8)
@@ -192,7 +192,7 @@ def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(
     streams = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load_streams()
     assert streams[(0, 255, 190)] >= _stamp(mav2.MAVLink(None).parse_buffer(recorded)[0])
     second = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    second.wait_for("autopilot heartbeat back")
+    second.wait_for("autopilot heartbeat up")
     good.sock.sendto(recorded, good.hub)  # the recording, seconds after it was made: well inside a new stream's minute
     wait_until(lambda: any(w.startswith("replayed PARAM_SET from 255/190") for w in good.warnings()), 30,
                "the replay refused")
@@ -216,7 +216,7 @@ def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nob
 def test_manual_control_for_the_autopilot_is_never_refused_as_ours(setup) -> None:
     key_file, hub, sim, store, cfg, stations = setup
     companion = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    companion.wait_for("autopilot heartbeat back")
+    companion.wait_for("autopilot heartbeat up")
     good, joystick = Station(hub, 190, KEY), Station(hub, 191, None)
     stations += [good, joystick]
     for s in stations:

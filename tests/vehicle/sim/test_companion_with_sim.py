@@ -74,7 +74,7 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
                        telemetry={"position_hz": 3.2, "pressure_hz": 1.0})
     companion = Companion("--config", str(cfg))
     try:
-        companion.wait_for("autopilot heartbeat back")
+        companion.wait_for("autopilot heartbeat up")
         wait_until(lambda: (GCS_SYSID, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders, 10, "the GCS heartbeat")
         descending = gcs.piloting_since + 1.0
         wait_until(lambda: sum(f["capture_time"] > descending for f in _tagged_frames(store)) >= 5, 90,
