@@ -96,6 +96,9 @@ class BoundedHTTPServer(ThreadingHTTPServer):
     """``ThreadingHTTPServer`` with at most ``max_threads`` handlers and a deadline to read each request."""
 
     daemon_threads = True
+    request_queue_size = 128
+    """The listen backlog: socketserver's 5 made a burst of clients (a page's parallel fetches, or a flood) wait
+    for SYN retries of a second and more before the accept loop could even answer them busy."""
 
     def __init__(self, address, handler: type[BoundedHandler], *, max_threads: int = MAX_THREADS,
                  read_deadline_s: float = READ_DEADLINE_S) -> None:
