@@ -9,14 +9,13 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from companion.config import MavlinkConfig
 from tests.conftest import free_udp_port
+from tests.vehicle.camera.conftest import signed_companion_link
 from tests.vehicle.surface_env import added
-from tests.vehicle.tether import KEY, PASSPHRASE, Peer, Repeater, gcs_heartbeat
+from tests.vehicle.tether import KEY, Peer, Repeater, gcs_heartbeat
 from tests.waiting import wait_until
 from vehicle.camera.downlink import Downlink
 from vehicle.camera.params import ParamSpec
-from vehicle.link.connection import MavLink
 from vehicle.settings import SurfaceConfig
 
 COMPANION = (1, 100)
@@ -26,13 +25,8 @@ PARAMS = [ParamSpec(f"MERL_P{i}", float(i), 0, 100) for i in range(6)]
 
 @pytest.fixture
 def downlink(tmp_path):
-    key_file = tmp_path / "signing.key"
-    key_file.write_text(PASSPHRASE + "\n")
     port = free_udp_port()
-    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100,
-                                                            signing_key_file=str(key_file)))
-    link.start()
-    assert link.wait_open(5)
+    link = signed_companion_link(tmp_path, port)
     surface = Downlink(link, SurfaceConfig(status_hz=1), params=PARAMS)  # the default budget: 2000 B/s
     peers: list[Peer] = []
     floods: list[Repeater] = []

@@ -9,15 +9,12 @@ import struct
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from companion.config import MavlinkConfig
 from tests.conftest import free_udp_port
-from tests.vehicle.surface_env import added, companion_link
-from tests.vehicle.tether import KEY, PASSPHRASE, Peer, gcs_heartbeat
+from tests.vehicle.camera.conftest import serving_frames, signed_companion_link
+from tests.vehicle.surface_env import companion_link
+from tests.vehicle.tether import KEY, Peer, gcs_heartbeat
 from tests.waiting import wait_until
-from vehicle.camera.downlink import Downlink
-from vehicle.link.connection import MavLink
 from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op
-from vehicle.settings import SurfaceConfig
 
 COMPANION = (1, 100)
 
@@ -66,15 +63,9 @@ class RawFtp:
 def plain():
     """A Downlink without a key holding frames 3, 4 and 5."""
     port = free_udp_port()
-    link = companion_link(port)
-    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=60000, push=False, ftp_writable=True))
-    surface.start()
-    for i in (3, 4, 5):
-        surface.publish(added(i, [3, 4, 5][: i - 2]))
     peers: list[Peer] = []
-    yield port, surface, peers
-    surface.stop()
-    link.stop()
+    with serving_frames(companion_link(port)) as surface:
+        yield port, surface, peers
     for p in peers:
         p.close()
 
@@ -82,21 +73,10 @@ def plain():
 @pytest.fixture
 def signed(tmp_path):
     """The same with a signing key on the companion's link."""
-    key_file = tmp_path / "signing.key"
-    key_file.write_text(PASSPHRASE + "\n")
     port = free_udp_port()
-    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100,
-                                                            signing_key_file=str(key_file)))
-    link.start()
-    assert link.wait_open(5)
-    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=60000, push=False, ftp_writable=True))
-    surface.start()
-    for i in (3, 4, 5):
-        surface.publish(added(i, [3, 4, 5][: i - 2]))
     peers: list[Peer] = []
-    yield port, surface, peers
-    surface.stop()
-    link.stop()
+    with serving_frames(signed_companion_link(tmp_path, port)) as surface:
+        yield port, surface, peers
     for p in peers:
         p.close()
 
