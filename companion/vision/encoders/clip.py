@@ -42,6 +42,7 @@ from companion.vision.encoders.mapped_cast import (
 from companion.vision.encoders.torch_runtime import (
     compute_dtype,
     configure_threads,
+    padded_to,
     pick_device,
     pick_precision,
 )
@@ -316,7 +317,7 @@ class ClipEncoder(Encoder):
         out = []
         for start in range(0, len(images), self._batch):
             batch = torch.stack([self.preprocess(img) for img in images[start:start + self._batch]])
-            emb = self._model.encode_image(batch.to(self._device, self._dtype))
+            emb = self._model.encode_image(padded_to(batch.to(self._device, self._dtype), self._batch))[:len(batch)]
             out.append(F.normalize(emb.float(), dim=-1).cpu().numpy())
         if not out:
             return np.zeros((0, self._embed_dim()), dtype=np.float32)

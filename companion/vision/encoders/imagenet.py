@@ -30,7 +30,7 @@ from companion.errors import MerlionError
 from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.learned_head import LinearHead, head_for, shipped_heads
 from companion.vision.encoders.query_words import ResolvedQuery, resolve_query
-from companion.vision.encoders.torch_runtime import configure_threads, pick_device
+from companion.vision.encoders.torch_runtime import configure_threads, padded_to, pick_device
 
 log = logging.getLogger(__name__)
 
@@ -133,9 +133,10 @@ class ImageNetEncoder(Encoder):
     def _run(self, batch: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(B, H, W, 3) BGR uint8 -> pooled features (B, 1280), class probabilities (B, V, 1000) and the
         regions' features (B, V - 1, 1280)."""
-        x = torch.from_numpy(batch[..., ::-1].copy()).to(self._device)
+        n = len(batch)
+        x = padded_to(torch.from_numpy(batch[..., ::-1].copy()).to(self._device), self._batch)
         x = x.permute(0, 3, 1, 2).float().sub_(_MEAN).div_(_STD).contiguous(memory_format=torch.channels_last)
-        fmap = self._net.extract_features(x)
+        fmap = self._net.extract_features(x)[:n]
         pooled = fmap.mean(dim=(2, 3))
         views = [pooled[:, None, :]]
         if self._regions:

@@ -30,7 +30,7 @@ def ckpt(tmp_path_factory) -> tuple[str, torch.nn.Module]:
 
 
 def _encoder(path: str, **kw) -> ClipEncoder:
-    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=path, precision="fp32", batch=2, **kw))
+    return ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=path, precision="fp32", batch=2, **kw))
 
 
 def _text_params(enc: ClipEncoder) -> list[str]:
@@ -39,7 +39,7 @@ def _text_params(enc: ClipEncoder) -> list[str]:
 
 @pytest.mark.parametrize("precision", ["fp32", "int8"])
 def test_no_text_tower_is_held_after_loading_nor_after_encoding_queries(ckpt, precision):
-    enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt[0], precision=precision))
+    enc = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=ckpt[0], precision=precision))
     assert not enc.holds_text_tower and _text_params(enc) == []
     enc.encode_texts(QUERIES)
     assert not enc.holds_text_tower and _text_params(enc) == []
@@ -48,7 +48,7 @@ def test_no_text_tower_is_held_after_loading_nor_after_encoding_queries(ckpt, pr
 
 def test_queries_are_encoded_in_a_child_once_then_come_from_the_disk_cache(ckpt, tmp_path):
     path, net = ckpt
-    cfg = EncoderConfig(name="clip", model=SMALL, weights=path, precision="fp32", cache_dir=str(tmp_path))
+    cfg = EncoderConfig(name="clip", device="cpu", model=SMALL, weights=path, precision="fp32", cache_dir=str(tmp_path))
     enc = ClipEncoder(cfg)
     first = enc.encode_texts(QUERIES)
     assert enc._texts.children == 1 and enc.child_peaks_mb["texts"] > 0
@@ -97,7 +97,7 @@ def test_an_int8_tower_leaves_none_of_the_checkpoint_resident(ckpt, tmp_path):
 
     own = tmp_path / "own.pt"  # a file no other encoder of this test process maps
     own.write_bytes(Path(ckpt[0]).read_bytes())
-    enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="int8"))
+    enc = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=str(own), precision="int8"))
     enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
     assert resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
 

@@ -124,7 +124,7 @@ def test_vit_b32_through_the_cli_agrees_with_open_clip_itself(b32, images, tmp_p
 @pytest.mark.parametrize("precision", ["fp16-weights", "bf16", "fp16", "int8"])
 def test_reduced_precision_keeps_scores_within_0_01(small_ckpt, small_fp32, images, precision):
     ref = small_fp32
-    low = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision=precision))
+    low = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=small_ckpt, precision=precision))
     assert low.describe()["precision"] == precision
     queries = _spread_queries(ref, images)
     want = ref.semantic_scores(ref.encode_images(images[:3]), queries)
@@ -137,7 +137,7 @@ def test_reduced_precision_keeps_scores_within_0_01(small_ckpt, small_fp32, imag
 
 def test_int8_embeddings_point_the_same_way_as_fp32(small_ckpt, small_fp32, images):
     """Scores within 0.01 could hide a larger error when random towers make scores alike: compare directions too."""
-    low = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="int8"))
+    low = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=small_ckpt, precision="int8"))
     cos = np.sum(low.encode_images(images) * small_fp32.encode_images(images), axis=1)
     assert cos.min() > 0.995
     quantized = [m for m in low._model.visual.modules() if "quantized" in type(m).__module__]
@@ -182,7 +182,7 @@ def test_loading_holds_one_copy_of_the_weights(tmp_path, precision, bound):
         "from companion.vision.encoders.clip import ClipEncoder\n"
         "from companion.vision.encoders.peak_rss import peak_rss_mb\n"
         "before = peak_rss_mb()  # VmHWM: ru_maxrss would start at pytest's own RSS, inherited across exec\n"
-        f"enc = ClipEncoder(EncoderConfig(name='clip', weights={str(ckpt)!r}, precision={precision!r}))\n"
+        f"enc = ClipEncoder(EncoderConfig(name='clip', device='cpu', weights={str(ckpt)!r}, precision={precision!r}))\n"
         "enc.encode_images([__import__('numpy').zeros((240, 320, 3), 'uint8')])\n"
         "print(before, peak_rss_mb())\n"
     )

@@ -143,7 +143,7 @@ def test_mixed_portrait_and_landscape_batches_keep_frame_order(suim):
 
 def test_the_cpu_takes_two_frames_per_forward_whatever_the_batch(suim):
     """Eight frames at once ran slower and peaked 0.22 GB higher than two at a time (CPU_FORWARD_FRAMES)."""
-    enc = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))
+    enc = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu", batch=8))
     sizes: list[int] = []
     enc._net._conv_stem.register_forward_hook(lambda module, args, out: sizes.append(args[0].shape[0]))
     land = [img for img in suim[0] if img.shape[1] >= img.shape[0]][:5]

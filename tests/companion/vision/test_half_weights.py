@@ -42,7 +42,7 @@ def fp16_ckpt(tmp_path_factory) -> str:
 
 
 def _pair(path: str) -> tuple[ClipEncoder, ClipEncoder]:
-    return tuple(ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=path, precision=p, batch=3))
+    return tuple(ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=path, precision=p, batch=3))
                  for p in ("fp32", "fp16-weights"))
 
 
@@ -108,7 +108,7 @@ def test_each_stored_weight_is_upcast_about_once_per_forward(fp32_ckpt):
     twice by its forward and too small to matter, is not held for the call."""
     from companion.vision.encoders.half_weights import UpcastToFloat32
 
-    half = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=fp32_ckpt, precision="fp16-weights"))
+    half = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=fp32_ckpt, precision="fp16-weights"))
     visual = half._model.visual
     calls: dict[str, int] = {}
     for name, module in visual.named_modules():
@@ -127,7 +127,7 @@ def test_upcasts_are_written_into_one_buffer_that_every_call_reuses(fp32_ckpt):
     buffer, at the same place at every forward (the tower's final projection, read outside any layer, is not)."""
     from companion.vision.encoders.half_weights import MAX_CALL_CACHE_BYTES, UpcastToFloat32
 
-    half = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=fp32_ckpt, precision="fp16-weights"))
+    half = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=fp32_ckpt, precision="fp16-weights"))
     places: dict[str, set[int]] = {}
     upcasts = {name: m for name, m in half._model.visual.named_modules() if isinstance(m, UpcastToFloat32)}
     for name, module in upcasts.items():
@@ -152,6 +152,6 @@ def test_none_of_the_checkpoint_stays_resident_after_encoding(fp32_ckpt, tmp_pat
 
     own = tmp_path / "own.pt"  # a file no other encoder of this test process maps
     own.write_bytes(Path(fp32_ckpt).read_bytes())
-    enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(own), precision="fp16-weights"))
+    enc = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=str(own), precision="fp16-weights"))
     enc.encode_images([np.random.default_rng(0).integers(0, 255, (120, 160, 3), dtype=np.uint8)] * 2)
     assert resident_kb_of(str(own)) < 0.05 * own.stat().st_size / 1024
