@@ -22,7 +22,7 @@ from pathlib import Path
 
 import psutil
 
-from companion.config import TopicConfig, load_config
+from companion.config import Config, TopicConfig, load_config
 from companion.errors import UsageError
 from companion.extension.actions import extension_actions
 from companion.extension.pages import extension_pages
@@ -48,6 +48,8 @@ class ExtensionOptions:
     config: str | None = None
     source: str | None = None
     allowed_hosts: tuple[str, ...] = ("blueos.local", "blueos-avahi.local")
+    allowed_origins: tuple[str, ...] = ()
+    """Web origins trusted with CORS besides the configuration's ``extension.allowed_origins`` (``--allow-origin``)."""
     run_companion: bool = True
     companion_args: list[str] = field(default_factory=list)
     """More ``merlion run`` options (tests: --duration, a synthetic source)."""
@@ -98,9 +100,9 @@ def own_addresses() -> list[str]:
                    if a.family in (socket.AF_INET, socket.AF_INET6)})
 
 
-def _topics(config: str | None) -> list[TopicConfig]:
+def _topics(cfg: Config) -> list[TopicConfig]:
     """The topics the widget and Cockpit may switch to: the companion configuration's."""
-    return list(load_config(config).queries.topic_list())
+    return list(cfg.queries.topic_list())
 
 
 def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
@@ -112,7 +114,11 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
     except OSError as err:
         raise UsageError(f"--data {data}: cannot create it ({err.strerror})") from None
     config = opts.config or (str(data / "merlion.yaml") if (data / "merlion.yaml").is_file() else None)
-    topics = _topics(config)  # a bad config file is one line and exit 2, before anything starts
+    cfg = load_config(config)  # a bad config file is one line and exit 2, before anything starts
+    topics = _topics(cfg)
+    origins = tuple(dict.fromkeys((*cfg.extension.allowed_origins, *opts.allowed_origins)))
+    if origins:
+        log.info("CORS granted to %s", ", ".join(origins))
     hub = UdpHub(outputs=[opts.router] if opts.router else None).start()
     argv = [sys.executable, "-m", "companion", "run", "--mavlink", hub.url, "--store", str(data / "store")]
     argv += ["--config", config] if config else []
@@ -134,7 +140,8 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
         pages = extension_pages(version=version, token=token, topics=[t.name for t in topics], status=status)
         web = WebServer(tool.snapshot, tool.gallery.root, opts.port, host=opts.host, full_frame=tool.full_frame,
                         actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion),
-                        allowed_hosts=(*own_addresses(), *opts.allowed_hosts), pages=pages, token=token)
+                        allowed_hosts=(*own_addresses(), *opts.allowed_hosts), pages=pages, token=token,
+                        allowed_origins=origins)
         web.start()
         if opts.run_companion:
             companion.start()
