@@ -1,7 +1,8 @@
-"""The link's two races of docs/code-review.md, made likely on real loopback sockets with real MAVLink messages.
+"""The link's two races of docs/code-review.md, on real loopback sockets with real MAVLink messages.
 
-Each test runs the racy moment many times with a short thread switch interval (so threads interleave between any
-two bytecodes) and fails if any run goes wrong; with one writer per resource, none can.
+The heartbeat race is run 30 times with a short thread switch interval (threads interleave between almost any two
+bytecodes); the rate keeper's is forced once by a clock that stalls the rates thread at the racy line (as a
+preemption would). Each fails if any run goes wrong; with one owner thread per state, none can.
 """
 
 from __future__ import annotations
@@ -45,8 +46,9 @@ class _Autopilot:
         msg = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_SUBMARINE, mav2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3)
         self.sock.sendto(msg.pack(self.mav), self.addr)
 
-    def attitude(self) -> None:
-        self.sock.sendto(mav2.MAVLink_attitude_message(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self.mav), self.addr)
+    def close(self) -> None:
+        self.sock.close()
+
 
 
 class _JumpingClock:
@@ -110,6 +112,7 @@ def test_a_heartbeat_heard_while_the_loss_is_declared_is_never_left_reported_los
                     changed.wait_for(lambda: events[-1] and link.autopilot_alive, 2.0)
     finally:
         link.stop()
+        autopilot.close()
     assert not bad, f"{len(bad)} of {ROUNDS} rounds left the autopilot reported lost: {bad[:3]}"
     assert all(a != b for a, b in zip(events, events[1:], strict=False)), f"found/lost out of order: {events}"
     assert events[-1] is True and events.count(False) >= ROUNDS  # every jump was a real loss, each one recovered
@@ -179,3 +182,4 @@ def test_the_autopilot_found_again_during_a_request_gets_every_rate_asked_again(
         beats.join(5)
         keeper.stop()
         link.stop()
+        autopilot.close()
