@@ -22,7 +22,7 @@ from pathlib import Path
 
 import psutil
 
-from companion.config import Config, TopicConfig, load_config
+from companion.config import TopicConfig, load_config
 from companion.errors import UsageError
 from companion.extension.actions import extension_actions
 from companion.extension.pages import extension_pages
@@ -100,11 +100,6 @@ def own_addresses() -> list[str]:
                    if a.family in (socket.AF_INET, socket.AF_INET6)})
 
 
-def _topics(cfg: Config) -> list[TopicConfig]:
-    """The topics the widget and Cockpit may switch to: the companion configuration's."""
-    return list(cfg.queries.topic_list())
-
-
 def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
                   on_ready=None) -> int:
     """Serve until ``stop``; ``on_ready(url)`` once the page listens (the command prints it)."""
@@ -115,7 +110,7 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
         raise UsageError(f"--data {data}: cannot create it ({err.strerror})") from None
     config = opts.config or (str(data / "merlion.yaml") if (data / "merlion.yaml").is_file() else None)
     cfg = load_config(config)  # a bad config file is one line and exit 2, before anything starts
-    topics = _topics(cfg)
+    topics: list[TopicConfig] = list(cfg.queries.topic_list())  # what the widget and Cockpit may switch to
     origins = tuple(dict.fromkeys((*cfg.extension.allowed_origins, *opts.allowed_origins)))
     if origins:
         log.info("CORS granted to %s", ", ".join(origins))
