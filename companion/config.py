@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -188,6 +189,35 @@ class LogConfig(_Section):
     level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
 
+def web_origin(text: str) -> str:
+    """``scheme://host[:port]`` as browsers send it in ``Origin`` (lower case, no default port; an app's own scheme
+    such as ``app://cockpit`` too); ValueError for anything else, and for ``null`` (what every sandboxed frame and
+    ``file://`` page sends) and ``*``, which would let any page in."""
+    raw = str(text).strip()
+    try:
+        parts = urlsplit(raw)
+        port = parts.port
+    except ValueError:
+        parts, port = None, None
+    if (parts is None or not parts.scheme or not parts.hostname or parts.path not in ("", "/") or parts.query
+            or parts.fragment or parts.username or parts.password):
+        raise ValueError(f"{raw!r} is not a web origin (expected SCHEME://HOST[:PORT], e.g. http://192.168.2.1:8080)")
+    host = f"[{parts.hostname}]" if ":" in parts.hostname else parts.hostname
+    default = {"http": 80, "https": 443}.get(parts.scheme)
+    return f"{parts.scheme}://{host}" + (f":{port}" if port is not None and port != default else "")
+
+
+class ExtensionConfig(_Section):
+    allowed_origins: list[str] = Field(default_factory=list)
+    """Web origins (SCHEME://HOST[:PORT]) whose pages may call the extension's HTTP actions and read its JSON, e.g.
+    Cockpit's desktop app; empty (the default): same-origin requests only."""
+
+    @field_validator("allowed_origins")
+    @classmethod
+    def _origins(cls, value: list[str]) -> list[str]:
+        return [web_origin(v) for v in value]
+
+
 class Config(_Section):
     source: SourceConfig = Field(default_factory=SourceConfig)
     encoder: EncoderConfig = Field(default_factory=EncoderConfig)
@@ -201,6 +231,7 @@ class Config(_Section):
     store: StoreConfig = Field(default_factory=StoreConfig)
     health: HealthConfig = Field(default_factory=HealthConfig)
     log: LogConfig = Field(default_factory=LogConfig)
+    extension: ExtensionConfig = Field(default_factory=ExtensionConfig)
 
 
 def as_fraction(value: float, *, allow_zero: bool = False) -> float:

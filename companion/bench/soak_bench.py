@@ -19,9 +19,7 @@ UDP hub. A ground-station socket on the hub receives what the surface would. Rep
 from __future__ import annotations
 
 import logging
-import socket
 import tempfile
-import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -33,9 +31,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.config import build_config
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
+from vehicle.sim.ground_listener import GroundListener
 from vehicle.sim.vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
+
+CAPTURED = "CAMERA_IMAGE_CAPTURED"
 
 
 @dataclass
@@ -67,42 +68,16 @@ class SoakResult:
     rss_samples: list[tuple[float, float]] = field(default_factory=list)
 
 
-class _Surface:
-    """Receives CAMERA_IMAGE_CAPTURED on the hub and records capture -> arrival latency."""
-
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.2)
-        self.port = self.sock.getsockname()[1]
-        self.parser = mav.MAVLink(None)
-        self.parser.robust_parsing = True
-        self.latencies: list[float] = []
-        self.seen: set[int] = set()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="soak-surface", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65535)
-            except (TimeoutError, OSError):
-                continue
-            now = time.time()
-            try:
-                msgs = self.parser.parse_buffer(data) or []
-            except mav.MAVError:
-                continue
-            for m in msgs:
-                if m.get_type() == "CAMERA_IMAGE_CAPTURED" and m.image_index not in self.seen:
-                    self.seen.add(m.image_index)  # re-sent captures are not new latencies
-                    self.latencies.append(now - m.time_utc / 1e6)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self.sock.close()
+def capture_latencies(captured: list[mav.MAVLink_message]) -> list[float]:
+    """Seconds from capture (time_utc) to arrival at the surface, per image index; a re-sent capture is not a new
+    latency."""
+    seen: set[int] = set()
+    out = []
+    for m in captured:
+        if m.image_index not in seen:
+            seen.add(m.image_index)
+            out.append(m.received_at - m.time_utc / 1e6)
+    return out
 
 
 def encoder_rate(companion: LiveCompanion) -> float:
@@ -120,7 +95,7 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
              progress=None, gate: str | None = None) -> SoakResult:
     duration = minutes * 60.0
     warmup = 60.0 if duration > 90.0 else duration / 4
-    surface = _Surface()
+    surface = GroundListener(types=[CAPTURED])
     hub = UdpHub(outputs=[("127.0.0.1", surface.port)]).start()
     sim = SimVehicle(hub.url)
     sim.start()
@@ -188,11 +163,12 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
     result.scored_fps = round(report["frames_scored"] / duration, 2)
     if result.encoder_fps:
         result.scored_vs_encoder = round(result.scored_fps / result.encoder_fps, 3)
-    result.captures_received = len(surface.latencies)
+    latencies = capture_latencies(surface.of_type(CAPTURED))
+    result.captures_received = len(latencies)
     result.rss_growth_pct = round(100.0 * (result.rss_end_mb - result.rss_after_warmup_mb)
                                   / max(result.rss_after_warmup_mb, 1e-6), 2)
-    if surface.latencies:
-        lat = np.array(surface.latencies)
+    if latencies:
+        lat = np.array(latencies)
         result.latency_p50_s = round(float(np.percentile(lat, 50)), 3)
         result.latency_p95_s = round(float(np.percentile(lat, 95)), 3)
     for key in ("rss_start_mb", "rss_after_warmup_mb", "rss_end_mb", "peak_rss_mb"):

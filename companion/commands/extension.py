@@ -8,6 +8,7 @@ import threading
 from pathlib import Path
 
 from companion import __version__
+from companion.config import web_origin
 from companion.errors import UsageError
 
 
@@ -24,6 +25,9 @@ def register(add_command) -> None:
     p.add_argument("--source", metavar="SOURCE", help="camera (default: mavlink-camera-manager's RTSP stream)")
     p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                    help="a host name the page may be reached by, besides IP addresses and blueos.local")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="a web origin (SCHEME://HOST[:PORT]) whose pages may use the actions and JSON, with CORS "
+                        "(e.g. Cockpit's desktop app); adds to extension.allowed_origins (default: none)")
     p.add_argument("--no-companion", action="store_true", help="serve the page only; start the companion later "
                                                                 "from the widget or Cockpit")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests)")
@@ -39,6 +43,14 @@ def router_address(text: str | None) -> tuple[str, int] | None:
     return host, int(port)
 
 
+def allowed_origins(given: list[str]) -> tuple[str, ...]:
+    """``--allow-origin`` values as browsers send them; a malformed one is a usage error naming it."""
+    try:
+        return tuple(web_origin(text) for text in given)
+    except ValueError as err:
+        raise UsageError(f"--allow-origin {err}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     # imported here: the runner brings the surface tool and MAVLink (1.1 s measured with -X importtime), which
     # every other merlion command would pay at start-up
@@ -49,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     opts = ExtensionOptions(Path(args.data), port=args.port, host=args.host, router=router_address(args.router),
                             config=args.config, source=args.source,
                             allowed_hosts=("blueos.local", "blueos-avahi.local", *args.allow_host),
-                            run_companion=not args.no_companion)
+                            allowed_origins=allowed_origins(args.allow_origin), run_companion=not args.no_companion)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

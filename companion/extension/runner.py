@@ -48,6 +48,8 @@ class ExtensionOptions:
     config: str | None = None
     source: str | None = None
     allowed_hosts: tuple[str, ...] = ("blueos.local", "blueos-avahi.local")
+    allowed_origins: tuple[str, ...] = ()
+    """Web origins trusted with CORS besides the configuration's ``extension.allowed_origins`` (``--allow-origin``)."""
     run_companion: bool = True
     companion_args: list[str] = field(default_factory=list)
     """More ``merlion run`` options (tests: --duration, a synthetic source)."""
@@ -98,11 +100,6 @@ def own_addresses() -> list[str]:
                    if a.family in (socket.AF_INET, socket.AF_INET6)})
 
 
-def _topics(config: str | None) -> list[TopicConfig]:
-    """The topics the widget and Cockpit may switch to: the companion configuration's."""
-    return list(load_config(config).queries.topic_list())
-
-
 def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
                   on_ready=None) -> int:
     """Serve until ``stop``; ``on_ready(url)`` once the page listens (the command prints it)."""
@@ -112,7 +109,11 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
     except OSError as err:
         raise UsageError(f"--data {data}: cannot create it ({err.strerror})") from None
     config = opts.config or (str(data / "merlion.yaml") if (data / "merlion.yaml").is_file() else None)
-    topics = _topics(config)  # a bad config file is one line and exit 2, before anything starts
+    cfg = load_config(config)  # a bad config file is one line and exit 2, before anything starts
+    topics: list[TopicConfig] = list(cfg.queries.topic_list())  # what the widget and Cockpit may switch to
+    origins = tuple(dict.fromkeys((*cfg.extension.allowed_origins, *opts.allowed_origins)))
+    if origins:
+        log.info("CORS granted to %s", ", ".join(origins))
     hub = UdpHub(outputs=[opts.router] if opts.router else None).start()
     argv = [sys.executable, "-m", "companion", "run", "--mavlink", hub.url, "--store", str(data / "store")]
     argv += ["--config", config] if config else []
@@ -134,7 +135,8 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
         pages = extension_pages(version=version, token=token, topics=[t.name for t in topics], status=status)
         web = WebServer(tool.snapshot, tool.gallery.root, opts.port, host=opts.host, full_frame=tool.full_frame,
                         actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion),
-                        allowed_hosts=(*own_addresses(), *opts.allowed_hosts), pages=pages, token=token)
+                        allowed_hosts=(*own_addresses(), *opts.allowed_hosts), pages=pages, token=token,
+                        allowed_origins=origins)
         web.start()
         if opts.run_companion:
             companion.start()

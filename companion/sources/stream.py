@@ -18,6 +18,7 @@ import cv2
 from companion.config import SourceConfig
 from companion.errors import UsageError
 from companion.sources.capture import CaptureSource
+from companion.sources.ffmpeg_log import quiet_ffmpeg
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +67,7 @@ READ_TIMEOUT_MS = 2500
 
 
 def _ffmpeg_capture(target: str) -> cv2.VideoCapture:
+    quiet_ffmpeg()  # a stream not there yet, a lost packet: the retrying source counts and says it, not FFmpeg
     return cv2.VideoCapture(target, cv2.CAP_FFMPEG, [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, OPEN_TIMEOUT_MS,
                                                      cv2.CAP_PROP_READ_TIMEOUT_MSEC, READ_TIMEOUT_MS])
 

@@ -17,6 +17,7 @@ import cv2
 
 from companion.errors import MerlionError
 from companion.sources.base import FrameSource
+from companion.sources.ffmpeg_log import opening
 from companion.sources.frame import Frame
 from companion.sources.subsample import Pacer, RateSubsampler
 
@@ -47,7 +48,8 @@ class VideoSource(FrameSource):
         self.source_fps, self.frame_count = self._probe()
 
     def _open(self) -> cv2.VideoCapture:
-        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        with opening():  # a file that is not a video: our error below is the only line on stderr
+            cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             cap.release()
             raise MerlionError(f"{self.path}: cannot be opened as a video (unknown format, or damaged beyond reading)")

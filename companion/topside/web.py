@@ -27,7 +27,7 @@ from pathlib import Path
 
 from companion.errors import MerlionError
 from companion.topside.http_bounds import BoundedHandler, BoundedHTTPServer
-from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal
+from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal, trusted_origin
 
 __all__ = ["TOKEN_HEADER", "Pages", "WebServer"]
 
@@ -45,6 +45,8 @@ MAX_PATH = 2048
 FullFrame = Callable[[int], "Path | None"]
 """Image index -> the full frame's file once fetched, or None (trimmed meanwhile, or the link too slow)."""
 _FULL = re.compile(r"/full/(\d+)\.jpg")
+PREFLIGHT_MAX_AGE_S = 600
+"""How long a browser may reuse a granted CORS preflight."""
 
 Action = Callable[[dict], dict]
 """A state-changing request: the JSON body in, a JSON answer out (a ValueError is a 400 with its message)."""
@@ -62,7 +64,7 @@ class Pages:
 
 def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, hosts: HostPolicy,
                   actions: dict[str, Action], full_frame: FullFrame | None = None,
-                  pages: Pages | None = None) -> type[BoundedHandler]:
+                  pages: Pages | None = None, trusted: frozenset[str] = frozenset()) -> type[BoundedHandler]:
     root = gallery_dir.resolve()
     pages = pages or Pages()
 
@@ -77,8 +79,18 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
             self.send_header("Content-Type", ctype)
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
+            self._cors_headers()
             self.end_headers()
             self.wfile.write(body)
+
+        def _cors_headers(self) -> None:
+            """For a trusted origin only (none by default): let that page read the answer."""
+            if not trusted:
+                return
+            origin = trusted_origin(self.headers, trusted)
+            if origin is not None:
+                self.send_header("Access-Control-Allow-Origin", origin)
+            self.send_header("Vary", "Origin")
 
         def _refuse(self, why: str) -> None:
             log.warning("web: refused %s %s from %s: %s", self.command, self.path.split("?", 1)[0][:100],
@@ -95,7 +107,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
             if not hosts.allows(host):
                 self._refuse(f"Host {host[:100]!r} is not this server")
                 return False
-            why = None if page else cross_origin(self.headers, hosts)
+            why = None if page else cross_origin(self.headers, hosts, trusted)
             if why is not None:
                 self._refuse(why)
                 return False
@@ -124,7 +136,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
                 self._send(b"window.MERLION_STATE = " + json.dumps(state()).encode() + b";\n",
                            "text/javascript; charset=utf-8")
             elif (match := _FULL.fullmatch(path)) and full_frame is not None:
-                why = refusal(self.headers, self.path, token, hosts)
+                why = refusal(self.headers, self.path, token, hosts, trusted)
                 if why is not None:
                     self._refuse(why)
                     return
@@ -150,7 +162,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
                 self.request_read()
                 self.send_error(HTTPStatus.REQUEST_URI_TOO_LONG, "path too long")
                 return
-            why = refusal(self.headers, self.path, token, hosts)
+            why = refusal(self.headers, self.path, token, hosts, trusted)
             if why is not None:
                 self.request_read()
                 log.warning("web: refused POST %s from %s: %s", self.path.split("?", 1)[0][:100],
@@ -190,7 +202,34 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
         def _json(self, doc: dict, status: HTTPStatus = HTTPStatus.OK) -> None:
             self._send(json.dumps(doc).encode(), "application/json", status)
 
-    return Handler
+    if not trusted:
+        return Handler  # no OPTIONS at all (501, as http.server answers a method it lacks)
+
+    class CorsHandler(Handler):
+        def do_OPTIONS(self) -> None:  # noqa: N802 (http.server's name)
+            """A CORS preflight: granted to a trusted origin for GET and POST with our token header; 403 otherwise."""
+            self.request_read()
+            host = self.headers.get("Host", "")
+            method = (self.headers.get("Access-Control-Request-Method") or "").strip().upper()
+            origin = trusted_origin(self.headers, trusted)
+            if not hosts.allows(host):
+                self._refuse(f"Host {host[:100]!r} is not this server")
+            elif origin is None:
+                self._refuse(f"no CORS for origin {(self.headers.get('Origin') or '(none)')[:100]!r}")
+            elif method not in ("GET", "POST"):
+                self._refuse(f"no CORS for method {method[:20]!r}")
+            else:
+                self.send_response(HTTPStatus.NO_CONTENT)
+                self.send_header("Access-Control-Allow-Methods", "GET, POST")
+                self.send_header("Access-Control-Allow-Headers", f"Content-Type, {TOKEN_HEADER}")
+                self.send_header("Access-Control-Max-Age", str(PREFLIGHT_MAX_AGE_S))
+                if (self.headers.get("Access-Control-Request-Private-Network") or "").lower() == "true":
+                    self.send_header("Access-Control-Allow-Private-Network", "true")  # a public page to the vehicle
+                self.send_header("Content-Length", "0")
+                self._cors_headers()
+                self.end_headers()
+
+    return CorsHandler
 
 
 class WebServer:
@@ -202,15 +241,17 @@ class WebServer:
     def __init__(self, state: Callable[[], dict], gallery_dir: str | Path, port: int, host: str = "127.0.0.1",
                  actions: dict[str, Action] | None = None, *, full_frame: FullFrame | None = None,
                  allowed_hosts: tuple[str, ...] | list[str] = (), pages: Pages | None = None,
-                 token: str | None = None) -> None:
+                 token: str | None = None, allowed_origins: tuple[str, ...] | list[str] = ()) -> None:
         """``allowed_hosts``: Host headers to answer besides this machine's own names at its port (``name`` or
         ``name:port``), e.g. a reverse proxy's name in front of the page. ``pages``: routes a host of the page adds;
-        ``token``: this run's token when the host needs it first (default: a new one)."""
+        ``token``: this run's token when the host needs it first (default: a new one); ``allowed_origins``: other
+        web origins (``config.web_origin`` form) whose pages may use the JSON and actions, with CORS (none: same
+        origin only)."""
         self.token = token or secrets.token_urlsafe(18)
         self.host = host
         self._hosts = HostPolicy(host, port, allowed_hosts)
         handler = _make_handler(state, Path(gallery_dir), self.token, self._hosts, dict(actions or {}), full_frame,
-                                pages)
+                                pages, frozenset(allowed_origins))
         try:
             self._server = BoundedHTTPServer((host, port), handler)
         except OSError as err:

@@ -11,7 +11,10 @@ A page on another web origin must not read the state (summary, depths, positions
   requests: an ``Origin`` or ``Referer`` naming another host, or a ``Sec-Fetch-Site`` other than ``same-origin``
   or ``none`` (what a browser sends for a script or image included by another site), is refused (behind a
   reverse proxy that rewrites Host, its ``X-Forwarded-Host`` counts as the page's own when it is allowed);
-- a change (POST) also needs the per-run token.
+- a change (POST) also needs the per-run token;
+- an operator may trust other origins by name (``trusted``, off by default: the BlueOS extension's
+  ``extension.allowed_origins``, e.g. Cockpit's desktop app): a request whose ``Origin`` is one of them counts as
+  same-origin, and ``web`` answers it and its CORS preflight with CORS headers naming that origin alone.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from __future__ import annotations
 import hmac
 import ipaddress
 from urllib.parse import parse_qs, urlsplit
+
+from companion.config import web_origin
 
 TOKEN_HEADER = "X-Merlion-Token"
 LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
@@ -70,12 +75,26 @@ class HostPolicy:
         return self.bind_host in WILDCARDS and _is_ip(host)
 
 
-def cross_origin(headers, hosts: HostPolicy | None = None) -> str | None:
+def trusted_origin(headers, trusted: frozenset[str]) -> str | None:
+    """The request's ``Origin`` when it is one the operator trusts (as the browser sent it), else None."""
+    origin = headers.get("Origin")
+    if not trusted or origin is None:
+        return None
+    try:
+        return origin if web_origin(origin) in trusted else None
+    except ValueError:  # "null", or not an origin at all
+        return None
+
+
+def cross_origin(headers, hosts: HostPolicy | None = None, trusted: frozenset[str] = frozenset()) -> str | None:
     """Why a request comes from another web origin than the page's own (None: same origin, or no browser).
 
     The page's own origin is its Host, or, behind a reverse proxy that rewrites Host, the ``X-Forwarded-Host``
     it adds when that is one of ``hosts``' allowed names (a page cannot add that header to a cross-origin request
-    without a CORS preflight, which this server never grants)."""
+    without a CORS preflight, which this server grants only to ``trusted`` origins). A request from a trusted origin
+    is let through (its Sec-Fetch-Site and Referer name that origin's page)."""
+    if trusted_origin(headers, trusted) is not None:
+        return None
     own = {(headers.get("Host") or "").lower()}
     forwarded = (headers.get("X-Forwarded-Host") or "").split(",")[0].strip().lower()
     if forwarded and hosts is not None and hosts.allows_extra(forwarded):
@@ -91,12 +110,12 @@ def cross_origin(headers, hosts: HostPolicy | None = None) -> str | None:
     return None
 
 
-def refusal(headers, path: str, token: str, hosts: HostPolicy) -> str | None:
+def refusal(headers, path: str, token: str, hosts: HostPolicy, trusted: frozenset[str] = frozenset()) -> str | None:
     """Why a state-changing request must be refused (None: it may go ahead)."""
     host = headers.get("Host", "")
     if not hosts.allows(host):
         return f"Host {host[:100]!r} is not this server"
-    why = cross_origin(headers, hosts)
+    why = cross_origin(headers, hosts, trusted)
     if why is not None:
         return why
     given = parse_qs(urlsplit(path).query).get("token", [""])[0] or headers.get(TOKEN_HEADER, "")

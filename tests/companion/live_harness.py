@@ -12,7 +12,6 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -21,10 +20,10 @@ from pathlib import Path
 
 import yaml
 from pymavlink import mavftp, mavutil
-from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tests.conftest import REPO
 from tests.waiting import wait_until as poll_until
+from vehicle.sim.ground_listener import GroundListener as Listener  # one listener, the soak bench's too
 
 FAST_SOURCE = "synthetic://dive?seconds=1&width=160&height=96"
 
@@ -150,65 +149,6 @@ def store_summary(store: Path) -> dict:
         return json.loads((store / "summary.json").read_text())
     except (OSError, ValueError):
         return {}
-
-
-class Listener:
-    """A surface-side UDP socket that parses whatever MAVLink reaches it (as a ground station would)."""
-
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.2)
-        self.port = self.sock.getsockname()[1]
-        self.parser = mav.MAVLink(None)
-        self.parser.robust_parsing = True
-        self.messages: list = []
-        self._stop = threading.Event()
-        self._cond = threading.Condition()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65535)
-            except (TimeoutError, OSError):
-                continue
-            now = time.time()
-            try:
-                msgs = self.parser.parse_buffer(data) or []
-            except mav.MAVError:
-                continue
-            with self._cond:
-                for m in msgs:
-                    m._received = now
-                    self.messages.append(m)
-                self._cond.notify_all()
-
-    def of_type(self, kind: str) -> list:
-        with self._cond:
-            return [m for m in self.messages if m.get_type() == kind]
-
-    def texts(self) -> list[str]:
-        return [m.text if isinstance(m.text, str) else m.text.decode(errors="replace")
-                for m in self.of_type("STATUSTEXT")]
-
-    def wait_for(self, predicate, timeout: float = 60.0, what: str = "message"):
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                for m in self.messages:
-                    if predicate(m):
-                        return m
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise AssertionError(f"no {what} within {timeout} s")
-                self._cond.wait(min(left, 0.5))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self.sock.close()
 
 
 @contextlib.contextmanager

@@ -31,6 +31,7 @@ from vehicle.camera.capture_frame import CaptureEvent, CaptureFrame
 from vehicle.camera.captures import CaptureLog, added_text, thumbnail_path, trimmed_text
 from vehicle.camera.component import CameraComponent, CameraIdentity, firmware_version_of
 from vehicle.camera.ftp_server import FtpServer, VirtualTree, crc32_ardupilot
+from vehicle.camera.link_params import LINK_BPS, THUMB_B, link_params
 from vehicle.camera.params import REQUEST_TYPES as PARAM_REQUESTS
 from vehicle.camera.params import ParamServer, ParamSpec
 from vehicle.camera.request_worker import RequestWorker
@@ -119,7 +120,7 @@ class Downlink:
                                       component_id=link.component_id,
                                       identity=identity or CameraIdentity(firmware_version=firmware_version_of(version)))
         self.status = st.StatusReporter(self.captures.time_boot_ms)
-        self.params = ParamServer(params or [], system_id=lambda: link.system_id,
+        self.params = ParamServer(self._with_own_params(params or []), system_id=lambda: link.system_id,
                                   component_id=link.component_id, saved=saved_params,
                                   persist=persist_params)
         self.params.on_change(self._own_param)
@@ -453,8 +454,16 @@ class Downlink:
         self._marks = (like, unlike)
         self.event(marks_text(like, unlike))
 
+    def _with_own_params(self, params: list[ParamSpec]) -> list[ParamSpec]:
+        """The app's parameters with this link's own (``link_params``): defined here from ``cfg`` and applied only
+        by ``_own_param``; served where the app's list names them (its wire order), else after it."""
+        own = {spec.name: spec for spec in link_params(self.cfg)}
+        served = [own.pop(spec.name, spec) for spec in params]
+        return served + list(own.values())
+
     def _own_param(self, name: str, value: float) -> None:
-        if name == "MERL_THUMB_B":
+        """The one place MERL_THUMB_B and MERL_LINK_BPS take effect (a PARAM_SET, or a saved value at start)."""
+        if name == THUMB_B:
             self.thumbnail_bytes = int(value)
-        elif name == "MERL_LINK_BPS":
+        elif name == LINK_BPS:
             self.budget.set_rate(value)

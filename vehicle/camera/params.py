@@ -33,6 +33,15 @@ class ParamSpec:
     integer: bool = False
     doc: str = ""
 
+    @classmethod
+    def around(cls, name: str, value: float, minimum: float, maximum: float, *, integer: bool = False,
+               doc: str = "") -> ParamSpec:
+        """The parameter with its usual range widened to take in ``value`` (a configuration may allow what the range
+        does not, e.g. tau_ss 0.995 or a 2 MB/s link), so the value in force is never one a ground station could
+        not set back."""
+        value = float(value)
+        return cls(name, value, min(minimum, value), max(maximum, value), integer=integer, doc=doc)
+
     @property
     def mav_type(self) -> int:
         return mav.MAV_PARAM_TYPE_INT32 if self.integer else mav.MAV_PARAM_TYPE_REAL32

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import queue
 import socket
 import threading
 import time
@@ -149,6 +150,9 @@ class MavLink:
         """Autopilot heartbeats from another system or component than the autopilot found first: ignored (the
         identity is settled once; a stranger's HEARTBEAT must not move it)."""
         self._last_autopilot_seen: float | None = None
+        self._heard: queue.SimpleQueue[float] = queue.SimpleQueue()
+        """When the receive thread heard the autopilot's heartbeats: drained by the timer thread, the one owner of
+        ``autopilot_alive`` (found and lost are decided, and reported, on that one thread, in order)."""
         self._conn: mavutil.mavfile | None = None
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
         self.signing = LinkSigning.from_settings(cfg, name=name)
@@ -224,7 +228,8 @@ class MavLink:
         return unsubscribe
 
     def on_autopilot(self, callback: Callable[[bool], None]) -> None:
-        """``callback(True)`` when the autopilot's heartbeat is found (again), ``callback(False)`` when lost."""
+        """``callback(True)`` when the autopilot's heartbeat is found (again), ``callback(False)`` when lost; both on
+        the link's timer thread, in the order they happened."""
         self._autopilot_cbs.append(callback)
 
     def on_refused(self, callback: Callable[[MAVLinkMessage, str], None]) -> None:
@@ -521,12 +526,7 @@ class MavLink:
         elif signed and not self._autopilot_signed:
             self._autopilot_signed = True
         self.last_autopilot_heartbeat = msg
-        self._last_autopilot_seen = self.clock()
-        if not self.autopilot_alive:
-            self.autopilot_alive = True
-            self._found.set()
-            log.info("%s: autopilot %d/%d found", self.name, *src)
-            self._notify(True)
+        self._heard.put(self.clock())  # the timer thread says "found", not this one (see _watch_autopilot)
         return True
 
     def _adopt_autopilot(self, src: tuple[int, int], signed: bool) -> None:
@@ -551,18 +551,45 @@ class MavLink:
 
     def _timer_loop(self) -> None:
         next_beat = self.clock()
-        while not self._stop.wait(_POLL_S):
+        while not self._stop.is_set():
+            self._watch_autopilot()
+            if not self._send_heartbeat:
+                continue
             now = self.clock()
-            seen = self._last_autopilot_seen
-            if self.autopilot_alive and seen is not None and now - seen > self.cfg.heartbeat_timeout_s:
-                self.autopilot_alive = False
-                self._found.clear()
-                log.warning("%s: autopilot heartbeat lost (%.1f s)", self.name, now - seen)
-                self._notify(False)
-            if self._send_heartbeat and now >= next_beat:
+            if now >= next_beat:
                 next_beat = now + 1.0
                 if self._is_healthy():
                     self.send(self.heartbeat_message())
+
+    def _watch_autopilot(self) -> None:
+        """Wait up to a poll for heartbeats the receive thread heard, then declare the autopilot found or lost.
+
+        Only this thread writes ``autopilot_alive`` and calls the on_autopilot callbacks: a heartbeat heard while a
+        loss is being declared is taken on the next pass and reported as found after the loss, never lost after
+        it (with two writers, a late "lost" could overwrite it and stay until the next loss).
+        """
+        heard = None
+        try:
+            heard = self._heard.get(timeout=_POLL_S)
+            while True:
+                heard = self._heard.get_nowait()
+        except queue.Empty:
+            pass
+        if heard is not None:
+            self._last_autopilot_seen = heard
+            if not self.autopilot_alive:
+                self.autopilot_alive = True
+                self._found.set()
+                log.info("%s: autopilot %d/%d found", self.name, *(self.autopilot or (0, 0)))
+                self._notify(True)
+            return
+        seen = self._last_autopilot_seen
+        now = self.clock()
+        if self.autopilot_alive and seen is not None and now - seen > self.cfg.heartbeat_timeout_s:
+            self.autopilot_alive = False
+            self._found.clear()
+            log.warning("%s: autopilot heartbeat lost (%.1f s)", self.name, now - seen)
+            self._notify(False)
 
     def _is_healthy(self) -> bool:
         check = self.healthy

@@ -10,12 +10,17 @@ passed to ``on_missing`` (an ArduSub without a position source, a DVL or USBL, a
 LOCAL_POSITION_NED and never sends it). It is asked for on the same back-off after that; when it arrives the
 declaration is lifted. After an autopilot reboot (heartbeat lost, then found)
 everything is asked for again.
+
+All the bookkeeping belongs to the rates thread: the receive thread only queues when each message arrived, and the
+link's "found again" only queues a reset; the rates thread takes both from its inbox at each wake. Other threads
+read what it last published (``observed_hz``), never its working state.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import queue
 import threading
 import time
 from collections import deque
@@ -38,6 +43,8 @@ STREAM_OF: dict[str, int] = {
     "SYSTEM_TIME": mav2.MAV_DATA_STREAM_EXTRA3,
     "BATTERY_STATUS": mav2.MAV_DATA_STREAM_EXTRA3,
 }
+_RESET = None
+"""In the inbox: the autopilot was found (again); ask for everything anew."""
 
 
 class RateKeeper:
@@ -79,6 +86,10 @@ class RateKeeper:
         self.acks: dict[str, int] = {}
         """The last COMMAND_ACK result per message (MAV_RESULT_*)."""
         self._arrivals: dict[str, deque[float]] = {name: deque() for name in self.wanted}
+        self._inbox: queue.SimpleQueue[tuple[str, float] | None] = queue.SimpleQueue()
+        """(message, arrival time) from the receive thread, or _RESET: drained by the rates thread alone."""
+        self._windows: dict[str, tuple[float, ...]] = {}
+        """Arrival times in the window, as the rates thread last saw them (replaced whole, read by any thread)."""
         self._asked_at: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
         self._check_at: dict[str, float] = {}  # when each asked-for message is next looked at
@@ -109,19 +120,18 @@ class RateKeeper:
             unsub()
         if self._thread is not None:
             self._thread.join(timeout=5)
+            if not self._thread.is_alive():  # its owner is gone: what came last is taken in here
+                self._drain()
 
     def observed_hz(self, name: str) -> float:
-        """Messages per second over the last ``window_s`` seconds."""
-        now = self.clock()
-        q = self._arrivals.get(name)
-        if not q:
-            return 0.0
-        while q and q[0] < now - self.window_s:
-            q.popleft()
-        return len(q) / self.window_s
+        """Messages per second over the last ``window_s`` seconds, from the arrivals the rates thread took in at its
+        last wake (at most a second ago); safe from any thread, as it changes nothing."""
+        cutoff = self.clock() - self.window_s
+        return sum(1 for t in self._windows.get(name, ()) if t >= cutoff) / self.window_s
 
     # ------------------------------------------------------------------------------------------- internals
     def _on_message(self, msg: mav2.MAVLink_message) -> None:
+        """On the receive thread: answer a waiting command, or note when a wanted message came (nothing more)."""
         mtype = msg.get_type()
         if mtype == "COMMAND_ACK":
             if msg.target_system in (0, self.link.system_id) and msg.target_component in (0, self.link.component_id):
@@ -132,23 +142,41 @@ class RateKeeper:
             return
         if self.link.autopilot is not None and (msg.get_srcSystem(), msg.get_srcComponent()) != self.link.autopilot:
             return
-        q = self._arrivals[mtype]
-        q.append(self.clock())
-        if mtype not in self._arrived:
-            self._arrived.add(mtype)
-            if mtype in self.missing:
-                self.missing.discard(mtype)
-                log.info("rates: %s arrives now", mtype)
-        if len(q) > 4 * self.wanted[mtype] * self.window_s + 16:
-            q.popleft()
+        self._inbox.put((mtype, self.clock()))
 
     def _on_autopilot(self, alive: bool) -> None:
         if alive:  # found, or back after a loss (maybe a reboot that reset every rate): ask for everything
-            self._asked_at.clear()
-            self._backoff.clear()
-            self._check_at.clear()
-            self._interval_supported = True
+            self._inbox.put(_RESET)
             self._wake.set()
+
+    def _drain(self) -> None:
+        """Take in what the inbox holds, trim the windows and publish them (the rates thread's own work)."""
+        while True:
+            try:
+                item = self._inbox.get_nowait()
+            except queue.Empty:
+                break
+            if item is _RESET:
+                self._asked_at.clear()
+                self._backoff.clear()
+                self._check_at.clear()
+                self._interval_supported = True
+                continue
+            mtype, t = item
+            q = self._arrivals[mtype]
+            q.append(t)
+            if len(q) > 4 * self.wanted[mtype] * self.window_s + 16:
+                q.popleft()
+            if mtype not in self._arrived:
+                self._arrived.add(mtype)
+                if mtype in self.missing:
+                    self.missing.discard(mtype)
+                    log.info("rates: %s arrives now", mtype)
+        cutoff = self.clock() - self.window_s
+        for q in self._arrivals.values():
+            while q and q[0] < cutoff:
+                q.popleft()
+        self._windows = {name: tuple(q) for name, q in self._arrivals.items()}
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -156,12 +184,14 @@ class RateKeeper:
             self._wake.clear()
             if self._stop.is_set():
                 break
+            self._drain()
             if not self.link.autopilot_alive or self.link.autopilot is None:
                 continue
             now = self.clock()
             for name, hz in self.wanted.items():
                 if self._stop.is_set() or not self.link.autopilot_alive:
                     break
+                self._drain()  # a pass may wait for several acks: judge each rate on what came until now
                 asked = self._asked_at.get(name)
                 if asked is not None:
                     if now < self._check_at.get(name, 0.0):

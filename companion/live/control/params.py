@@ -1,10 +1,11 @@
 """The MERL_* parameters a ground station may change live: the whole table, and the handler that applies them.
 
 Each row says the name (16 characters at most), the range, the value the configuration starts it at, and how a
-change is applied: ``summary`` rows change the pipeline, so the summary keeper's thread applies them between two
-batches (a smaller MERL_K trims the summary; the trims are stored and announced in the same change);
-``link`` rows change only the surface link's own settings and apply at once. How they persist is the same for
-all: ``ParamServer`` (vehicle/camera/params.py) hands every accepted value to ``ParamsFile.save`` (the store's
+change is applied: every row changes the pipeline, so the summary keeper's thread applies it between two batches
+(a smaller MERL_K trims the summary; the trims are stored and announced in the same change). The surface link's
+own parameters (MERL_THUMB_B, MERL_LINK_BPS) are not rows here: the ``Downlink`` defines and applies them
+(vehicle/camera/link_params.py); ``SERVED`` only places them among these on the wire. How they persist is the same
+for all: ``ParamServer`` (vehicle/camera/params.py) hands every accepted value to ``ParamsFile.save`` (the store's
 params.json, written crash-safely) and the next start replays what differs from the configuration through this
 same handler. A row's ``check`` may refuse a value before anything changes (ValueError, said on the surface).
 """
@@ -19,6 +20,7 @@ from typing import Literal
 from companion.config import Config
 from companion.live.control.context import ControlContext
 from companion.vision.events import SummaryEvent
+from vehicle.camera.link_params import LINK_BPS, THUMB_B, link_params
 from vehicle.camera.params import ParamSpec
 
 log = logging.getLogger(__name__)
@@ -32,20 +34,17 @@ class Tunable:
     start: Callable[[Config], float]
     """The value before any PARAM_SET: from the configuration."""
     apply: Callable[[ControlContext, float], list[SummaryEvent] | None]
-    applied_by: Literal["summary", "link"]
-    """summary: a change run by the summary keeper's thread; link: set on the surface link at once."""
+    applied_by: Literal["summary"]
+    """summary: a change run by the summary keeper's thread (the only kind: the link's own are the Downlink's)."""
     integer: bool = False
     doc: str = ""
     check: Callable[[ControlContext, float], None] | None = None
     """Refuses a value (ValueError) before anything changes."""
 
     def spec(self, cfg: Config) -> ParamSpec:
-        """The parameter as served; its range widened to take in the configured value (the configuration may allow
-        what the usual range does not, e.g. tau_ss 0.995 or a 2 MB/s link), so the value in force is never one a
-        ground station could not set back."""
-        value = float(self.start(cfg))
-        return ParamSpec(self.name, value, min(self.minimum, value), max(self.maximum, value), integer=self.integer,
-                         doc=self.doc)
+        """The parameter as served; its range widened to take in the configured value (``ParamSpec.around``)."""
+        return ParamSpec.around(self.name, self.start(cfg), self.minimum, self.maximum, integer=self.integer,
+                                doc=self.doc)
 
 
 def gate_param(mode: str, threshold: float) -> float:
@@ -101,26 +100,12 @@ def _check_enhance(ctx: ControlContext, value: float) -> None:
                    "enhance.mode: selective or always and restart")
 
 
-def _thumbnail_bytes(ctx: ControlContext, value: float) -> None:
-    if ctx.surface is not None:
-        ctx.surface.thumbnail_bytes = int(value)
-
-
-def _link_rate(ctx: ControlContext, value: float) -> None:
-    if ctx.surface is not None:
-        ctx.surface.budget.set_rate(value)
-
-
 TUNABLES: tuple[Tunable, ...] = (
     Tunable("MERL_TAU_SS", 0.0, 0.99, lambda c: c.queries.tau_ss, _tau_ss, "summary",
             doc="semantic pre-sampling threshold (0: no semantic gate)"),
     Tunable("MERL_TAU_SES", 0.01, 0.99, lambda c: c.enhance.tau_ses, _tau_ses, "summary",
             doc="threshold after enhancement"),
     Tunable("MERL_K", 1, 1000, lambda c: c.sampler.k, _k, "summary", integer=True, doc="summary size"),
-    Tunable("MERL_THUMB_B", 300, 65000, lambda c: c.surface.thumbnail_bytes, _thumbnail_bytes, "link",
-            integer=True, doc="thumbnail byte budget"),
-    Tunable("MERL_LINK_BPS", 100, 1_000_000, lambda c: c.surface.budget_bytes_per_s, _link_rate, "link",
-            integer=True, doc="link budget, bytes/s"),
     Tunable("MERL_GATE", 0.0, 255.0, lambda c: gate_param(c.gate.mode, c.gate.threshold), _gate, "summary",
             doc="frame gate: 0 off, else the grey-level difference that gets a frame encoded"),
     Tunable("MERL_GATE_GAP", 0.1, 600.0, lambda c: c.gate.max_gap_s, _gate_gap, "summary",
@@ -130,14 +115,22 @@ TUNABLES: tuple[Tunable, ...] = (
 )
 
 
+SERVED: tuple[str, ...] = ("MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", THUMB_B, LINK_BPS, "MERL_GATE", "MERL_GATE_GAP",
+                           "MERL_ENHANCE")
+"""Every parameter of the companion in wire order (PARAM_VALUE's param_index; kept as ground stations know it)."""
+
+
 def default_params(cfg: Config) -> list[ParamSpec]:
-    """The tunable set as the parameter protocol serves it, starting from the configuration."""
-    return [t.spec(cfg) for t in TUNABLES]
+    """The companion's parameters as the protocol serves them, starting from the configuration: the rows here and
+    the surface link's own, in ``SERVED`` order."""
+    specs = {t.name: t.spec(cfg) for t in TUNABLES} | {s.name: s for s in link_params(cfg.surface)}
+    return [specs[name] for name in SERVED]
 
 
 class ParamHandler:
     """``ParamServer``'s on_change callback: ValueError refuses the value (the ground station is echoed the old
-    one); a summary row waits for the keeper's thread to apply it, so the echo follows the change."""
+    one); a row waits for the keeper's thread to apply it, so the echo follows the change. A name that is not a
+    row (the Downlink's own) is left to its owner."""
 
     def __init__(self, ctx: ControlContext, table: tuple[Tunable, ...] = TUNABLES) -> None:
         self.ctx = ctx
@@ -149,10 +142,7 @@ class ParamHandler:
             return
         if tunable.check is not None:
             tunable.check(self.ctx, value)
-        if tunable.applied_by == "summary":
-            self.ctx.keeper.submit(lambda: tunable.apply(self.ctx, value))
-        else:
-            tunable.apply(self.ctx, value)
+        self.ctx.keeper.submit(lambda: tunable.apply(self.ctx, value))
 
     def restore(self, restored: Mapping[str, float], fallback: Callable[[str], None]) -> None:
         """Apply what the operator set before the restart; a value refused now is logged and ``fallback(name)``

@@ -13,7 +13,7 @@ from companion.sources.factory import open_source
 from companion.sources.folder import FolderSource, natural_key
 from companion.sources.subsample import RateSubsampler
 from companion.sources.video import VideoSource
-from tests.conftest import shared_file
+from tests.conftest import run_merlion, shared_file
 
 SURVEY = "survey/survey_480x270.mp4"  # 93 frames, 10 fps, H.264, moov atom after the data
 
@@ -107,6 +107,22 @@ def test_video_with_nothing_readable_fails_with_one_line(tmp_path):
     junk.write_bytes(b"not a video at all" * 100)
     with pytest.raises(MerlionError):
         list(VideoSource(junk))
+
+
+def test_a_file_that_is_not_a_video_gets_our_one_line_and_nothing_from_ffmpeg(tmp_path):
+    """FFmpeg writes "moov atom not found" (and OpenCV its own warning) from C, straight to stderr: the real
+    command's stderr must hold our line alone; an operator who asks for FFmpeg's level still gets its lines."""
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(b"not a video at all" * 100)
+    done = run_merlion("summarize", str(junk), "-o", str(tmp_path / "out"), timeout=120)
+    assert done.returncode != 0
+    assert done.stderr.splitlines() == [f"merlion: error: {junk}: cannot be opened as a video (unknown format, or "
+                                        "damaged beyond reading)"]
+    assert "moov" not in done.stdout
+    loud = run_merlion("summarize", str(junk), "-o", str(tmp_path / "out"), timeout=120,
+                       env={"OPENCV_FFMPEG_LOGLEVEL": "16"})
+    assert "moov atom not found" in loud.stdout + loud.stderr  # through OpenCV's callback, which prints to stdout
+    assert loud.stderr.splitlines()[-1].startswith("merlion: error: ")
 
 
 def test_video_loops_with_increasing_indices():

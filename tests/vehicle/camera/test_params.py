@@ -9,7 +9,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.config import Config, SurfaceConfig
-from companion.live.control.params import TUNABLES, default_params
+from companion.live.control.params import SERVED, default_params
 from companion.storage.params_file import FILE_VERSION, ParamsFile
 from tests.conftest import free_udp_port
 from tests.vehicle.surface_env import companion_link, ground_station, wait_for
@@ -40,10 +40,11 @@ def test_list_read_set_and_restart(tmp_path):
     gcs = ground_station(port)
     try:
         gcs.mav.param_request_list_send(1, 100)
-        listed = _values(gcs, len(TUNABLES))
-        assert set(listed) == {t.name for t in TUNABLES} >= {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B",
-                                                              "MERL_LINK_BPS", "MERL_GATE", "MERL_ENHANCE"}
-        assert all(len(name) <= 16 and m.param_count == len(TUNABLES) for name, m in listed.items())
+        listed = _values(gcs, len(SERVED))
+        assert set(listed) == set(SERVED) >= {"MERL_TAU_SS", "MERL_TAU_SES", "MERL_K", "MERL_THUMB_B",
+                                              "MERL_LINK_BPS", "MERL_GATE", "MERL_ENHANCE"}
+        assert all(len(name) <= 16 and m.param_count == len(SERVED) for name, m in listed.items())
+        assert [listed[name].param_index for name in SERVED] == list(range(len(SERVED)))  # the wire order
         assert listed["MERL_GATE"].param_value == pytest.approx(cfg.gate.threshold)
         assert listed["MERL_K"].param_value == 6 and listed["MERL_K"].param_type == mav.MAV_PARAM_TYPE_INT32
         assert listed["MERL_TAU_SS"].param_value == pytest.approx(0.5)
@@ -79,6 +80,43 @@ def test_list_read_set_and_restart(tmp_path):
     assert again.params.value("MERL_TAU_SS") == pytest.approx(0.42)
     assert again.budget.rate == 3000
     assert dict(replayed) == {"MERL_TAU_SS": pytest.approx(0.42), "MERL_LINK_BPS": 3000}
+    link2.stop()
+
+
+def test_the_downlink_alone_serves_and_applies_its_own_link_parameters(tmp_path):
+    """Without the companion (no app parameters at all): MERL_THUMB_B and MERL_LINK_BPS are listed, set, echoed,
+    refused out of range, saved, and in force again after a restart."""
+    path = tmp_path / "params.json"
+    port = free_udp_port()
+    link = companion_link(port)
+    surface = Downlink(link, SurfaceConfig(budget_bytes_per_s=20000, thumbnail_bytes=2500),
+                       saved_params=ParamsFile(path).load(), persist_params=ParamsFile(path).save)
+    surface.start()
+    gcs = ground_station(port)
+    try:
+        gcs.mav.param_request_list_send(1, 100)
+        listed = _values(gcs, 2)
+        assert {name: m.param_value for name, m in listed.items()} == {"MERL_THUMB_B": 2500, "MERL_LINK_BPS": 20000}
+        assert all(m.param_count == 2 and m.param_type == mav.MAV_PARAM_TYPE_INT32 for m in listed.values())
+        gcs.mav.param_set_send(1, 100, b"MERL_LINK_BPS", 3000, mav.MAV_PARAM_TYPE_INT32)
+        assert wait_for(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "MERL_LINK_BPS").param_value == 3000
+        assert surface.budget.rate == 3000
+        gcs.mav.param_set_send(1, 100, b"MERL_THUMB_B", 4000, mav.MAV_PARAM_TYPE_INT32)
+        assert wait_for(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "MERL_THUMB_B").param_value == 4000
+        assert surface.thumbnail_bytes == 4000
+        gcs.mav.param_set_send(1, 100, b"MERL_THUMB_B", 100, mav.MAV_PARAM_TYPE_INT32)  # below 300: refused
+        assert wait_for(gcs, "PARAM_VALUE", cond=lambda m: m.param_id == "MERL_THUMB_B").param_value == 4000
+        assert surface.thumbnail_bytes == 4000
+    finally:
+        gcs.close()
+        surface.stop()
+        link.stop()
+    assert json.loads(path.read_text())["params"] == {"MERL_THUMB_B": 4000, "MERL_LINK_BPS": 3000}
+    link2 = companion_link(free_udp_port())
+    again = Downlink(link2, SurfaceConfig(budget_bytes_per_s=20000, thumbnail_bytes=2500),
+                     saved_params=ParamsFile(path).load(), persist_params=ParamsFile(path).save)
+    assert again.budget.rate == 3000 and again.thumbnail_bytes == 4000
+    assert again.params.values() == {"MERL_THUMB_B": 4000, "MERL_LINK_BPS": 3000}
     link2.stop()
 
 
