@@ -11,6 +11,7 @@ import threading
 from companion.commands.arg_checks import require_positive, require_resolvable_host
 from companion.commands.station_options import check_station_ids, companion_ids
 from companion.errors import MerlionError
+from companion.topside.actions import page_mark
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
 from companion.topside.web import WebServer
@@ -79,18 +80,6 @@ def check_port_free(connect: str) -> None:
         probe.close()
 
 
-def mark_action(tool: SurfaceTool, body: dict) -> dict:
-    """POST /api/mark {"index": n, "kind": "like" | "unlike" | "none"}: the page's "more like this" / "not this"
-    button; a refusal or no answer from the companion is a ValueError (the page shows its message)."""
-    index, kind = body.get("index"), body.get("kind")
-    if not isinstance(index, int) or isinstance(index, bool) or index < 0:
-        raise ValueError(f"mark: index {index!r} is not an image index")
-    error = tool.mark(index, str(kind))
-    if error:
-        raise ValueError(f"marks not set: {error}")
-    return {"marks": tool.snapshot()["marks"]}
-
-
 def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None, web_host: str = "127.0.0.1",
           duration: float | None = None, stop: threading.Event | None = None,
           web_allowed_hosts: list[str] | tuple[str, ...] = ()) -> int:
@@ -102,7 +91,7 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     web = None
     if web_port is not None:
         web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame,
-                        actions={"mark": lambda body: mark_action(tool, body)}, allowed_hosts=web_allowed_hosts)
+                        actions={"mark": lambda body: page_mark(tool.actions, body.get("index"), body.get("kind"))}, allowed_hosts=web_allowed_hosts)
         web.start()
         # the line the demo and tests wait for (the port matters when 0 was asked)
         print(f"merlion surface: live page at {web.url}", flush=True)

@@ -8,6 +8,7 @@ from typing import Protocol
 
 from companion.config import MavlinkConfig, TopicConfig
 from companion.errors import MerlionError
+from companion.topside.actions import page_mark
 from companion.topside.queries_upload import queries_from_options, upload_queries
 from companion.topside.tool import SurfaceTool
 from companion.topside.web import Action
@@ -23,15 +24,6 @@ class CompanionProcess(Protocol):
     def stop(self) -> None: ...
 
 
-def _mark(tool: SurfaceTool, index: object, kind: object) -> dict:
-    if not isinstance(index, int) or isinstance(index, bool) or index < 0:
-        raise ValueError(f"mark: index {index!r} is not an image index")
-    error = tool.mark(index, str(kind))
-    if error:
-        raise ValueError(f"marks not set: {error}")
-    return {"marks": tool.snapshot()["marks"]}
-
-
 def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConfig],
                       companion: CompanionProcess | None = None) -> dict[str, Action]:
     """``connect``: how the topic switch reaches the companion (the extension's hub); ``companion``: the process
@@ -39,13 +31,13 @@ def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConf
     presets = {t.name: t for t in topics}
 
     def mark(body: dict) -> dict:
-        return _mark(tool, body.get("index"), body.get("kind"))
+        return page_mark(tool.actions, body.get("index"), body.get("kind"))
 
     def mark_newest(body: dict) -> dict:
         held = [f["image_index"] for f in tool.snapshot()["summary"]]
         if not held:
             raise ValueError("mark: no summary frame yet")
-        return _mark(tool, max(held), body.get("kind"))
+        return page_mark(tool.actions, max(held), body.get("kind"))
 
     def topic(body: dict) -> dict:
         name = body.get("topic")

@@ -93,3 +93,17 @@ class SurfaceActions:
         if not result[0]:
             log.info("marks sent: like %s, unlike %s", like, unlike)
         return result[0]
+
+
+def page_mark(actions: SurfaceActions, index: object, kind: object) -> dict:
+    """What the page's "more like this" / "not this" button posts, checked, sent, and answered with the marks now
+    held; a bad index, a refusal or no answer from the companion is a ValueError (the page shows its message).
+    Shared by `merlion surface` and the BlueOS extension, which serve the same button."""
+    if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+        raise ValueError(f"mark: index {index!r} is not an image index")
+    error = actions.mark(index, str(kind))
+    if error:
+        raise ValueError(f"marks not set: {error}")
+    with actions.ctx.lock:
+        return {"marks": {k: list(v) for k, v in actions.ctx.marks.items()}}
+
