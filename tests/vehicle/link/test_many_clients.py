@@ -76,7 +76,7 @@ def test_companion_serves_many_ground_stations_at_once(tmp_path: Path) -> None:
     hub = UdpHub().start()
     sim = subprocess.Popen([sys.executable, "-m", "companion", "-q", "sim-vehicle", "--connect", hub.url,
                             "--duration", str(DURATION_S + 120)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    clip = write_clip(tmp_path / "dive.avi", frames=40)
+    clip = write_clip(tmp_path / "dive.avi", frames=20)
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url},
                        store={"dir": str(tmp_path / "store")},
                        surface={"ftp_writable": True, "budget_bytes_per_s": 40000})
