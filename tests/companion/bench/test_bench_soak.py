@@ -8,7 +8,7 @@ from tests.conftest import run_merlion
 
 
 def test_soak_reports_fps_drops_memory_and_latency_as_json() -> None:
-    done = run_merlion("bench", "soak", "--minutes", "0.25", "--fps", "10", "--encoder", "visual", "--json",
+    done = run_merlion("bench", "soak", "--minutes", "0.1", "--fps", "10", "--encoder", "visual", "--json",
                        timeout=180)
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout.strip().splitlines()[-1])
@@ -24,7 +24,7 @@ def test_soak_reports_fps_drops_memory_and_latency_as_json() -> None:
 
 
 def test_soak_without_the_gate_scores_every_frame_it_takes() -> None:
-    done = run_merlion("bench", "soak", "--duration", "10", "--fps", "8", "--encoder", "visual", "--gate", "none",
+    done = run_merlion("bench", "soak", "--duration", "5", "--fps", "8", "--encoder", "visual", "--gate", "none",
                        "--json", timeout=180)
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout.strip().splitlines()[-1])

@@ -9,13 +9,14 @@ from pathlib import Path
 import cv2
 
 from tests.conftest import run_merlion
+from tests.waiting import wait_until
 
 
 def test_short_demo_leaves_gallery_store_and_report(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     # the packaged encoder (what a fresh machine has), a quick dive, and a low threshold so a short run fills
     # the summary whatever the machine's speed
-    done = run_merlion("demo", "--duration", "20", "--out", str(out), "--source", "synthetic://dive?seconds=2",
+    done = run_merlion("demo", "--duration", "10", "--out", str(out), "--source", "synthetic://dive?seconds=2",
                        "--tau-ss", "0.02", "--encoder", "imagenet", timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "merlion demo: done" in done.stdout
@@ -72,8 +73,10 @@ def test_ctrl_c_ends_the_demo_early_with_its_report(tmp_path: Path) -> None:
                             text=True)
     try:
         for line in proc.stdout:
-            if " s  source running" in line:  # the first progress line: everything is up
+            if line.startswith("merlion demo: companion running"):
                 break
+        # everything is up once the store holds a frame (sooner than the first progress line, 10 s in)
+        assert wait_until(lambda: (out / "store" / "changes.jsonl").is_file(), 60), "no frame stored"
         proc.send_signal(signal.SIGINT)
         rest = proc.communicate(timeout=120)[0]
     finally:

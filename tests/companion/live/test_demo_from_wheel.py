@@ -78,7 +78,7 @@ def test_wheel_installs_the_service_and_runs_the_demo(tmp_path: Path) -> None:
     assert (root / "etc/merlion/companion.yaml").read_text() == (REPO / "config/bluerov2-orin.yaml").read_text()
 
     out = tmp_path / "demo"
-    demo = _run([str(merlion), "demo", "--duration", "6", "--out", str(out), "--source",
+    demo = _run([str(merlion), "demo", "--duration", "3", "--out", str(out), "--source",
                  "synthetic://dive?seconds=2", "--tau-ss", "0.1", "--encoder", "visual"], cwd=tmp_path,
                 env=dict(env, PATH=f"{venv / 'bin'}:{env.get('PATH', '')}"), timeout=240)
     assert demo.returncode == 0, demo.stdout + demo.stderr

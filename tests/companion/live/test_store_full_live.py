@@ -10,20 +10,11 @@ from pymavlink import mavutil
 
 from companion.config import StoreConfig
 from companion.storage.store import Store
+from tests.companion.conftest import fill_disk, tiny_tmpfs
 from tests.companion.live_harness import Companion, wait_until, write_config
-from tests.companion.storage.test_store import tiny_tmpfs
 
 FULL = "Store disk full"
 BACK = "Store writable again"
-
-
-def _fill(path: Path) -> None:
-    with open(path, "wb", buffering=0) as fh:
-        try:
-            while True:
-                fh.write(b"\0" * 4096)
-        except OSError:
-            pass
 
 
 def _captures(listener, start: int = 0) -> list[int]:
@@ -44,7 +35,7 @@ def test_a_full_store_is_reported_once_recovered_and_no_index_comes_twice(tmp_pa
         first = Companion("--config", str(cfg))
         first.wait_for("companion running")
         wait_until(lambda: len(_captures(listener)) >= 2, 60, "captures on disk")
-        _fill(mnt / "filler")
+        fill_disk(mnt / "filler")
         warned = listener.wait_for(lambda m: m.get_type() == "STATUSTEXT" and FULL in str(m.text), 60, FULL)
         assert warned.severity == 4  # MAV_SEVERITY_WARNING
         mark = len(listener.messages)

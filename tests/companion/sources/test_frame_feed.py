@@ -9,6 +9,7 @@ import numpy as np
 from companion.sources.frame_feed import FrameFeed
 from companion.sources.synthetic import SyntheticSource
 from companion.vision.gate import FrameGate
+from tests.waiting import wait_until
 
 HD = "synthetic://dive?width=1920&height=1080&seconds=2"
 HD_BYTES = 1920 * 1080 * 3
@@ -21,8 +22,9 @@ def test_read_ahead_stops_at_max_bytes_of_pixels_and_delivers_every_frame_in_ord
     with FrameFeed(SyntheticSource(HD, fps=5, realtime=False), limit=frames, max_bytes=4 * HD_BYTES) as feed:
         got = []
         for batch in feed.batches(2):
-            if not got:
-                time.sleep(2.0)  # long enough for the decoder to run into the bound
+            if not got:  # the decoder runs into the bound, then has time to decode a fifth if it were let
+                assert wait_until(lambda: feed.most_bytes_ahead >= 4 * HD_BYTES, 30)
+                time.sleep(0.5)
             got += [frame.index for frame, _ in batch]
             assert all(frame.image.shape == (1080, 1920, 3) for frame, _ in batch)
     assert got == list(range(frames))

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +14,7 @@ from companion.config import StoreConfig
 from companion.storage.store import CHANGES_FILE, SUMMARY_FILE, TMP_PREFIX, Store
 from companion.storage.versioned import NewerFileError
 from companion.vision.events import SummaryEvent, SummaryFrame
+from tests.companion.conftest import tiny_tmpfs
 from vehicle.autopilot.pose import Pose
 
 
@@ -122,18 +122,6 @@ def test_disk_budget_prunes_oldest_non_summary_frames_first(tmp_path: Path) -> N
     assert set(summary) <= on_disk
     assert 0 not in on_disk  # the oldest went first
     assert store.stats.bytes_on_disk <= cfg.disk_budget_mb * 1024 * 1024
-
-
-@contextlib.contextmanager
-def tiny_tmpfs(where: Path, options: str):
-    where.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], capture_output=True)
-    if done.returncode != 0:
-        pytest.skip("cannot mount a small tmpfs here (needs root)")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True)
 
 
 def test_full_disk_degrades_to_memory_and_keeps_what_was_saved(tmp_path: Path, caplog) -> None:

@@ -10,17 +10,8 @@ from pathlib import Path
 from companion.config import StoreConfig
 from companion.storage.params_file import ParamsFile
 from companion.storage.store import NEXT_INDEX_FILE, SUMMARY_FILE, Store
-from tests.companion.storage.test_store import added, make_frame, tiny_tmpfs
-
-
-def _fill(path: Path) -> None:
-    """Write until the filesystem is full."""
-    with open(path, "wb", buffering=0) as fh:
-        try:
-            while True:
-                fh.write(b"\0" * 4096)
-        except OSError:
-            pass
+from tests.companion.conftest import fill_disk, tiny_tmpfs
+from tests.companion.storage.test_store import added, make_frame
 
 
 def _until_memory_only(store: Store, start: int) -> int:
@@ -40,7 +31,7 @@ def test_a_full_store_says_so_once_and_goes_back_to_disk_when_space_returns(tmp_
         heard: list[tuple[bool, str]] = []
         store.on_health(lambda memory_only, reason: heard.append((memory_only, reason)))
         store.health.retry_s = 0.0  # every apply and retry() tries the disk (the companion: every 5 s)
-        _fill(mnt / "filler")
+        fill_disk(mnt / "filler")
         index = _until_memory_only(store, 0)
         for i in range(index, index + 5):  # frames kept in memory only; each retry still fails
             store.apply(added(make_frame(i, size=(200, 260)), (store.summary + [i])[-6:]))
@@ -62,7 +53,7 @@ def test_a_full_store_says_so_once_and_goes_back_to_disk_when_space_returns(tmp_
 def test_no_image_index_is_reused_after_a_run_that_ended_with_the_disk_full(tmp_path: Path) -> None:
     with tiny_tmpfs(tmp_path / "small", "size=1m") as mnt:
         store = Store(StoreConfig(dir=str(mnt / "store")))
-        _fill(mnt / "filler")
+        fill_disk(mnt / "filler")
         index = _until_memory_only(store, 0)
         announced = list(range(index, index + 20))  # what the surface heard while the disk was full
         for i in announced:

@@ -29,9 +29,9 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
     chromium_or_skip()
     port = free_udp_port()
     out = tmp_path / "gallery"
-    # the real companion side, its MAVLink link and Downlink: 3x the default budget, for a quicker full frame
+    # the real companion side, its MAVLink link and Downlink: 10x the default budget, for quick thumbnails
     with surface_with_page(out, port, "--web-host", "127.0.0.1", "--push-timeout", "3", duration=120) as shown, \
-            companion_downlink(port, SurfaceConfig(budget_bytes_per_s=6000), dive=DIVE) as surface:
+            companion_downlink(port, SurfaceConfig(budget_bytes_per_s=20000), dive=DIVE) as surface:
         proc, page_url, web = shown.proc, shown.url, shown.web
         frames = {5: summary_frame(5, depth=21.4, yaw_deg=135, score=0.88),
                   6: summary_frame(6, depth=22.6, yaw_deg=270, score=0.77),

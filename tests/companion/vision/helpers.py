@@ -15,6 +15,20 @@ def run(pipe, frames, batch=8):
     return results, events
 
 
+def replay_events(events) -> list[int]:
+    """Apply a pipeline's summary events in order and return the image indices held at the end; after every
+    removal what is held is exactly the summary that event carries (an added frame's list already leaves out
+    what its own arrival trims, so only removals are compared)."""
+    held: list[int] = []
+    for ev in events:
+        if ev.kind == "added":
+            held.append(ev.frame.image_index)
+        else:
+            held.remove(ev.frame.image_index)
+        assert sorted(held) == sorted(ev.summary) or ev.kind == "added"
+    return held
+
+
 def resident_kb_of(path: str) -> int:
     """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
     target, inside, total = os.path.realpath(path), False, 0

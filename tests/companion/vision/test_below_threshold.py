@@ -8,7 +8,7 @@ from companion.config import Config, EncoderConfig
 from companion.sources.video import VideoSource
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.pipeline import Pipeline
-from tests.companion.vision.helpers import run
+from tests.companion.vision.helpers import replay_events, run
 from tests.conftest import shared_file
 
 
@@ -30,18 +30,6 @@ def make(encoder, tau: float, quiet_s: float, first: int = 0) -> Pipeline:
     return Pipeline.from_config(cfg, encoder, first_image_index=first)
 
 
-def replay(events) -> list[int]:
-    held: list[int] = []
-    for ev in events:
-        if ev.kind == "added":
-            held.append(ev.frame.image_index)
-        else:
-            held.remove(ev.frame.image_index)
-        # an added frame's list already leaves out what its own arrival trims (test_pipeline.py's rule)
-        assert sorted(held) == sorted(ev.summary) or ev.kind == "added"
-    return held
-
-
 def test_stand_ins_show_while_nothing_passes_and_the_first_pass_displaces_them(encoder, frames):
     pipe = make(encoder, tau=0.25, quiet_s=0.0)
     results, events = run(pipe, frames, batch=2)
@@ -53,7 +41,7 @@ def test_stand_ins_show_while_nothing_passes_and_the_first_pass_displaces_them(e
     assert [round(f.time_s, 1) for f in shown] == [0.0, 1.5] and shown[1].score > shown[0].score
     gone = [e.frame for e in events if e.kind == "removed" and e.frame.below_threshold]
     assert {id(f) for f in gone} == {id(f) for f in shown}  # every stand-in left once a frame passed
-    assert replay(events) == [f.image_index for f in pipe.summary] == pipe.sampler.keys
+    assert replay_events(events) == [f.image_index for f in pipe.summary] == pipe.sampler.keys
     assert not any(f.below_threshold for f in pipe.summary) and len(pipe.summary) == 3
     assert len({e.frame.image_index for e in events if e.kind == "added"}) == len(
         [e for e in events if e.kind == "added"])  # image indices never reused
@@ -72,7 +60,7 @@ def test_stand_ins_wait_for_the_quiet_period_and_finish_shows_them(encoder, fram
     assert all(b - a >= 2.0 for a, b in zip(times, times[1:], strict=False))  # different moments
     best = max(r.score for r in results)
     assert max(f.score for f in frames_shown) == pytest.approx(best)
-    assert replay(shown) == [f.image_index for f in pipe.summary]
+    assert replay_events(shown) == [f.image_index for f in pipe.summary]
 
 
 def test_a_restored_stand_in_stays_until_a_frame_passes(encoder, frames):

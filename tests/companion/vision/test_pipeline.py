@@ -11,7 +11,7 @@ from companion.sources.video import VideoSource
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.pipeline import Pipeline, downscale_for
-from tests.companion.vision.helpers import run
+from tests.companion.vision.helpers import replay_events, run
 from tests.conftest import shared_file
 
 
@@ -51,14 +51,7 @@ def test_results_follow_the_frames_and_the_threshold(baseline, frames):
 
 def test_events_replay_to_the_summary_with_running_indices(baseline):
     pipe, results, events = baseline
-    held: list[int] = []
-    for ev in events:
-        if ev.kind == "added":
-            held.append(ev.frame.image_index)
-        else:
-            held.remove(ev.frame.image_index)
-        assert sorted(held) == sorted(ev.summary) or ev.kind == "added"
-    assert held == [f.image_index for f in pipe.summary] == pipe.sampler.keys
+    assert replay_events(events) == [f.image_index for f in pipe.summary] == pipe.sampler.keys
     added = [r.image_index for r in results if r.added]
     assert added == list(range(100, 100 + len(added)))  # running index, never reused
     assert len(pipe.summary) == 3

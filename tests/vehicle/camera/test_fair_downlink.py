@@ -25,28 +25,30 @@ PARAMS = [ParamSpec(f"MERL_P{i}", float(i), 0, 100) for i in range(6)]
 
 @pytest.fixture
 def downlink(tmp_path):
+    """The companion's Downlink on a signed link, started, with a signed ground station and an unsigned stranger
+    that have both said hello; floods the test starts are stopped before the link."""
     port = free_udp_port()
     link = signed_companion_link(tmp_path, port)
     surface = Downlink(link, SurfaceConfig(status_hz=1), params=PARAMS)  # the default budget: 2000 B/s
-    peers: list[Peer] = []
+    gcs, stranger = Peer(port, 255, 190, KEY), Peer(port, 255, 191)
     floods: list[Repeater] = []
-    yield port, surface, peers, floods
-    for f in floods:
-        f.stop()
-    surface.stop()
-    link.stop()
-    for p in peers:
-        p.close()
+    try:
+        for p in (gcs, stranger):
+            p.send(gcs_heartbeat())
+        surface.start()
+        assert wait_until(lambda: gcs.got("STATUSTEXT", COMPANION), 10)  # "started"
+        yield surface, gcs, stranger, floods
+    finally:
+        for f in floods:
+            f.stop()
+        surface.stop()
+        link.stop()
+        for p in (gcs, stranger):
+            p.close()
 
 
 def test_a_parameter_list_flood_starves_nothing_and_is_reported_once(downlink):
-    port, surface, peers, floods = downlink
-    gcs, stranger = Peer(port, 255, 190, KEY), Peer(port, 255, 191)
-    peers += [gcs, stranger]
-    for p in (gcs, stranger):
-        p.send(gcs_heartbeat())
-    surface.start()
-    assert wait_until(lambda: gcs.got("STATUSTEXT", COMPANION), 10)  # "started"
+    surface, gcs, stranger, floods = downlink
     flood = Repeater(stranger, lambda: [mav2.MAVLink_param_request_list_message(*COMPANION)], 20)
     floods.append(flood)
     assert wait_until(lambda: len(stranger.got("PARAM_VALUE", COMPANION)) >= 6, 10)  # the flood is being served
@@ -73,13 +75,7 @@ def test_a_parameter_list_flood_starves_nothing_and_is_reported_once(downlink):
 
 
 def test_signed_answers_go_before_a_strangers(downlink):
-    port, surface, peers, floods = downlink
-    gcs, stranger = Peer(port, 255, 190, KEY), Peer(port, 255, 191)
-    peers += [gcs, stranger]
-    for p in (gcs, stranger):
-        p.send(gcs_heartbeat())
-    surface.start()
-    assert wait_until(lambda: gcs.got("STATUSTEXT", COMPANION), 10)
+    surface, gcs, stranger, floods = downlink
     for i in range(15):  # fifteen distinct unsigned reads queue ahead...
         stranger.send(mav2.MAVLink_param_request_read_message(*COMPANION, b"", i % 6))
     time.sleep(0.2)  # let them reach the queue first (ordering, not speed, is what is checked)

@@ -10,7 +10,7 @@ from tests.conftest import run_merlion
 
 
 def test_bench_link_clients_reports_corruption_and_stalls():
-    result = run_merlion("bench", "link", "--clients", "2", "--duration", "6", "--json", timeout=180)
+    result = run_merlion("bench", "link", "--clients", "2", "--duration", "3", "--json", timeout=180)
     assert result.returncode == 0, result.stderr
     (run,) = json.loads(result.stdout.strip().splitlines()[-1])["stress"]
     assert run["clients"] == 2 and run["errors"] == [] and len(run["corrupted_by_client"]) == 2

@@ -78,6 +78,21 @@ def _stamp(msg) -> int:
     return int.from_bytes(bytes(msg.get_msgbuf())[-12:-6], "little")
 
 
+def _join(hub: UdpHub, stations: list[Station], component: int, key: bytes | None) -> Station:
+    """A ground station on the hub that has sent its GCS heartbeat; the ``setup`` fixture closes it."""
+    station = Station(hub, component, key)
+    stations.append(station)
+    station.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    return station
+
+
+def _signed_companion(cfg: Path, key_file: Path) -> Companion:
+    """`merlion run` with the shared key, once it hears the (signing) autopilot's heartbeat."""
+    companion = Companion("--config", str(cfg), "--signing-key", str(key_file))
+    companion.wait_for("autopilot heartbeat up")
+    return companion
+
+
 @pytest.fixture
 def setup(tmp_path: Path):
     key_file = tmp_path / "signing.key"
@@ -101,10 +116,7 @@ def test_only_the_signed_station_changes_the_companion(setup) -> None:
     key_file, hub, sim, store, cfg, stations = setup
     companion = Companion("--config", str(cfg), "--signing-key", str(key_file))
     companion.wait_for("companion running")
-    good, unsigned, wrong = Station(hub, 190, KEY), Station(hub, 191, None), Station(hub, 192, OTHER)
-    stations += [good, unsigned, wrong]
-    for s in stations:
-        s.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    good, unsigned, wrong = (_join(hub, stations, c, k) for c, k in ((190, KEY), (191, None), (192, OTHER)))
     companion.wait_for("autopilot heartbeat up")
 
     # the companion's own rate requests reach the signed autopilot only because they are signed
@@ -153,20 +165,15 @@ def test_only_the_signed_station_changes_the_companion(setup) -> None:
 
 def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> None:
     key_file, hub, sim, store, cfg, stations = setup
-    listener = Station(hub, 190, None)
-    stations.append(listener)
-    listener.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
-    first = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    first.wait_for("autopilot heartbeat up")
+    listener = _join(hub, stations, 190, None)
+    first = _signed_companion(cfg, key_file)
     wait_until(lambda: len(listener.from_companion()) >= 10, 30, "ten messages from the companion")
     first.kill()  # no clean shutdown: the timestamps were reserved on disk before they were used
     reserved = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load()
     assert max(_stamp(m) for m in listener.from_companion()) < reserved  # on disk before any of them went out
     # a station that joins the hub now hears nothing of the first process: the hub forwards in arrival order,
     # and all the first process sent was queued before this heartbeat
-    newcomer = Station(hub, 193, None)
-    stations.append(newcomer)
-    newcomer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    newcomer = _join(hub, stations, 193, None)
     newcomer.wait_for(lambda m: m.get_type() == "HEARTBEAT", 10, "the hub forwarding to the newcomer")
     assert newcomer.from_companion() == []
     second = Companion("--config", str(cfg), "--signing-key", str(key_file))
@@ -178,11 +185,8 @@ def test_a_restarted_companion_signs_above_everything_it_sent_before(setup) -> N
 def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(setup) -> None:
     """Issue 24 item 5: the timestamps seen from others persist like our own (in the same state file)."""
     key_file, hub, sim, store, cfg, stations = setup
-    good = Station(hub, 190, KEY)
-    stations.append(good)
-    good.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
-    first = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    first.wait_for("autopilot heartbeat up")
+    good = _join(hub, stations, 190, KEY)
+    first = _signed_companion(cfg, key_file)
     recorded = good.set_k(7)
     first.wait_for(r"parameter MERL_K set to 7\b", 30)
     good.set_k(8)
@@ -191,8 +195,7 @@ def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(
     first.kill()  # SIGKILL: no clean shutdown, nothing written on the way out
     streams = TimestampFile(key_file.parent / "signing.key.comp100.timestamp").load_streams()
     assert streams[(0, 255, 190)] >= _stamp(mav2.MAVLink(None).parse_buffer(recorded)[0])
-    second = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    second.wait_for("autopilot heartbeat up")
+    second = _signed_companion(cfg, key_file)
     good.sock.sendto(recorded, good.hub)  # the recording, seconds after it was made: well inside a new stream's minute
     wait_until(lambda: any(w.startswith("replayed PARAM_SET from 255/190") for w in good.warnings()), 30,
                "the replay refused")
@@ -215,12 +218,8 @@ def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nob
 
 def test_manual_control_for_the_autopilot_is_never_refused_as_ours(setup) -> None:
     key_file, hub, sim, store, cfg, stations = setup
-    companion = Companion("--config", str(cfg), "--signing-key", str(key_file))
-    companion.wait_for("autopilot heartbeat up")
-    good, joystick = Station(hub, 190, KEY), Station(hub, 191, None)
-    stations += [good, joystick]
-    for s in stations:
-        s.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3))
+    companion = _signed_companion(cfg, key_file)
+    good, joystick = _join(hub, stations, 190, KEY), _join(hub, stations, 191, None)
     for _ in range(20):  # an unsigned ground station's joystick, for the vehicle (target: system 1)
         joystick.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
         joystick.send(mav2.MAVLink_rc_channels_override_message(1, 1, *([1500] * 8)))

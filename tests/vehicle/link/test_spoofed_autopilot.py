@@ -154,7 +154,7 @@ def test_merlion_telemetry_ignores_and_counts_the_impostor(tmp_path):
               Repeater(stranger, _attacker_stream(), 20)]
     try:
         done = run_merlion("telemetry", "--connect", f"udpin:127.0.0.1:{port}", "--signing-key", str(key_file),
-                           "--duration", "4", "--no-rates", "--json", timeout=120)
+                           "--duration", "2", "--no-rates", "--json", timeout=120)
     finally:
         for f in floods:
             f.stop()
