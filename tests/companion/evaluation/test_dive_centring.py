@@ -66,7 +66,7 @@ def _scenes(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.
     x, y, g = [], [], []
     for k in range(6):
         scene = rng.normal(0, 4, 10)
-        for i in range(40):
+        for _ in range(40):
             label = bool(rng.random() < 0.5)
             x.append(scene + rng.normal(0, 1, 10) + (2.0 if label else 0.0) * np.eye(10)[0])
             y.append(label)
