@@ -77,7 +77,8 @@ def register(add_command) -> None:
                    help="with --data: the packaged encoder's settings, leave-one-group-out (slow: 6 encoder passes)")
     p.add_argument("--holdout", action="store_true",
                    help="with --data: a learned head (the fish head) is retrained without each group and scores "
-                        "that group, so no figure comes from a group the head learned from")
+                        "that group, so no figure comes from a group the head learned from; also the head's score "
+                        "centred by each dive's running mean, every choice nested")
     p.add_argument("--marks", type=int, metavar="N", help="with --data: in each group the first N positive and N "
                                                           "negative frames become marks; the rest are scored with "
                                                           "and without them (with --holdout: by the held-out head)")
@@ -407,6 +408,10 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
     if args.holdout:
         result["holdout"] = held_out_head(encoder, presampler, np.concatenate(features), frames)
+        if result["holdout"]["by_group"]:
+            from companion.evaluation.dive_centring import held_out_centred
+
+            result["dive_centred"] = held_out_centred(np.concatenate(features), frames)
     if args.marks:
         from companion.evaluation.group_feedback import marks_by_group
 
@@ -438,6 +443,17 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
         if d:
             print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
                   f"spread {d['spread']:.3f}")
+    if "dive_centred" in result:
+        c = result["dive_centred"]
+        print(f"held out, dive-centred ({c['method']}):")
+        for group, value in c["by_group"].items():
+            choice = c["chosen"].get(group)
+            note = f"  (lambda {choice['lambda']:g}, prior weight {choice['prior_weight']})" if choice else ""
+            print(f"  {group:24s} AUROC {value:.3f}{note}")
+        d = c["deepfish_habitats"]
+        if d:
+            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
+                  f"spread {d['spread']:.3f}; DeepFish pooled {c['deepfish_pooled']:.3f}")
     if "marks" in result:
         m = result["marks"]
         print(f"{m['marks']} + {m['marks']} marks from each group's first frames"
