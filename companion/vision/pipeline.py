@@ -174,7 +174,7 @@ class Pipeline:
         enhancer = None
         if cfg.enhance.mode != "none":
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
-        gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
+        gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s, cfg.gate.max_gap_share)
         return cls(encoder, topics, default_tau_ss=cfg.queries.tau_ss, default_topic=cfg.queries.name,
                    enhancer=enhancer, enhance_mode=cfg.enhance.mode,
                    tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate,
