@@ -8,6 +8,13 @@ in grey levels (0-255). A frame that differs by more than ``threshold`` is encod
 whose time goes backwards (a looped file, a restarted camera). A skipped frame counts as seen and inherits nothing
 into the summary: it is neither scored nor offered to the sampler (the cheap difference detector of video
 analytics systems such as NoScope).
+
+Time alone cannot know how long the footage will be: a 1-s clip gated at one frame per 0.5 s gives the sampler two
+frames to choose from, and its summary loses the spread the ungated one has. So a frame is also encoded once
+``max_gap_share`` of the frames seen so far have passed since the last encoded one (0.1: the first ten frames all,
+then ever sparser). Whatever the footage's length, every tenth of it so far holds an encoded frame; it costs a few
+dozen calls at the start of a dive, and after that the time rule fires first. It is online: it counts only frames
+already seen.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ def tiny_grey(image: np.ndarray, size: tuple[int, int] = TINY_SIZE) -> np.ndarra
 
 
 class FrameGate:
-    """Remembers the last encoded frame's tiny copy; ``admit`` says whether the next frame is encoded.
+    """Remembers the last encoded frame's tiny copy and when it came; ``admit`` says whether the next frame is encoded.
 
     ``mode`` ``none`` admits every frame (the ungated pipeline). ``threshold`` and ``mode`` may be changed
     between calls (live tuning); a change takes effect with the next frame.

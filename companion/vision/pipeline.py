@@ -21,8 +21,9 @@ While a topic's summary is empty and nothing passes its gate, its best frames so
 ``below_threshold`` (``companion.vision.below_threshold``): after ``quiet_s`` seconds of footage, or at ``finish``.
 
 Before all of that, the frame gate (``companion.vision.gate``, config ``gate:``) lets through only the frames
-that differ from the last encoded one; a skipped frame gets a result with ``encoded=False`` (counted as seen,
-never scored, never offered to the sampler).
+that differ from the last encoded one or come after a gap (in seconds, or in a share of the frames seen so far);
+a skipped frame gets a result with ``encoded=False`` (counted as seen, never scored, never offered to the
+sampler).
 """
 
 from __future__ import annotations
