@@ -11,9 +11,9 @@ analytics systems such as NoScope).
 
 Time alone cannot know how long the footage will be: a 1-s clip gated at one frame per 0.5 s gives the sampler two
 frames to choose from, and its summary loses the spread the ungated one has. So a frame is also encoded once
-``max_gap_share`` of the frames seen so far have passed since the last encoded one (0.1: the first ten frames all,
-then ever sparser). Whatever the footage's length, every tenth of it so far holds an encoded frame; it costs a few
-dozen calls at the start of a dive, and after that the time rule fires first. It is online: it counts only frames
+``max_gap_share`` of the frames seen so far have passed since the last encoded one (0.05: the first twenty frames
+all, then ever sparser). Whatever the footage's length, every twentieth of it so far holds an encoded frame; it costs
+a few dozen calls at the start of a dive, and after that the time rule fires first. It is online: it counts only frames
 already seen.
 """
 
@@ -43,7 +43,7 @@ class FrameGate:
     """
 
     def __init__(self, mode: str = "difference", threshold: float = 8.0, max_gap_s: float = 0.5,
-                 max_gap_share: float = 0.2, *, size: tuple[int, int] = TINY_SIZE) -> None:
+                 max_gap_share: float = 0.05, *, size: tuple[int, int] = TINY_SIZE) -> None:
         if mode not in GATE_MODES:
             raise ValueError(f"gate.mode: {mode!r} is not one of {', '.join(GATE_MODES)}")
         if threshold < 0:
