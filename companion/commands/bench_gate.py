@@ -47,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--case {', '.join(args.case or [])}: no such case in {data}")
     encoder = make_encoder(cfg.encoder)
     g = cfg.gate
-    print(f"gate: difference > {g.threshold:g}, max gap {g.max_gap_s:g} s, share {g.max_gap_share:g}; tau_ss {cfg.queries.tau_ss:g}; "
-          f"K {cfg.sampler.k}; encoder {encoder.name}")
+    print(f"gate: difference > {g.threshold:g}, max gap {g.max_gap_s:g} s, share {g.max_gap_share:g}; "
+          f"tau_ss {cfg.queries.tau_ss:g}; K {cfg.sampler.k}; encoder {encoder.name}")
     print(table_head(), flush=True)
     rows = []
     for case in cases:  # a row as soon as its case is done: the whole table takes minutes
