@@ -171,6 +171,10 @@ class GateConfig(_Section):
     max_gap_s: float = Field(0.5, gt=0)
     """A frame this many seconds (source time) after the last encoded one is encoded whatever it shows (0.5: the
     gated summary then keeps the ungated one's segments, `merlion bench gate`)."""
+    max_gap_share: float = Field(0.05, ge=0, lt=1)
+    """A frame is also encoded once this share of the frames seen so far has passed since the last encoded one:
+    every twentieth of the footage so far holds an encoded frame however short it is (a 1-s clip, the first round of
+    a loop), while on long footage ``max_gap_s`` fires first. 0: off (time and difference only)."""
 
 
 class StoreConfig(_Section):

@@ -19,6 +19,8 @@ def register(add_command) -> None:
                    help="semantic pre-sampling threshold tau_ss (default 0: no semantic gate)")
     p.add_argument("--gate-threshold", type=float, metavar="GREY", help="gate: mean absolute difference to encode")
     p.add_argument("--gate-max-gap", type=float, metavar="S", help="gate: encode at least every S seconds")
+    p.add_argument("--gate-max-share", type=float, metavar="SHARE",
+                   help="gate: encode once this share of the frames seen so far has passed (0: off)")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
     p.add_argument("--json", action="store_true", help="end with one JSON object on the last line")
     p.set_defaults(func=run)
@@ -36,7 +38,8 @@ def run(args: argparse.Namespace) -> int:
     over: dict = {"queries": {"tau_ss": args.threshold}}
     if args.encoder:
         over["encoder"] = {"name": args.encoder}
-    gate = {"mode": "difference", "threshold": args.gate_threshold, "max_gap_s": args.gate_max_gap}
+    gate = {"mode": "difference", "threshold": args.gate_threshold, "max_gap_s": args.gate_max_gap,
+            "max_gap_share": args.gate_max_share}
     over["gate"] = {k: v for k, v in gate.items() if v is not None}
     cfg = load_config(args.config, overrides=over)
     cases = [c for c in default_cases(data) if not args.case or any(t.lower() in c.name.lower() for t in args.case)]
@@ -44,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--case {', '.join(args.case or [])}: no such case in {data}")
     encoder = make_encoder(cfg.encoder)
     g = cfg.gate
-    print(f"gate: difference > {g.threshold:g}, max gap {g.max_gap_s:g} s; tau_ss {cfg.queries.tau_ss:g}; "
-          f"K {cfg.sampler.k}; encoder {encoder.name}")
+    print(f"gate: difference > {g.threshold:g}, max gap {g.max_gap_s:g} s, share {g.max_gap_share:g}; "
+          f"tau_ss {cfg.queries.tau_ss:g}; K {cfg.sampler.k}; encoder {encoder.name}")
     print(table_head(), flush=True)
     rows = []
     for case in cases:  # a row as soon as its case is done: the whole table takes minutes

@@ -164,7 +164,8 @@ class LiveCompanion:
             raw = RawGate(self.encoder, [TopicSpec.from_config(t) for t in cfg.queries.topic_list()],
                           cfg.queries.tau_ss)
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
-            gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)  # ahead of the raw scoring
+            # ahead of the raw scoring
+            gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s, cfg.gate.max_gap_share)
             self.selective = SelectiveStage(self.pipeline, raw, enhancer, queue_size=cfg.enhance.queue,
                                             lock=self.keeper.lock, gate=gate)
         else:

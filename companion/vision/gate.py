@@ -8,6 +8,13 @@ in grey levels (0-255). A frame that differs by more than ``threshold`` is encod
 whose time goes backwards (a looped file, a restarted camera). A skipped frame counts as seen and inherits nothing
 into the summary: it is neither scored nor offered to the sampler (the cheap difference detector of video
 analytics systems such as NoScope).
+
+Time alone cannot know how long the footage will be: a 1-s clip gated at one frame per 0.5 s gives the sampler two
+frames to choose from, and its summary loses the spread the ungated one has. So a frame is also encoded once
+``max_gap_share`` of the frames seen so far have passed since the last encoded one (0.05: the first twenty frames
+all, then ever sparser). Whatever the footage's length, every twentieth of it so far holds an encoded frame; it costs
+a few dozen calls at the start of a dive, and after that the time rule fires first. It is online: it counts only frames
+already seen.
 """
 
 from __future__ import annotations
@@ -29,23 +36,26 @@ def tiny_grey(image: np.ndarray, size: tuple[int, int] = TINY_SIZE) -> np.ndarra
 
 
 class FrameGate:
-    """Remembers the last encoded frame's tiny copy; ``admit`` says whether the next frame is encoded.
+    """Remembers the last encoded frame's tiny copy and when it came; ``admit`` says whether the next frame is encoded.
 
     ``mode`` ``none`` admits every frame (the ungated pipeline). ``threshold`` and ``mode`` may be changed
     between calls (live tuning); a change takes effect with the next frame.
     """
 
-    def __init__(self, mode: str = "difference", threshold: float = 8.0, max_gap_s: float = 0.5, *,
-                 size: tuple[int, int] = TINY_SIZE) -> None:
+    def __init__(self, mode: str = "difference", threshold: float = 8.0, max_gap_s: float = 0.5,
+                 max_gap_share: float = 0.05, *, size: tuple[int, int] = TINY_SIZE) -> None:
         if mode not in GATE_MODES:
             raise ValueError(f"gate.mode: {mode!r} is not one of {', '.join(GATE_MODES)}")
         if threshold < 0:
             raise ValueError(f"gate.threshold: must be 0 or more, got {threshold}")
         if max_gap_s <= 0:
             raise ValueError(f"gate.max_gap_s: must be more than 0, got {max_gap_s}")
+        if not 0 <= max_gap_share < 1:
+            raise ValueError(f"gate.max_gap_share: must be in [0, 1), got {max_gap_share}")
         self.mode = mode
         self.threshold = float(threshold)
         self.max_gap_s = float(max_gap_s)
+        self.max_gap_share = float(max_gap_share)
         self.size = size
         self.seen = 0
         self.encoded = 0
@@ -53,6 +63,7 @@ class FrameGate:
         """Mean absolute difference of the last frame looked at against the reference (None: no reference)."""
         self._reference: np.ndarray | None = None
         self._reference_time: float | None = None
+        self._reference_seen = 0
 
     @property
     def on(self) -> bool:
@@ -81,11 +92,16 @@ class FrameGate:
         else:
             self.last_difference = float(np.abs(tiny - ref).mean())
             gap = time_s - ref_time
-            go = self.last_difference > self.threshold or gap >= self.max_gap_s or gap < 0
+            go = (self.last_difference > self.threshold or gap >= self.max_gap_s or gap < 0
+                  or self._share_due())
         if go:
-            self._reference, self._reference_time = tiny, float(time_s)
+            self._reference, self._reference_time, self._reference_seen = tiny, float(time_s), self.seen
             self.encoded += 1
         return go
+
+    def _share_due(self) -> bool:
+        """More than ``max_gap_share`` of the frames seen so far have passed since the last encoded one."""
+        return self.max_gap_share > 0 and self.seen - self._reference_seen >= self.max_gap_share * self.seen
 
     def admit_batch(self, images: list[np.ndarray], times: list[float]) -> np.ndarray:
         """``admit`` for each frame in order; a boolean mask."""

@@ -21,8 +21,9 @@ While a topic's summary is empty and nothing passes its gate, its best frames so
 ``below_threshold`` (``companion.vision.below_threshold``): after ``quiet_s`` seconds of footage, or at ``finish``.
 
 Before all of that, the frame gate (``companion.vision.gate``, config ``gate:``) lets through only the frames
-that differ from the last encoded one; a skipped frame gets a result with ``encoded=False`` (counted as seen,
-never scored, never offered to the sampler).
+that differ from the last encoded one or come after a gap (in seconds, or in a share of the frames seen so far);
+a skipped frame gets a result with ``encoded=False`` (counted as seen, never scored, never offered to the
+sampler).
 """
 
 from __future__ import annotations
@@ -174,7 +175,7 @@ class Pipeline:
         enhancer = None
         if cfg.enhance.mode != "none":
             enhancer = make_enhancer(cfg.enhance, device=cfg.encoder.device)
-        gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s)
+        gate = FrameGate(cfg.gate.mode, cfg.gate.threshold, cfg.gate.max_gap_s, cfg.gate.max_gap_share)
         return cls(encoder, topics, default_tau_ss=cfg.queries.tau_ss, default_topic=cfg.queries.name,
                    enhancer=enhancer, enhance_mode=cfg.enhance.mode,
                    tau_ses=cfg.enhance.tau_ses, first_image_index=first_image_index, gate=gate,

@@ -144,7 +144,7 @@ def test_compare_shows_the_gated_summary_against_the_ungated_one(tmp_path):
     assert ungated["frames_encoded"] == ungated["frames_seen"] == gated["frames_seen"]
     assert 0 < gated["frames_encoded"] < gated["frames_seen"]
     g = out["gate"]
-    assert g["gate"] == {"mode": "difference", "threshold": 6.0, "max_gap_s": 1.0}
+    assert g["gate"] == {"mode": "difference", "threshold": 6.0, "max_gap_s": 1.0, "max_gap_share": 0.05}
     assert g["encoded_share"] == pytest.approx(gated["frames_encoded"] / gated["frames_seen"])
     assert 0.0 <= g["srum_gated_vs_ungated"] <= 1.0 and 0.0 <= g["srum_ungated_vs_gated"] <= 1.0
     assert g["precision_delta"] == pytest.approx(gated["precision"] - ungated["precision"], abs=1e-6)

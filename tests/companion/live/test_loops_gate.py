@@ -27,7 +27,8 @@ def _scene(seed: int) -> np.ndarray:
 
 def test_inference_counts_skipped_frames_apart_from_scored_ones(tmp_path):
     cfg = Config.model_validate({"queries": {"tau_ss": 0.01},
-                                 "gate": {"mode": "difference", "threshold": 4.0, "max_gap_s": 100.0}})
+                                 "gate": {"mode": "difference", "threshold": 4.0, "max_gap_s": 100.0,
+                                          "max_gap_share": 0}})
     pipeline = Pipeline.from_config(cfg, VisualEncoder(EncoderConfig(name="visual")))
     counters = LiveCounters()
     events: list = []
@@ -66,7 +67,7 @@ def test_selective_enhancement_is_gated_too_enhancer_on_or_off(tmp_path):
     keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=lambda frame: {})
     raw = RawGate(encoder, [TopicSpec("main", "anything", ())], tau_ss=0.01)
     stage = SelectiveStage(pipeline, raw, enhancer=None, queue_size=16, lock=keeper.lock,
-                           gate=FrameGate("difference", 4.0, 100.0))
+                           gate=FrameGate("difference", 4.0, 100.0, max_gap_share=0))
     counters = LiveCounters()
     loop = InferenceLoop(pipeline, DropOldestQueue(8), Health(10.0), counters, threading.Event(), batch=8,
                          pose_at=None, keeper=keeper, selective=stage)

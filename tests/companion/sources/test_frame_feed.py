@@ -44,7 +44,7 @@ def test_frames_the_gate_skips_travel_without_pixels_and_do_not_count_against_ma
         def render(self, index: int) -> np.ndarray:
             return super().render(0)
 
-    gate = FrameGate(mode="difference", threshold=8.0, max_gap_s=2.0)
+    gate = FrameGate(mode="difference", threshold=8.0, max_gap_s=2.0, max_gap_share=0)
     with FrameFeed(Still(HD, fps=5, realtime=False), lambda img: img[::8, ::8], limit=20, gate=gate,
                    max_bytes=2 * HD_BYTES) as feed:
         items = [item for batch in feed.batches(4) for item in batch]

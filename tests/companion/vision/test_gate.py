@@ -29,7 +29,7 @@ def drifted(image: np.ndarray, pixels: int) -> np.ndarray:
 
 
 def test_identical_frames_are_skipped_after_the_first():
-    gate = FrameGate("difference", threshold=4.0, max_gap_s=10.0)
+    gate = FrameGate("difference", threshold=4.0, max_gap_s=10.0, max_gap_share=0)
     img = scene(1)
     admitted = [gate.admit(img.copy(), t * 0.1) for t in range(20)]
     assert admitted == [True] + [False] * 19
@@ -37,7 +37,7 @@ def test_identical_frames_are_skipped_after_the_first():
 
 
 def test_a_cut_is_always_encoded_and_becomes_the_reference():
-    gate = FrameGate("difference", threshold=4.0, max_gap_s=10.0)
+    gate = FrameGate("difference", threshold=4.0, max_gap_s=10.0, max_gap_share=0)
     a, b = scene(1), scene(2)
     assert gate.admit(a, 0.0)
     assert not gate.admit(a, 0.1)
@@ -48,7 +48,7 @@ def test_a_cut_is_always_encoded_and_becomes_the_reference():
 
 
 def test_the_max_gap_encodes_a_static_scene_again():
-    gate = FrameGate("difference", threshold=4.0, max_gap_s=1.0)
+    gate = FrameGate("difference", threshold=4.0, max_gap_s=1.0, max_gap_share=0)
     img = scene(3)
     times = [i * 0.25 for i in range(13)]  # 3 s at 4 frames/s
     admitted = [t for t in times if gate.admit(img, t)]
@@ -58,17 +58,37 @@ def test_the_max_gap_encodes_a_static_scene_again():
 def test_a_slow_drift_is_measured_against_the_last_encoded_frame_not_the_previous_one():
     """Each step is small, but they add up: the gate must fire once the drift from the reference is large."""
     base = scene(4)
-    gate = FrameGate("difference", threshold=20.0, max_gap_s=100.0)
+    gate = FrameGate("difference", threshold=20.0, max_gap_s=100.0, max_gap_share=0)
     steps = [gate.admit(drifted(base, 2 * i), i * 0.1) for i in range(40)]
-    per_step = FrameGate("difference", threshold=20.0, max_gap_s=100.0)
+    per_step = FrameGate("difference", threshold=20.0, max_gap_s=100.0, max_gap_share=0)
     per_step.admit(base, 0.0)
     per_step.admit(drifted(base, 2), 0.1)
     assert per_step.last_difference < 20.0, "one step alone is below the threshold"
     assert steps[0] and sum(steps) > 1 and not all(steps)
 
 
+def test_the_share_rule_encodes_a_short_static_run_densely_then_ever_more_sparsely():
+    """Online and scale-free: the first 1/share frames are all encoded, then a frame whenever the stretch since the
+    last encoded one reaches ``max_gap_share`` of the frames seen so far, so every tenth of any footage's length
+    (so far) holds an encoded frame, while the time rule takes over on long footage."""
+    gate = FrameGate("difference", threshold=4.0, max_gap_s=1000.0, max_gap_share=0.1)
+    img = scene(3)
+    encoded = [n for n in range(1, 201) if gate.admit(img, n * 0.1)]  # n: 1-based count of frames seen
+    assert encoded[:10] == list(range(1, 11))
+    gaps = [b - a for a, b in zip(encoded, encoded[1:], strict=False)]
+    assert all(g == math.ceil(0.1 * b) for g, b in zip(gaps, encoded[1:], strict=True)), encoded
+    assert gaps == sorted(gaps) and len(encoded) < 40
+    for length in (16, 50, 200):  # every tenth of the footage so far holds an encoded frame
+        assert all(any(lo < n <= lo + length // 10 + 1 for n in encoded) for lo in range(0, length - length // 10))
+    timed = FrameGate("difference", threshold=4.0, max_gap_s=0.5, max_gap_share=0.1)
+    late = [n for n in range(1, 601) if timed.admit(img, n * 0.1)][-10:]
+    assert [b - a for a, b in zip(late, late[1:], strict=False)] == [5] * 9, "the time rule fires first later on"
+    off = FrameGate("difference", threshold=4.0, max_gap_s=1000.0, max_gap_share=0)
+    assert sum(off.admit(img, n * 0.1) for n in range(1, 201)) == 1
+
+
 def test_time_going_backwards_encodes():
-    gate = FrameGate("difference", threshold=4.0, max_gap_s=10.0)
+    gate = FrameGate("difference", threshold=4.0, max_gap_s=10.0, max_gap_share=0)
     img = scene(5)
     assert gate.admit(img, 5.0)
     assert not gate.admit(img, 5.1)
@@ -76,7 +96,7 @@ def test_time_going_backwards_encodes():
 
 
 def test_mode_none_admits_everything_and_changes_apply_at_once():
-    gate = FrameGate("none")
+    gate = FrameGate("none", max_gap_share=0)
     img = scene(6)
     assert all(gate.admit(img, i * 0.1) for i in range(5))
     gate.mode = "difference"
@@ -88,7 +108,8 @@ def test_mode_none_admits_everything_and_changes_apply_at_once():
 
 
 @pytest.mark.parametrize("kwargs, key", [({"mode": "fast"}, "gate.mode"), ({"threshold": -1}, "gate.threshold"),
-                                         ({"max_gap_s": 0}, "gate.max_gap_s")])
+                                         ({"max_gap_s": 0}, "gate.max_gap_s"), ({"max_gap_share": 1}, "gate.max_gap_share"),
+                                         ({"max_gap_share": -0.1}, "gate.max_gap_share")])
 def test_bad_settings_name_the_key(kwargs, key):
     with pytest.raises(ValueError, match=key):
         FrameGate(**{"mode": "difference", **kwargs})
@@ -101,7 +122,8 @@ def frames_of(images: list[np.ndarray], fps: float = 10.0, first: int = 0) -> li
 def test_the_pipeline_encodes_only_what_the_gate_admits():
     """Skipped frames count as seen, are not scored and never reach the sampler; the admitted ones go on."""
     cfg = Config.model_validate({"sampler": {"k": 3}, "queries": {"tau_ss": 0.01},
-                                 "gate": {"mode": "difference", "threshold": 4.0, "max_gap_s": 100.0}})
+                                 "gate": {"mode": "difference", "threshold": 4.0, "max_gap_s": 100.0,
+                                          "max_gap_share": 0}})
     encoder = VisualEncoder(EncoderConfig(name="visual"))
     calls: list[int] = []
     encode = encoder.encode_images
