@@ -45,11 +45,12 @@ def _ridge_all(x: np.ndarray, y: np.ndarray, lambdas: Sequence[float]) -> tuple[
     target = np.where(y, 1.0, -1.0)
     offset = target.mean()
     if len(z) <= z.shape[1]:
-        # Fewer frames than features: one eigendecomposition of the frames' Gram matrix (N x N) gives the same
-        # weights as the SVD, z.T @ u = v * s, at a third of its cost (measured 0.49 vs 1.37 s for 740 frames).
-        s2, u = np.linalg.eigh(z @ z.T)
-        uty = u.T @ (target - offset)
-        ws = [z.T @ (u @ (uty / (np.clip(s2, 0.0, None) + lam))) for lam in lambdas]
+        # Fewer frames than features: w = z.T (z z.T + lam I)^-1 t, the SVD's weights from the frames' Gram
+        # matrix (N x N). A linear solve per strength costs less than one eigendecomposition for up to a few
+        # strengths (740 frames, one thread: 3 solves 0.04 s, eigh 0.09 s, the SVD 1.37 s).
+        gram = z @ z.T
+        eye = np.eye(len(z))
+        ws = [z.T @ np.linalg.solve(gram + lam * eye, target - offset) for lam in lambdas]
         return mean, scale, [(w, offset) for w in ws]
     u, s, vt = np.linalg.svd(z, full_matrices=False)
     uty = u.T @ (target - offset)
