@@ -103,7 +103,7 @@ def read_file(path: Path, key: str) -> dict[str, ResolvedQuery]:
     OSError, ValueError, KeyError or TypeError when it cannot be read or is not a cache file."""
     try:
         raw = json.loads(path.read_bytes())
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # none yet, or no folder can be made there
         return {}
     if not isinstance(raw, dict) or raw.get("format") != FORMAT or raw.get("key") != key:
         return {}
