@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from companion.config import Config, EncoderConfig
 from companion.errors import MerlionError
-from companion.vision.encoders.query_words import resolve_query
+from companion.vision.encoders.query_cache import resolve_cached
 from companion.vision.encoders.weights import clip_weights_available
 
 
@@ -33,7 +33,7 @@ def explain_queries(cfg: Config) -> list[str]:
                 lines.append(f"{prefix}{role} {text!r}: embedded as written")
                 continue
             try:
-                lines.append(f"{prefix}{role} {resolve_query(text).explain()}")
+                lines.append(f"{prefix}{role} {resolve_cached(text, cfg.encoder.cache_dir).explain()}")
             except MerlionError as err:
                 lines.append(f"{prefix}{role} {text!r}: not scored: {err}")
     return lines

@@ -29,7 +29,8 @@ from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.learned_head import LinearHead, head_for, shipped_heads
-from companion.vision.encoders.query_words import ResolvedQuery, resolve_query
+from companion.vision.encoders.query_cache import QueryCache, query_cache
+from companion.vision.encoders.query_words import ResolvedQuery
 from companion.vision.encoders.torch_runtime import configure_threads, padded_to, pick_device
 
 log = logging.getLogger(__name__)
@@ -118,6 +119,7 @@ class ImageNetEncoder(Encoder):
         self._reduce = reduce
         self._batch = cfg.batch if self._device.type != "cpu" else min(cfg.batch, CPU_FORWARD_FRAMES)
         self.heads: list[LinearHead] = shipped_heads(backbone, FEATURES, colour) if heads else []
+        self._queries: QueryCache = query_cache(cfg.cache_dir)  # a query asked before needs no WordNet
 
     @property
     def input_size(self) -> tuple[int, int]:
@@ -181,7 +183,7 @@ class ImageNetEncoder(Encoder):
     def explain_texts(self, texts: Sequence[str]) -> list[ResolvedQuery]:
         """What each query resolves to (its terms and their ImageNet classes); MerlionError names a word that
         resolves to nothing."""
-        return [resolve_query(text) for text in texts]
+        return [self._queries.resolve(text) for text in texts]
 
     def concept_masses(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         """(N, M) mass of each query's concept set, taken from the view where the positive query is strongest."""

@@ -82,6 +82,9 @@ class Term:
     how: str
     """"noun", "narrowed by reef", "kind of animal, narrowed by marine" or "nearest: spiny-finned fish"."""
     classes: tuple[int, ...]
+    names: tuple[str, ...]
+    """Each class's name, in the order of ``classes``: kept with the term so that explaining a query read from
+    the cache (``query_cache``) needs no WordNet."""
 
 
 @dataclass(frozen=True)
@@ -104,11 +107,14 @@ class ResolvedQuery:
     def classes(self) -> tuple[int, ...]:
         return tuple(self.weights)
 
+    def _names(self) -> dict[int, str]:
+        return {c: n for t in self.terms for c, n in zip(t.classes, t.names, strict=True)}
+
     def explain(self) -> str:
         """One line per term: what it was read as and the classes it reached, by name."""
         lines = [f"query {self.text!r}{' (negated)' if self.negated else ''}:"]
         for t in self.terms:
-            names = ", ".join(class_name(c) for c in t.classes)
+            names = ", ".join(t.names)
             lines.append(f"  {t.phrase} -> {t.noun} [{t.how}]: {len(t.classes)} classes: {names}")
         return "\n".join(lines)
 
@@ -116,7 +122,8 @@ class ResolvedQuery:
         """A line for a STATUSTEXT: ``{prefix}fish=16: tench,goldfish,...`` cut at ``width`` characters, the
         classes that weigh most first."""
         head = f"{prefix}{'not ' if self.negated else ''}{'+'.join(t.phrase for t in self.terms)}={len(self.classes)}: "
-        names = ",".join(class_name(c) for c in sorted(self.weights, key=lambda c: -self.weights[c]))
+        known = self._names()
+        names = ",".join(known[c] for c in sorted(self.weights, key=lambda c: -self.weights[c]))
         line = head + names
         return line if len(line) <= width else line[: width - 2] + ".."
 
@@ -125,6 +132,11 @@ class ResolvedQuery:
 def class_name(index: int) -> str:
     """The first WordNet lemma of an ImageNet class ("great white shark")."""
     return wordnet_nouns().synsets[class_offsets()[index]].name
+
+
+def _term(phrase: str, noun: str, how: str, classes: set[int]) -> Term:
+    ordered = tuple(sorted(classes))
+    return Term(phrase, noun, how, ordered, tuple(class_name(c) for c in ordered))
 
 
 def _classes_below(wn: WordNetNouns, offset: int) -> set[int]:
@@ -234,14 +246,14 @@ def _resolve_phrase(wn: WordNetNouns, query: str, words: list[str]) -> Term:
                 found, used = _narrow(wn, found, {s.offset for s in senses}, modifiers)
                 if used:
                     how = f"{how}, narrowed by {' '.join(used)}" if how != "noun" else f"narrowed by {' '.join(used)}"
-            return Term(phrase, span, how, tuple(sorted(found)))
+            return _term(phrase, span, how, found)
     for length in range(min(len(words), MAX_WORDS), 0, -1):  # a noun with nothing below: its nearest relatives
         for start in range(len(words) - length, -1, -1):
             span = " ".join(words[start:start + length])
             if wn.knows(span):
                 found, how = _climb(wn, span)
                 if found:
-                    return Term(phrase, span, how, tuple(sorted(found)))
+                    return _term(phrase, span, how, found)
                 raise UnknownWord(query, span, "names nothing the imagenet encoder can see", _near(wn, span),
                                   "not in model")
     raise UnknownWord(query, phrase, "is not a thing WordNet knows", _near(wn, words[-1]), "unknown")
@@ -307,11 +319,11 @@ def resolve_query(text: str) -> ResolvedQuery:
     names nothing, or when it mixes negated and plain phrases ("fish without divers"), which one probability mass
     cannot express.
     """
-    wn = wordnet_nouns()
     chunks = _chunks(text)
-    if not chunks:
+    if not chunks:  # before WordNet is read: the pre-sampler's generic negative ends here at every start
         raise MerlionError(f"query {text!r} names nothing to look for: name a thing, e.g. 'fish' or 'crab' "
                            f"(or use --encoder clip)")
+    wn = wordnet_nouns()
     terms = [(_resolve_phrase(wn, text, words), negated) for words, negated in chunks]
     if len({negated for _, negated in terms}) > 1:
         raise MerlionError(f"query {text!r} mixes wanted and negated concepts; the imagenet encoder scores one "
