@@ -2,8 +2,10 @@
 negative frames become the operator's marks and the rest are scored with and without them.
 
 With ``held_out`` the learned head that answers the query is retrained without the group first, so neither the
-query score nor the marks' effect comes from a head that saw the group. Used by ``merlion eval auroc --data
---marks N``.
+query score nor the marks' effect comes from a head that saw the group. Each group is streamed in its dive's
+order (``dive_centring.stream_order``: videos in order, each DeepFish habitat in a seeded random order, since its
+label file lists the fish frames first), once per seed. Nothing is chosen on the groups: the marks' weight is the
+product's fixed ``CENTRED_WEIGHT``. Used by ``merlion eval auroc --data --marks N``.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.errors import MerlionError
+from companion.evaluation.dive_centring import ORDER_SEED, stream_order
 from companion.evaluation.feedback_eval import evaluate
 from companion.evaluation.head_training import fit
 from companion.evaluation.holdout import groups_of
@@ -29,36 +32,51 @@ def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: n
                       {"lambda": lam, "held_out": True})
 
 
+def _summary(rows: dict) -> dict:
+    gains = [r["gain"] for r in rows.values()]
+    return {"groups": rows,
+            "mean_gain": float(np.mean(gains)) if gains else None, "worst_gain": float(min(gains)) if gains else None,
+            "mean_query": float(np.mean([r["auroc_query"] for r in rows.values()])) if rows else None,
+            "mean_marked": float(np.mean([r["auroc_marked"] for r in rows.values()])) if rows else None}
+
+
 def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, embeddings: np.ndarray,
-                   frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True) -> dict:
-    """{"groups": {group: {auroc_query, auroc_marked, gain, trust}}, "mean_gain", "worst_gain", ...}; groups
-    without n + n frames and something left of each class are skipped (listed under "skipped")."""
+                   frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True,
+                   seeds: Sequence[int] = (ORDER_SEED,)) -> dict:
+    """{"groups": {group: {auroc_query, auroc_marked, gain, trust, centred_trust}}, "mean_gain", "worst_gain",
+    ...} for the first seed's order, and the same per seed under "orders"; groups without n + n frames and
+    something left of each class are skipped (listed under "skipped")."""
     y = np.array([f.fish for f in frames])
     in_group = {g: np.array([g in f.group.split("+") for f in frames]) for g in groups_of(frames)}
     head = encoder.head_of(presampler.text_embeddings) if hasattr(encoder, "head_of") else None
     features = encoder.sampler_features(embeddings).astype(np.float64)
     shipped = list(getattr(encoder, "heads", []))
-    rows, skipped = {}, []
+    orders = {seed: np.concatenate(stream_order(frames, seed)) for seed in seeds}
+    rows: dict[int, dict] = {seed: {} for seed in seeds}
+    skipped = []
     try:
         for g, mask in in_group.items():
-            idx = np.flatnonzero(mask)
-            if min(y[idx].sum(), (~y[idx]).sum()) < n + 1:
+            if min(y[mask].sum(), (~y[mask]).sum()) < n + 1:
                 skipped.append(g)
                 continue
             if held_out and head is not None:
                 encoder.heads = [_head_without(head, features, y, ~mask)]
-            try:
-                r = evaluate(encoder, presampler, embeddings[idx], y[idx], n)
-            except MerlionError:
-                skipped.append(g)
-                continue
-            rows[g] = {"auroc_query": r.auroc_query, "auroc_marked": r.auroc_marked,
-                       "gain": r.auroc_marked - r.auroc_query, "trust": r.trust}
+            for seed, order in orders.items():
+                idx = order[mask[order]]  # the group's frames in its dive's order
+                try:
+                    r = evaluate(encoder, presampler, embeddings[idx], y[idx], n)
+                except MerlionError:
+                    skipped.append(g)
+                    break
+                rows[seed][g] = {"auroc_query": r.auroc_query, "auroc_marked": r.auroc_marked,
+                                 "gain": r.auroc_marked - r.auroc_query, "trust": r.trust,
+                                 "centred_trust": r.centred_trust}
     finally:
         if hasattr(encoder, "heads"):
             encoder.heads = shipped
-    gains = [r["gain"] for r in rows.values()]
-    return {"marks": n, "held_out": bool(held_out and head is not None), "groups": rows, "skipped": skipped,
-            "mean_gain": float(np.mean(gains)) if gains else None, "worst_gain": float(min(gains)) if gains else None,
-            "mean_query": float(np.mean([r["auroc_query"] for r in rows.values()])) if rows else None,
-            "mean_marked": float(np.mean([r["auroc_marked"] for r in rows.values()])) if rows else None}
+    for seed in seeds:
+        rows[seed] = {g: r for g, r in rows[seed].items() if g not in skipped}
+    first = seeds[0]
+    return {"marks": n, "held_out": bool(held_out and head is not None), "skipped": skipped, "seed": first,
+            **_summary(rows[first]),
+            "orders": {str(seed): _summary(rows[seed]) for seed in seeds}}
