@@ -23,7 +23,7 @@ import numpy as np
 from companion.errors import MerlionError, UsageError
 from companion.evaluation.roc import auroc
 from companion.vision.encoders.base import Encoder
-from companion.vision.feedback import MarkedPreSampler, Marks
+from companion.vision.feedback import CENTRED_WEIGHT, MarkedPreSampler, Marks
 from companion.vision.presampler import PreSampler
 
 
@@ -77,9 +77,10 @@ def split_marks(positive: Sequence[bool], n: int) -> tuple[list[int], list[int],
 
 
 def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, positive: Sequence[bool],
-             n: int) -> FeedbackResult:
+             n: int, centred_weight: float = CENTRED_WEIGHT) -> FeedbackResult:
     """AUROC of the unmarked items by the query alone and with the first n + n items (in the given order, the
-    dive's) as marks; ``presampler`` is left as it was (a fresh dive is streamed)."""
+    dive's) as marks; ``presampler`` is left as it was (a fresh dive is streamed). ``centred_weight``: the
+    dive-centred marks' weight (the product's unless a nested choice tries others)."""
     y = np.asarray(positive, dtype=bool)
     pos, neg, rest = split_marks(list(y), n)
     if not y[rest].any() or y[rest].all():
@@ -87,6 +88,7 @@ def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, p
     dive = PreSampler(encoder, presampler.positive, presampler.negatives, presampler.tau_ss)
     own = dive.query_scores(embeddings)
     marked = MarkedPreSampler(dive, Marks(np.zeros((0, 1)), np.zeros((0, 1))))
+    marked.centred_weight = centred_weight
     last = max(pos[-1], neg[-1]) if n else -1
     for i in range(last + 1):  # the dive up to the last mark, as the companion met it
         marked.scores(embeddings[i:i + 1])

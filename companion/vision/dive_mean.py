@@ -73,6 +73,11 @@ class DiveWindow:
             self.recent.append((out[i], float(q)))
         return out
 
+    def offsets(self, features: np.ndarray) -> np.ndarray:
+        """Rows minus the dive's mean as it stands, without taking them in (zeros before the first frame)."""
+        f = np.asarray(features, dtype=np.float64)
+        return np.zeros_like(f) if self._mean is None else f - self._mean.mean
+
     def recent_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(frames, features) centred features and (frames,) query log-odds of the last ``tau`` frames."""
         if not self.recent:

@@ -24,8 +24,10 @@ With two or more marks of each kind, the marks' centred features give a directio
 every frame's centred features are projected on it and the result, scaled to the query's spread over the dive's
 recent frames, is added to the score's log-odds with weight ``CENTRED_WEIGHT x trust``. Trust is the marks'
 leave-one-out agreement in the centred space (each mark checked against the direction of the others), 0 when
-they do not agree, so marks that contradict each other change nothing. Heavier weights ranked DeepFish's held-out
-habitats better on average but cost up to 0.10 AUROC on one habitat (docs/encoders.md), so the weight is 1.
+they do not agree, so marks that contradict each other change nothing. Where they can be checked (two or more of
+each kind, given while the dive runs: the live companion's marks) they replace the nearest-centroid rule above
+(which still serves marks given before the dive, ``--like``/``--unlike`` of ``merlion score``/``summarize``), which cost up to 0.2 AUROC on a
+held-out DeepFish habitat where the centred marks were not trusted (docs/vision.md).
 """
 
 from __future__ import annotations
@@ -47,8 +49,10 @@ TRIAL_TRUST = (0.25, 0.5, 0.75, 1.0)
 """Fractions of ``mark_weight`` tried, leave-one-out on the marks, to decide how far they are trusted."""
 GAIN = 3.0
 """Slope of the example score at the mid point: d = +1 (the like prototype) maps to sigmoid(3) = 0.95."""
-CENTRED_WEIGHT = 1.0
-"""The dive-centred marks' score, in units of the query's spread, times their trust (module docstring)."""
+CENTRED_WEIGHT = 3.0
+"""The dive-centred marks' score, in units of the query's spread, times their trust (module docstring): chosen
+among 1, 2, 3, 4 and 6 by ``companion.evaluation.group_feedback.choose_weight`` on the shared data's 13 groups
+(3 + 3 marks, three frame orders); the evaluation chooses it again without each reported group."""
 
 
 def _normalised(features: np.ndarray) -> np.ndarray:
@@ -168,21 +172,20 @@ class CentredMarks:
 
     @classmethod
     def of(cls, marks: Marks, dive_mean: np.ndarray | None) -> CentredMarks | None:
-        """None when the marks lack pooled features or a side has fewer than two marks (nothing to check)."""
-        if marks.like_pooled is None or marks.unlike_pooled is None:
+        """None when the marks lack pooled features, a side has fewer than two marks (nothing to check), or no
+        frame of the dive has been scored yet (marks given before the dive: nothing to centre them by)."""
+        if marks.like_pooled is None or marks.unlike_pooled is None or dive_mean is None:
             return None
         if len(marks.like_pooled) < 2 or len(marks.unlike_pooled) < 2:
             return None
-        rows = np.concatenate([marks.like_pooled, marks.unlike_pooled])
-        centre = rows.mean(axis=0) if dive_mean is None else dive_mean
-        like, unlike = marks.like_pooled - centre, marks.unlike_pooled - centre
+        like, unlike = marks.like_pooled - dive_mean, marks.unlike_pooled - dive_mean
         trust = loo_agreement(like, unlike)
         direction = like.mean(axis=0) - unlike.mean(axis=0)
         query = (np.zeros(0) if marks.like_query is None or marks.unlike_query is None
                  else logit(np.concatenate([marks.like_query, marks.unlike_query])))
         return cls(direction, trust, np.concatenate([like, unlike]) @ direction, query)
 
-    def lift(self, centred: np.ndarray, dive: DiveWindow) -> np.ndarray:
+    def lift(self, centred: np.ndarray, dive: DiveWindow, weight: float = CENTRED_WEIGHT) -> np.ndarray:
         """What the marks add to each frame's log-odds: its centred features along the direction, less the recent
         frames' mean, in units of the query's spread over the recent frames."""
         recent, recent_q = dive.recent_arrays()
@@ -191,7 +194,7 @@ class CentredMarks:
         spread_m = float(np.std(along))
         if spread_m < 1e-12 or spread_q < 1e-12:
             return np.zeros(len(centred))
-        return CENTRED_WEIGHT * self.trust * spread_q * (centred @ self.direction - along.mean()) / spread_m
+        return weight * self.trust * spread_q * (centred @ self.direction - along.mean()) / spread_m
 
 
 @dataclass
@@ -247,6 +250,7 @@ class MarkedPreSampler(PreSampler):
         self.tau_ss = base.tau_ss
         self.positive, self.negatives, self.text_embeddings = base.positive, base.negatives, base.text_embeddings
         self.dive = getattr(base, "dive", None) or DiveWindow()  # the dive so far, as the base saw it
+        self.centred_weight = CENTRED_WEIGHT
         self.set_marks(marks)
 
     def set_marks(self, marks: Marks) -> None:
@@ -254,8 +258,7 @@ class MarkedPreSampler(PreSampler):
         self.examples = ExampleScorer(marks)
         self.objects = marks.objects
         self.centred = CentredMarks.of(marks, self.dive.mean)
-        # the dive-centred marks, where they can be checked, replace the nearest-centroid rule: on DeepFish's
-        # held-out habitats the latter cost up to 0.2 AUROC where the centred marks were not trusted
+        # the dive-centred marks, where they can be checked, replace the nearest-centroid rule (module docstring)
         self.trust = 0.0 if self.centred is not None else marks.trust()
         self.weight = self.trust * mark_weight(len(marks))
 
@@ -267,11 +270,12 @@ class MarkedPreSampler(PreSampler):
     def text_scores(self, image_embeddings: np.ndarray) -> np.ndarray:
         return self.query_scores(image_embeddings)
 
-    def scores(self, image_embeddings: np.ndarray) -> np.ndarray:
+    def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
         text = self.query_scores(image_embeddings)
         if len(image_embeddings) == 0:
             return text
-        centred = self.dive.add(self.encoder.sampler_features(image_embeddings), text)
+        pooled = self.encoder.sampler_features(image_embeddings)
+        centred = self.dive.add(pooled, text) if join else self.dive.offsets(pooled)
         out = np.asarray(text, dtype=np.float64)
         if self.weight > 0.0:
             feats = (self.encoder.object_features(image_embeddings, self.text_embeddings) if self.objects
@@ -279,7 +283,7 @@ class MarkedPreSampler(PreSampler):
             self.examples.observe(feats)
             out = (1.0 - self.weight) * out + self.weight * self.examples.scores(feats)
         if self.centred_trust > 0.0:
-            out = 1.0 / (1.0 + np.exp(-(logit(out) + self.centred.lift(centred, self.dive))))
+            out = 1.0 / (1.0 + np.exp(-(logit(out) + self.centred.lift(centred, self.dive, self.centred_weight))))
         return out.astype(np.float32)
 
 

@@ -87,10 +87,11 @@ class PreSampler:
             return np.zeros(0, dtype=np.float32)
         return np.asarray(self.encoder.semantic_scores(image_embeddings, self.text_embeddings), dtype=np.float32)
 
-    def scores(self, image_embeddings: np.ndarray) -> np.ndarray:
-        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order (each joins ``dive``)."""
+    def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
+        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order; each joins ``dive`` unless
+        ``join`` is False (a frame scored again, e.g. its enhanced copy)."""
         s = self.query_scores(image_embeddings)
-        if len(s):
+        if len(s) and join:
             self.dive.add(self.encoder.sampler_features(image_embeddings), s)
         return s
 
