@@ -413,10 +413,10 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
 
             result["dive_centred"] = held_out_centred(np.concatenate(features), frames)
     if args.marks:
-        from companion.evaluation.group_feedback import marks_by_group
+        from companion.evaluation.group_feedback import ORDER_SEEDS, marks_by_group
 
         result["marks"] = marks_by_group(encoder, presampler, np.concatenate(kept), frames, args.marks,
-                                         held_out=args.holdout)
+                                         held_out=args.holdout, seeds=ORDER_SEEDS)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
 
@@ -456,14 +456,16 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
                   f"spread {d['spread']:.3f}; DeepFish pooled {c['deepfish_pooled']:.3f}")
     if "marks" in result:
         m = result["marks"]
-        print(f"{m['marks']} + {m['marks']} marks from each group's first frames"
-              f"{' (held-out head)' if m['held_out'] else ''}:")
+        print(f"{m['marks']} + {m['marks']} marks from each group's first frames in its dive's order (seed "
+              f"{m['seed']}){' (held-out head)' if m['held_out'] else ''}; centred marks' weight chosen without "
+              f"each group (on all groups: {m['weight']}):")
         for group, r in m["groups"].items():
             print(f"  {group:24s} query {r['auroc_query']:.3f}  marked {r['auroc_marked']:.3f}  "
-                  f"gain {r['gain']:+.3f}  trust {r['trust']:.2f}")
-        if m["groups"]:
-            print(f"  mean gain {m['mean_gain']:+.3f}  worst {m['worst_gain']:+.3f}  "
-                  f"mean AUROC {m['mean_query']:.3f} -> {m['mean_marked']:.3f}")
+                  f"gain {r['gain']:+.3f}  trust {r['centred_trust']:.2f}  weight {r['weight']:g}")
+        for seed, o in m["orders"].items():
+            if o["groups"]:
+                print(f"  order seed {seed}: mean gain {o['mean_gain']:+.3f}  worst {o['worst_gain']:+.3f}  "
+                      f"mean AUROC {o['mean_query']:.3f} -> {o['mean_marked']:.3f}")
     for row in result.get("leave_one_group_out", []):
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")

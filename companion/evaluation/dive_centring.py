@@ -26,32 +26,11 @@ from companion.evaluation.head_training import LAMBDAS, _held, _ridge_all, group
 from companion.evaluation.holdout import per_group, spread
 from companion.evaluation.roc import auroc
 from companion.evaluation.sources import DEEPFISH, LabelledFrame
+from companion.vision.dive_mean import TAU, RunningMean
 
-TAU = 100.0
-"""Frames over which the dive's mean forgets (an exponential mean past the first ``TAU`` frames). On the shared
-data's 60-frame habitats 30, 100 and 300 gave AUROCs within 0.001 of each other, so it is fixed, not chosen."""
 PRIOR_WEIGHTS: tuple[float | None, ...] = (None, 1.0, 5.0, 20.0)
 """Candidates for the prior's weight in frames; None: no centring. Chosen by nested leave-one-group-out."""
 ORDER_SEED = 0
-
-
-class RunningMean:
-    """The causal mean of one dive's values (scalars or feature vectors), starting from a prior."""
-
-    def __init__(self, prior: float | np.ndarray, prior_weight: float, tau: float = TAU) -> None:
-        if prior_weight < 0 or tau < 1:
-            raise ValueError(f"prior_weight must be >= 0 and tau >= 1, got {prior_weight}, {tau}")
-        self.mean = np.array(prior, dtype=np.float64, copy=True)
-        self.weight = float(prior_weight)
-        self.tau = float(tau)
-
-    def centre(self, value: float | np.ndarray) -> float | np.ndarray:
-        """Take in one frame's value and return it minus the mean of the dive so far (this frame included)."""
-        self.weight += 1.0
-        rate = max(1.0 / self.weight, 1.0 / self.tau)
-        self.mean = self.mean + rate * (np.asarray(value, dtype=np.float64) - self.mean)
-        out = np.asarray(value, dtype=np.float64) - self.mean
-        return float(out) if out.ndim == 0 else out
 
 
 def stream_order(frames: Sequence[LabelledFrame], seed: int = ORDER_SEED) -> list[np.ndarray]:

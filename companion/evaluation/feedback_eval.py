@@ -1,8 +1,14 @@
 """How much the operator's marks help: AUROC of the rest of a labelled set with and without N + N marks.
 
-The first N positive and the first N negative items (in name order, as an operator would meet them on a dive)
-become the marks; every other item is scored twice, by the query alone and by the query combined with the marks
-(``companion.vision.feedback``), on the same encoder pass. Used by ``merlion eval feedback``.
+The first N positive and the first N negative items (in name order, or the dive's frame order, as an operator would
+meet them on a dive) become the marks; every other item is scored twice, by the query alone and by the query
+combined with the marks (``companion.vision.feedback``), on the same encoder pass. Used by ``merlion eval
+feedback`` and ``merlion eval auroc --marks``.
+
+The items are streamed through the same ``MarkedPreSampler`` the live companion uses, one frame at a time in
+order: the dive's running mean sees the frames up to the last mark, the marks are set there (centred by the dive's
+mean at that moment, as a live upload is), and then the dive is streamed again from its start with the marks in
+force, so every unmarked frame, also one met before the marks, is scored by a causal running mean.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ import numpy as np
 from companion.errors import MerlionError, UsageError
 from companion.evaluation.roc import auroc
 from companion.vision.encoders.base import Encoder
-from companion.vision.feedback import MarkedPreSampler, Marks
+from companion.vision.feedback import CENTRED_WEIGHT, MarkedPreSampler, Marks
 from companion.vision.presampler import PreSampler
 
 
@@ -30,6 +36,8 @@ class FeedbackResult:
     auroc_marked: float
     trust: float = 1.0
     """How far the marks were trusted (``companion.vision.feedback``): their weight's share of n / (n + 2)."""
+    centred_trust: float = 0.0
+    """How far the dive-centred marks were trusted (their leave-one-out agreement)."""
 
     def as_dict(self) -> dict:
         return self.__dict__.copy()
@@ -69,17 +77,26 @@ def split_marks(positive: Sequence[bool], n: int) -> tuple[list[int], list[int],
 
 
 def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, positive: Sequence[bool],
-             n: int) -> FeedbackResult:
-    """AUROC of the unmarked items by the query alone and with the first n + n items as marks."""
+             n: int, centred_weight: float = CENTRED_WEIGHT) -> FeedbackResult:
+    """AUROC of the unmarked items by the query alone and with the first n + n items (in the given order, the
+    dive's) as marks; ``presampler`` is left as it was (a fresh dive is streamed). ``centred_weight``: the
+    dive-centred marks' weight (the product's unless a nested choice tries others)."""
     y = np.asarray(positive, dtype=bool)
     pos, neg, rest = split_marks(list(y), n)
     if not y[rest].any() or y[rest].all():
         raise MerlionError(f"--marks {n}: the items left to score hold only one class")
+    dive = PreSampler(encoder, presampler.positive, presampler.negatives, presampler.tau_ss)
+    own = dive.query_scores(embeddings)
+    marked = MarkedPreSampler(dive, Marks(np.zeros((0, 1)), np.zeros((0, 1))))
+    marked.centred_weight = centred_weight
+    last = max(pos[-1], neg[-1]) if n else -1
+    for i in range(last + 1):  # the dive up to the last mark, as the companion met it
+        marked.scores(embeddings[i:i + 1])
     feats = encoder.object_features(embeddings, presampler.text_embeddings)
-    own = presampler.scores(embeddings)
-    marked = MarkedPreSampler(presampler, Marks.from_features(feats[pos], feats[neg], own[pos], own[neg],
-                                                              objects=True))
-    query = own[rest]
-    combined = marked.scores(embeddings[rest])
-    return FeedbackResult(n, len(rest), int(y[rest].sum()), auroc(query, y[rest]), auroc(combined, y[rest]),
-                          marked.trust)
+    pooled = encoder.sampler_features(embeddings)
+    marked.set_marks(Marks.from_features(feats[pos], feats[neg], own[pos], own[neg], objects=True,
+                                         like_pooled=pooled[pos], unlike_pooled=pooled[neg]))
+    marked.new_dive()
+    combined = np.concatenate([marked.scores(embeddings[i:i + 1]) for i in range(len(y))])
+    return FeedbackResult(n, len(rest), int(y[rest].sum()), auroc(own[rest], y[rest]), auroc(combined[rest], y[rest]),
+                          marked.trust, marked.centred_trust)

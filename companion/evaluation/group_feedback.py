@@ -2,8 +2,13 @@
 negative frames become the operator's marks and the rest are scored with and without them.
 
 With ``held_out`` the learned head that answers the query is retrained without the group first, so neither the
-query score nor the marks' effect comes from a head that saw the group. Used by ``merlion eval auroc --data
---marks N``.
+query score nor the marks' effect comes from a head that saw the group. Each group is streamed in its dive's
+order (``dive_centring.stream_order``: videos in order, each DeepFish habitat in a seeded random order, since its
+label file lists the fish frames first), once per seed.
+
+The dive-centred marks' weight is chosen nested: for each reported group, among ``WEIGHTS``, on the other groups
+only (``choose_weight``). The same rule on every group gives the product's ``CENTRED_WEIGHT``. Used by
+``merlion eval auroc --data --marks N``.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.errors import MerlionError
+from companion.evaluation.dive_centring import ORDER_SEED, stream_order
 from companion.evaluation.feedback_eval import evaluate
 from companion.evaluation.head_training import fit
 from companion.evaluation.holdout import groups_of
@@ -29,36 +35,78 @@ def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: n
                       {"lambda": lam, "held_out": True})
 
 
+ORDER_SEEDS = (0, 1, 2)
+"""The frame orders ``merlion eval auroc --marks`` streams each group in (seed 0 is reported per group)."""
+WEIGHTS = (1.0, 2.0, 3.0, 4.0, 6.0)
+"""Candidate weights of the dive-centred marks (``companion.vision.feedback.CENTRED_WEIGHT``)."""
+MAX_LOSS = 0.02
+"""A weight that costs any group more AUROC than this (against the query alone) is not a candidate."""
+TOLERANCE = 0.005
+"""Weights whose mean gain is within this of the best count as equal; the lightest of them is taken."""
+
+
+def choose_weight(gains: dict[float, dict[str, float]], without: str | None = None) -> float:
+    """The weight to use, from ``gains[weight][group]`` (mean over orders) on the groups other than ``without``:
+    the lightest whose mean gain is within ``TOLERANCE`` of the best among those that cost no group more than
+    ``MAX_LOSS``; the lightest weight when none qualifies."""
+    def on_others(w: float) -> list[float]:
+        return [v for g, v in gains[w].items() if g != without]
+
+    ok = [w for w in sorted(gains) if on_others(w) and min(on_others(w)) >= -MAX_LOSS]
+    if not ok:
+        return min(gains)
+    best = max(float(np.mean(on_others(w))) for w in ok)
+    return next(w for w in ok if float(np.mean(on_others(w))) >= best - TOLERANCE)
+
+
+def _summary(rows: dict) -> dict:
+    gains = [r["gain"] for r in rows.values()]
+    return {"groups": rows,
+            "mean_gain": float(np.mean(gains)) if gains else None, "worst_gain": float(min(gains)) if gains else None,
+            "mean_query": float(np.mean([r["auroc_query"] for r in rows.values()])) if rows else None,
+            "mean_marked": float(np.mean([r["auroc_marked"] for r in rows.values()])) if rows else None}
+
+
 def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, embeddings: np.ndarray,
-                   frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True) -> dict:
-    """{"groups": {group: {auroc_query, auroc_marked, gain, trust}}, "mean_gain", "worst_gain", ...}; groups
-    without n + n frames and something left of each class are skipped (listed under "skipped")."""
+                   frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True,
+                   seeds: Sequence[int] = (ORDER_SEED,), weights: Sequence[float] = WEIGHTS) -> dict:
+    """{"groups": {group: {auroc_query, auroc_marked, gain, trust, centred_trust, weight}}, "mean_gain",
+    "worst_gain", ...} for the first seed's order, the same per seed under "orders", and "weight": the rule
+    applied on every group; each group's weight is chosen without it. Groups without n + n frames and something
+    left of each class are skipped (listed under "skipped")."""
     y = np.array([f.fish for f in frames])
     in_group = {g: np.array([g in f.group.split("+") for f in frames]) for g in groups_of(frames)}
     head = encoder.head_of(presampler.text_embeddings) if hasattr(encoder, "head_of") else None
     features = encoder.sampler_features(embeddings).astype(np.float64)
     shipped = list(getattr(encoder, "heads", []))
-    rows, skipped = {}, []
+    orders = {seed: np.concatenate(stream_order(frames, seed)) for seed in seeds}
+    tried: dict[int, dict[float, dict]] = {seed: {w: {} for w in weights} for seed in seeds}
+    skipped = []
     try:
         for g, mask in in_group.items():
-            idx = np.flatnonzero(mask)
-            if min(y[idx].sum(), (~y[idx]).sum()) < n + 1:
+            if min(y[mask].sum(), (~y[mask]).sum()) < n + 1:
                 skipped.append(g)
                 continue
             if held_out and head is not None:
                 encoder.heads = [_head_without(head, features, y, ~mask)]
             try:
-                r = evaluate(encoder, presampler, embeddings[idx], y[idx], n)
+                for seed, order in orders.items():
+                    idx = order[mask[order]]  # the group's frames in its dive's order
+                    for w in weights:
+                        r = evaluate(encoder, presampler, embeddings[idx], y[idx], n, w)
+                        tried[seed][w][g] = {"auroc_query": r.auroc_query, "auroc_marked": r.auroc_marked,
+                                             "gain": r.auroc_marked - r.auroc_query, "trust": r.trust,
+                                             "centred_trust": r.centred_trust, "weight": w}
             except MerlionError:
                 skipped.append(g)
-                continue
-            rows[g] = {"auroc_query": r.auroc_query, "auroc_marked": r.auroc_marked,
-                       "gain": r.auroc_marked - r.auroc_query, "trust": r.trust}
     finally:
         if hasattr(encoder, "heads"):
             encoder.heads = shipped
-    gains = [r["gain"] for r in rows.values()]
-    return {"marks": n, "held_out": bool(held_out and head is not None), "groups": rows, "skipped": skipped,
-            "mean_gain": float(np.mean(gains)) if gains else None, "worst_gain": float(min(gains)) if gains else None,
-            "mean_query": float(np.mean([r["auroc_query"] for r in rows.values()])) if rows else None,
-            "mean_marked": float(np.mean([r["auroc_marked"] for r in rows.values()])) if rows else None}
+    reported = [g for g in in_group if g not in skipped]
+    gains = {w: {g: float(np.mean([tried[s][w][g]["gain"] for s in seeds])) for g in reported} for w in weights}
+    chosen = {g: choose_weight(gains, without=g) for g in reported}
+    rows = {seed: {g: tried[seed][chosen[g]][g] for g in reported} for seed in seeds}
+    first = seeds[0]
+    return {"marks": n, "held_out": bool(held_out and head is not None), "skipped": skipped, "seed": first,
+            "weight": choose_weight(gains) if reported else None, **_summary(rows[first]),
+            "orders": {str(seed): _summary(rows[seed]) for seed in seeds}}

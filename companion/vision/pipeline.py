@@ -472,7 +472,7 @@ class Pipeline:
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
-        ss_e = np.stack([t.presampler.scores(emb_e) for t in self.topics], axis=1)
+        ss_e = np.stack([t.presampler.scores(emb_e, join=False) for t in self.topics], axis=1)  # not new frames
         ok = np.stack([t.presampler.passes(ss_e[:, j], self._tau_ses) for j, t in enumerate(self.topics)], axis=1)
         ok &= passed[go]
         self.counts["enhanced"] += len(go)

@@ -21,6 +21,7 @@ import numpy as np
 
 from companion.config import as_fraction
 from companion.errors import MerlionError, UsageError
+from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
 
 log = logging.getLogger(__name__)
@@ -34,7 +35,13 @@ class PreSampler:
     def __init__(self, encoder: Encoder, positive: str, negatives: Sequence[str] = (), tau_ss: float = 0.5) -> None:
         self.encoder = encoder
         self.tau_ss = tau_ss
+        self.dive = DiveWindow()
+        """The dive so far (running mean of the scored frames' features): what the operator's marks need."""
         self.set_queries(positive, negatives)
+
+    def new_dive(self) -> None:
+        """Forget the frames scored so far: the next frame starts a new dive's running mean."""
+        self.dive = DiveWindow()
 
     @property
     def tau_ss(self) -> float:
@@ -74,11 +81,19 @@ class PreSampler:
         """The texts actually scored: the positive first."""
         return [self.positive, *self.negatives]
 
-    def scores(self, image_embeddings: np.ndarray) -> np.ndarray:
-        """(N,) float32 ss_t in (0, 1) for a batch of image embeddings."""
+    def query_scores(self, image_embeddings: np.ndarray) -> np.ndarray:
+        """(N,) float32 ss_t in (0, 1) for a batch of image embeddings, without taking them into the dive."""
         if len(image_embeddings) == 0:
             return np.zeros(0, dtype=np.float32)
         return np.asarray(self.encoder.semantic_scores(image_embeddings, self.text_embeddings), dtype=np.float32)
+
+    def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
+        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order; each joins ``dive`` unless
+        ``join`` is False (a frame scored again, e.g. its enhanced copy)."""
+        s = self.query_scores(image_embeddings)
+        if len(s) and join:
+            self.dive.add(self.encoder.sampler_features(image_embeddings), s)
+        return s
 
     def passes(self, scores: np.ndarray, tau: float | None = None) -> np.ndarray:
         """Boolean mask: ``score > tau`` (``tau_ss`` unless another threshold, e.g. tau_ses, is given).
