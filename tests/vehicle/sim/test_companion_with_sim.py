@@ -75,8 +75,11 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
     companion = Companion("--config", str(cfg))
     try:
         companion.wait_for("autopilot heartbeat up")
+        up = time.time()
         wait_until(lambda: (GCS_SYSID, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders, 10, "the GCS heartbeat")
-        descending = gcs.piloting_since + 1.0
+        # the pilot may start before the companion is up (it starts faster now): GLOBAL_POSITION_INT is asked for
+        # when the autopilot is found, and until it flows the firmware's default SCALED_PRESSURE2 rightly stands in
+        descending = max(gcs.piloting_since + 1.0, up + 1.5)
         wait_until(lambda: sum(f["capture_time"] > descending for f in _tagged_frames(store)) >= 5, 90,
                    "five frames tagged during the descent")
         # the simulated vehicle has no position source: said once, in the log and as one STATUSTEXT (~9 s in)
