@@ -46,6 +46,9 @@ class TelemetryConfig(_Section):
     fluid_density: float = Field(1025.0, gt=900, lt=1100)
     """kg/m^3: 1025 sea water, 997 fresh water."""
     surface_pressure_hpa: float = Field(1013.25, gt=800, lt=1200)
+    rate_grace_s: float = Field(3.0, ge=0.2, le=60)
+    """How long an asked-for message may take to arrive at half its rate before it is asked for again (the wait
+    then doubles); after three unanswered asks it is declared missing (no DVL or USBL, or a signing autopilot)."""
 
 
 class SurfaceConfig(_Section):

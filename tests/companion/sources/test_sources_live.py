@@ -13,6 +13,7 @@ import pytest
 
 from companion.config import SourceConfig
 from companion.errors import MerlionError, UsageError
+from companion.sources import stream
 from companion.sources.base import FrameSource
 from companion.sources.capture import SourceLost
 from companion.sources.retrying import RetryingSource
@@ -193,8 +194,9 @@ def stream_rtp(path, port: int) -> subprocess.Popen:
 
 
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed (apt-get install ffmpeg)")
-def test_rtp_h264_stream_is_received_lost_and_reopened() -> None:
+def test_rtp_h264_stream_is_received_lost_and_reopened(monkeypatch) -> None:
     clip = shared_file("aquarium_fish/fish.mp4")
+    monkeypatch.setattr(stream, "READ_TIMEOUT_MS", 1000)  # the loss is noticed after two silent reads: 2 s, not 5
     port = free_udp_port()
     states: list[str] = []
     frames: list = []

@@ -208,6 +208,9 @@ def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(
 def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nobody_else(setup) -> None:
     """Issue 24 item 8: the simulated ArduSub signs and drops everything unsigned; the companion has no key."""
     key_file, hub, sim, store, cfg, stations = setup
+    # asked again after 1 s, then 2 and 4, instead of 3, 6 and 12: the three unanswered asks come sooner
+    cfg = write_config(cfg.parent / "fast-asks.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)},
+                       telemetry={"rate_grace_s": 1.0})
     companion = Companion("--config", str(cfg))
     companion.wait_for("the autopilot signs its messages and this companion has no signing key", 30)
     companion.wait_for("LOCAL_POSITION_NED never came: the autopilot signs, and this companion has no key", 60)

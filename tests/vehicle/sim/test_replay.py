@@ -192,7 +192,7 @@ print(before, after, stats.sent + stats.unsent, replay.log_stats.records)
 
 
 def test_a_large_log_replays_in_constant_memory(tmp_path):
-    """A 32 MB log (in a child process, so that nothing else moves its peak RSS) replays with its peak memory
+    """A 16 MB log (in a child process, so that nothing else moves its peak RSS) replays with its peak memory
     growing by a small fraction of the file: the log is streamed, not read whole."""
     if not Path("/proc/self/clear_refs").exists():
         pytest.skip("needs Linux's /proc/self/clear_refs to measure peak memory")
@@ -201,7 +201,7 @@ def test_a_large_log_replays_in_constant_memory(tmp_path):
     records = 0
     with path.open("wb") as f:
         t0 = 1_700_000_000_000_000
-        while f.tell() < 32 << 20:
+        while f.tell() < 16 << 20:
             f.write(b"".join(_record(t0 + (records + i) * 1000, packet) for i in range(4096)))
             records += 4096
     size = path.stat().st_size
