@@ -22,7 +22,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion.evaluation.head_training import LAMBDAS, _held, _ridge_all, group_mean_auroc, group_names
+from companion.evaluation.head_training import (
+    LAMBDAS,
+    _held,
+    _ridge_all,
+    group_mean_auroc,
+    group_names,
+    held_out_scores,
+)
 from companion.evaluation.holdout import per_group, spread
 from companion.evaluation.roc import auroc
 from companion.evaluation.sources import DEEPFISH, LabelledFrame
@@ -66,17 +73,14 @@ def _restrict(streams: Sequence[np.ndarray], keep: np.ndarray) -> list[np.ndarra
 
 def _held_out_with_priors(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
                           lambdas: Sequence[float]) -> tuple[dict, dict]:
-    """Per lambda: each frame's ridge score from a fit without its group, and that fit's mean training score."""
-    scores = {lam: np.zeros(len(y)) for lam in lambdas}
-    priors = {lam: np.zeros(len(y)) for lam in lambdas}
+    """Per lambda: each frame's ridge score from a fit without its group, and that fit's mean training score (the
+    fit's offset, the mean of the training frames' +-1 targets: the same for every lambda)."""
+    target = np.where(y, 1.0, -1.0)
+    prior = np.zeros(len(y))
     for g in group_names(groups):
         held = _held(groups, g)
-        mean, scale, fits = _ridge_all(x[~held], y[~held], lambdas)
-        z = (x[held] - mean) / scale
-        for lam, (w, offset) in zip(lambdas, fits, strict=True):
-            scores[lam][held] = z @ w + offset
-            priors[lam][held] = offset  # the training frames' scores average exactly the offset
-    return scores, priors
+        prior[held] = target[~held].mean()
+    return held_out_scores(x, y, groups, lambdas), {lam: prior for lam in lambdas}
 
 
 def criterion(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> float:
