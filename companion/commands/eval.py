@@ -93,6 +93,8 @@ def register(add_command) -> None:
     p.add_argument("--data", required=True, metavar="DIR", help="the shared data folder (../shared/data)")
     p.add_argument("--out", metavar="FILE", help="write the head here (the shipped one: "
                                                  "companion/vision/encoders/heads/fish.json)")
+    p.add_argument("--scene-out", metavar="FILE", help="also train the head on the scene residual and write it here "
+                   "(the shipped one: companion/vision/encoders/heads/fish-scene.json)")
     p.add_argument("--nested", action="store_true",
                    help="also report each group with the strength chosen without it (slow: one SVD per inner fold)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -379,10 +381,17 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
     return 0
 
 
+def _views(encoder, embeddings: np.ndarray) -> list:
+    """Each frame's view features, when the encoder has regions (the scene head's input); else Nones."""
+    view_features = getattr(encoder, "view_features", None)
+    return list(view_features(embeddings)) if view_features else [None] * len(embeddings)
+
+
 def _auroc_by_source(args: argparse.Namespace) -> int:
     """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
     import sys
 
+    from companion.evaluation.dive_centring import stream_order
     from companion.evaluation.head_training import held_out_head
     from companion.evaluation.holdout import leave_one_group_out, per_group, per_source, spread
     from companion.evaluation.sources import DEEPFISH, load_sources
@@ -395,27 +404,34 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     batch = cfg.encoder.batch
     if args.marks is not None and args.marks < 1:
         raise UsageError(f"--marks {args.marks}: must be 1 or more")
-    scores, features, kept = [], [], []
-    for i in range(0, len(frames), batch):
-        emb = encoder.encode_images([f.image for f in frames[i:i + batch]])
-        scores.append(presampler.scores(emb))
-        features.append(encoder.sampler_features(emb))
-        if args.marks:
-            kept.append(emb)
-    scores = np.concatenate(scores)
+    scores = np.zeros(len(frames), dtype=np.float32)
+    features, views, kept = [None] * len(frames), [None] * len(frames), [None] * len(frames)
+    for stream in stream_order(frames):  # each source is one dive, scored in its own order
+        presampler.new_dive()
+        for i in range(0, len(stream), batch):
+            idx = stream[i:i + batch]
+            emb = encoder.encode_images([frames[j].image for j in idx])
+            scores[idx] = presampler.scores(emb)
+            for j, row, v, e in zip(idx, encoder.sampler_features(emb), _views(encoder, emb), emb, strict=True):
+                features[j], views[j], kept[j] = row, v, e
+    features = np.stack(features)
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
     result["by_group"] = per_group(scores, frames)
     result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
     if args.holdout:
-        result["holdout"] = held_out_head(encoder, presampler, np.concatenate(features), frames)
+        result["holdout"] = held_out_head(encoder, presampler, features, frames)
         if result["holdout"]["by_group"]:
             from companion.evaluation.dive_centring import held_out_centred
 
-            result["dive_centred"] = held_out_centred(np.concatenate(features), frames)
+            result["dive_centred"] = held_out_centred(features, frames)
+            if views[0] is not None:
+                from companion.evaluation.scene_holdout import held_out_scene
+
+                result["scene"] = held_out_scene(np.stack(views), frames)
     if args.marks:
         from companion.evaluation.group_feedback import ORDER_SEEDS, marks_by_group
 
-        result["marks"] = marks_by_group(encoder, presampler, np.concatenate(kept), frames, args.marks,
+        result["marks"] = marks_by_group(encoder, presampler, np.stack(kept), frames, args.marks,
                                          held_out=args.holdout, seeds=ORDER_SEEDS)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
@@ -454,6 +470,17 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
         if d:
             print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
                   f"spread {d['spread']:.3f}; DeepFish pooled {c['deepfish_pooled']:.3f}")
+    if "scene" in result:
+        c = result["scene"]
+        print(f"held out, scene residual ({c['method']}):")
+        for name, o in [("pooled head", c["pooled_head"])] + [(f"order seed {k}", o) for k, o in c["orders"].items()]:
+            d = o["deepfish_habitats"]
+            print(f"  {name:16s} group mean {o['group_mean']:.3f}  pooled {o['pooled']:.3f}  DeepFish habitats mean "
+                  f"{d['mean']:.3f} min {d['min']:.3f}  DeepFish pooled {o['deepfish_pooled']:.3f}")
+        first = next(iter(c["orders"].values()), None)
+        if first:
+            print("  per group (pooled head -> scene head, first order): " + ", ".join(
+                f"{g} {c['pooled_head']['by_group'][g]:.2f} -> {v:.2f}" for g, v in first["by_group"].items()))
     if "marks" in result:
         m = result["marks"]
         print(f"{m['marks']} + {m['marks']} marks from each group's first frames in its dive's order (seed "
@@ -474,16 +501,22 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
 
 def _cmd_train_head(args: argparse.Namespace) -> int:
     from companion.config import EncoderConfig
-    from companion.evaluation.head_training import nested_holdout, pooled_features, train_head
+    from companion.evaluation.head_training import frame_views, nested_holdout, train_head
     from companion.evaluation.holdout import per_group, spread
+    from companion.evaluation.scene_holdout import train_scene_head
     from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.encoders.imagenet import ImageNetEncoder
 
     frames = load_sources(args.data)
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
     classes = np.flatnonzero(encoder.encode_texts(["fish"])[0, :1000] > 0)
-    features = pooled_features(encoder, frames)
+    views = frame_views(encoder, frames)
+    features = np.ascontiguousarray(views[:, 0])
     head, figures = train_head(frames, features, concept="fish", classes=classes)
+    if args.scene_out:
+        scene_head, scene_figures = train_scene_head(frames, views, concept="fish", classes=classes)
+        figures["scene"] = {**scene_figures, "deepfish_habitats": spread(scene_figures["groups"], DEEPFISH),
+                            "file": str(scene_head.save(args.scene_out))}
     figures["deepfish_habitats"] = spread(figures["groups"], DEEPFISH)
     if args.nested:
         y = np.array([f.fish for f in frames])
@@ -503,4 +536,10 @@ def _cmd_train_head(args: argparse.Namespace) -> int:
         print(f"  held out {g:20s} AUROC {v:.3f}")
     if "file" in figures:
         print(f"head: {figures['file']}")
+    if "scene" in figures:
+        c = figures["scene"]
+        d = c["deepfish_habitats"]
+        print(f"scene head: lambda {c['lambda']:g}; leave-one-group-out: group "
+              f"mean AUROC {c['group_mean_auroc']:.3f}, pooled {c['pooled_auroc']:.3f}; DeepFish habitats mean "
+              f"{d['mean']:.3f} min {d['min']:.3f}; head: {c['file']}")
     return 0

@@ -86,7 +86,8 @@ def evaluate(encoder: Encoder, presampler: PreSampler, embeddings: np.ndarray, p
     if not y[rest].any() or y[rest].all():
         raise MerlionError(f"--marks {n}: the items left to score hold only one class")
     dive = PreSampler(encoder, presampler.positive, presampler.negatives, presampler.tau_ss)
-    own = dive.query_scores(embeddings)
+    alone = PreSampler(encoder, presampler.positive, presampler.negatives, presampler.tau_ss)
+    own = alone.scores(embeddings)  # the query alone, the dive streamed as the companion scores it
     marked = MarkedPreSampler(dive, Marks(np.zeros((0, 1)), np.zeros((0, 1))))
     marked.centred_weight = centred_weight
     last = max(pos[-1], neg[-1]) if n else -1

@@ -1,8 +1,9 @@
 """The marks' effect per group: in each labelled group (a DeepFish habitat, a source), the first N positive and N
 negative frames become the operator's marks and the rest are scored with and without them.
 
-With ``held_out`` the learned head that answers the query is retrained without the group first, so neither the
-query score nor the marks' effect comes from a head that saw the group. Each group is streamed in its dive's
+With ``held_out`` the learned heads that answer the query (the pooled one, and the scene one on each order's scene
+residuals) are retrained without the group first, so neither the query score nor the marks' effect comes from a
+head that saw the group. Each group is streamed in its dive's
 order (``dive_centring.stream_order``: videos in order, each DeepFish habitat in a seeded random order, since its
 label file lists the fish frames first), once per seed.
 
@@ -22,6 +23,7 @@ from companion.evaluation.dive_centring import ORDER_SEED, stream_order
 from companion.evaluation.feedback_eval import evaluate
 from companion.evaluation.head_training import fit
 from companion.evaluation.holdout import groups_of
+from companion.evaluation.scene_holdout import scene_features
 from companion.evaluation.sources import LabelledFrame
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.encoders.learned_head import LinearHead
@@ -29,10 +31,11 @@ from companion.vision.presampler import PreSampler
 
 
 def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: np.ndarray) -> LinearHead:
+    keep = keep & np.isfinite(features).all(axis=1)  # a scene head: not the dives' first frames
     lam = float(head.trained_on.get("lambda", 1e4))
     refit = fit(features[keep], y[keep], lam)
     return LinearHead(head.concept, head.classes, head.backbone, head.colour, refit.w, refit.b,
-                      {"lambda": lam, "held_out": True})
+                      {"lambda": lam, "held_out": True}, head.input)
 
 
 ORDER_SEEDS = (0, 1, 2)
@@ -79,6 +82,10 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     head = encoder.head_of(presampler.text_embeddings) if hasattr(encoder, "head_of") else None
     features = encoder.sampler_features(embeddings).astype(np.float64)
     shipped = list(getattr(encoder, "heads", []))
+    scene_head = next((h for h in shipped if h.input == "scene" and head is not None and h.concept == head.concept),
+                      None)
+    scene = ({seed: scene_features(encoder.view_features(embeddings), frames, seed) for seed in seeds}
+             if scene_head is not None else {})
     orders = {seed: np.concatenate(stream_order(frames, seed)) for seed in seeds}
     tried: dict[int, dict[float, dict]] = {seed: {w: {} for w in weights} for seed in seeds}
     skipped = []
@@ -91,6 +98,8 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
                 encoder.heads = [_head_without(head, features, y, ~mask)]
             try:
                 for seed, order in orders.items():
+                    if held_out and scene_head is not None:  # the scene head too, retrained without the group
+                        encoder.heads = [encoder.heads[0], _head_without(scene_head, scene[seed], y, ~mask)]
                     idx = order[mask[order]]  # the group's frames in its dive's order
                     for w in weights:
                         r = evaluate(encoder, presampler, embeddings[idx], y[idx], n, w)

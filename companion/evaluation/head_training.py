@@ -133,16 +133,16 @@ def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
     return out, chosen
 
 
-def pooled_features(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], batch: int = 8) -> np.ndarray:
-    """(N, 1280) pooled features of the frames, encoded in order, in batches."""
-    parts = [encoder.sampler_features(encoder.encode_images([f.image for f in frames[i:i + batch]]))
+def frame_views(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], batch: int = 8) -> np.ndarray:
+    """(N, V, 1280) view features of the frames (the whole frame's pooled features first, then the regions)."""
+    parts = [encoder.view_features(encoder.encode_images([f.image for f in frames[i:i + batch]]))
              for i in range(0, len(frames), batch)]
-    return np.concatenate(parts).astype(np.float64) if parts else np.zeros((0, 1280))
+    return np.concatenate(parts).astype(np.float64) if parts else np.zeros((0, encoder.views, 1280))
 
 
 def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept: str, classes: Sequence[int],
-               backbone: str = "lite0", colour: str = "none",
-               lambdas: Sequence[float] = LAMBDAS) -> tuple[LinearHead, dict]:
+               backbone: str = "lite0", colour: str = "none", lambdas: Sequence[float] = LAMBDAS,
+               reads: str = "pooled") -> tuple[LinearHead, dict]:
     """The head for ``concept`` trained on every frame, its strength chosen by leave-one-group-out; and the
     leave-one-group-out figures at that strength (per group, group mean, pooled)."""
     y = np.array([f.fish for f in frames])
@@ -160,7 +160,7 @@ def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept
                   "positives": int(y.sum()), "sources": sources, "lambda": lam,
                   "logo_group_mean_auroc": round(figures["group_mean_auroc"], 4)}
     head = LinearHead(concept=concept, classes=tuple(int(c) for c in classes), backbone=backbone, colour=colour,
-                      w=result.w, b=result.b, trained_on=trained_on)
+                      w=result.w, b=result.b, trained_on=trained_on, input=reads)
     return head, figures
 
 

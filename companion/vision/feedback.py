@@ -44,6 +44,7 @@ from companion.sources.folder import collect_images
 from companion.vision.dive_mean import DiveWindow, logit
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
+from companion.vision.scene_memory import SceneMemory
 
 TRIAL_TRUST = (0.25, 0.5, 0.75, 1.0)
 """Fractions of ``mark_weight`` tried, leave-one-out on the marks, to decide how far they are trusted."""
@@ -250,6 +251,7 @@ class MarkedPreSampler(PreSampler):
         self.tau_ss = base.tau_ss
         self.positive, self.negatives, self.text_embeddings = base.positive, base.negatives, base.text_embeddings
         self.dive = getattr(base, "dive", None) or DiveWindow()  # the dive so far, as the base saw it
+        self.scene = getattr(base, "scene", None) or SceneMemory()
         self.centred_weight = CENTRED_WEIGHT
         self.set_marks(marks)
 
@@ -271,7 +273,7 @@ class MarkedPreSampler(PreSampler):
         return self.query_scores(image_embeddings)
 
     def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
-        text = self.query_scores(image_embeddings)
+        text = self._scored(image_embeddings, join=join)
         if len(image_embeddings) == 0:
             return text
         pooled = self.encoder.sampler_features(image_embeddings)

@@ -23,6 +23,7 @@ from companion.config import as_fraction
 from companion.errors import MerlionError, UsageError
 from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
+from companion.vision.scene_memory import SceneMemory
 
 log = logging.getLogger(__name__)
 
@@ -37,11 +38,14 @@ class PreSampler:
         self.tau_ss = tau_ss
         self.dive = DiveWindow()
         """The dive so far (running mean of the scored frames' features): what the operator's marks need."""
+        self.scene = SceneMemory()
+        """The dive's scene so far, region by region: what a head reading the scene residual needs."""
         self.set_queries(positive, negatives)
 
     def new_dive(self) -> None:
-        """Forget the frames scored so far: the next frame starts a new dive's running mean."""
+        """Forget the frames scored so far: the next frame starts a new dive's running means."""
         self.dive = DiveWindow()
+        self.scene = SceneMemory()
 
     @property
     def tau_ss(self) -> float:
@@ -83,14 +87,20 @@ class PreSampler:
 
     def query_scores(self, image_embeddings: np.ndarray) -> np.ndarray:
         """(N,) float32 ss_t in (0, 1) for a batch of image embeddings, without taking them into the dive."""
+        return self._scored(image_embeddings, join=False)
+
+    def _scored(self, image_embeddings: np.ndarray, *, join: bool) -> np.ndarray:
         if len(image_embeddings) == 0:
             return np.zeros(0, dtype=np.float32)
+        views = self.encoder.scene_views(image_embeddings)
+        if views is not None:
+            image_embeddings = self.encoder.with_scene(image_embeddings, self.scene.residuals(views, join=join))
         return np.asarray(self.encoder.semantic_scores(image_embeddings, self.text_embeddings), dtype=np.float32)
 
     def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
-        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order; each joins ``dive`` unless
-        ``join`` is False (a frame scored again, e.g. its enhanced copy)."""
-        s = self.query_scores(image_embeddings)
+        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order; each joins ``dive`` and
+        ``scene`` unless ``join`` is False (a frame scored again, e.g. its enhanced copy)."""
+        s = self._scored(image_embeddings, join=join)
         if len(s) and join:
             self.dive.add(self.encoder.sampler_features(image_embeddings), s)
         return s

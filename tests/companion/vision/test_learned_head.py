@@ -58,7 +58,8 @@ def test_the_shipped_fish_head_is_small_answers_fish_and_not_other_concepts():
     assert head.w.shape == (FEATURES,) and head.trained_on["frames"] > 700
     assert head.trained_on["sources"]["suim"] == 8 and sum(k.startswith("deepfish:") for k in head.trained_on["sources"]) == 10
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"))
-    assert [h.concept for h in encoder.heads] == ["fish"] and encoder.describe()["heads"] == ["fish"]
+    assert [(h.concept, h.input) for h in encoder.heads] == [("fish", "pooled"), ("fish", "scene")]
+    assert encoder.describe()["heads"] == ["fish", "fish (scene)"]
     assert encoder.head_of(encoder.encode_texts(["fish"])) is not None
     assert encoder.head_of(encoder.encode_texts(["coral"])) is None
     assert ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), colour="grayworld").heads == []
@@ -69,9 +70,9 @@ def test_fish_query_is_scored_by_the_head_and_marks_use_the_most_fish_like_regio
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 255, (202, 360, 3), dtype=np.uint8) for _ in range(2)]
     emb = encoder.encode_images(frames)
-    assert emb.shape == (2, FEATURES + encoder.views * 1000 + (encoder.views - 1) * FEATURES)
+    assert emb.shape == (2, FEATURES + encoder.views * 1000 + encoder.views * FEATURES)  # + the scene slot
     text = encoder.encode_texts(["fish"])
-    head = encoder.heads[0]
+    head = encoder.heads[0]  # outside a dive (scene slot NaN) the pooled head answers
     assert np.allclose(encoder.semantic_scores(emb, text), head.probabilities(emb[:, :FEATURES]), atol=1e-6)
     views = encoder.view_features(emb)
     assert views.shape == (2, encoder.views, FEATURES) and np.allclose(views[:, 0], emb[:, :FEATURES])

@@ -1,0 +1,94 @@
+"""The dive's scene memory and the scene head: causal residuals, and the pre-sampler scoring a dive with them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from companion.config import EncoderConfig
+from companion.vision.dive_mean import TAU
+from companion.vision.encoders.imagenet import FEATURES, ImageNetEncoder
+from companion.vision.presampler import PreSampler
+from companion.vision.scene_memory import SceneMemory
+
+
+def _reference(views: np.ndarray, tau: float = TAU) -> np.ndarray:
+    """Written out independently: the mean of frames 0..t (exponential with rate 1/tau once t >= tau), and
+    mean over views of max(view_t - mean_t, 0); NaN for frame 0."""
+    out = np.full((len(views), views.shape[2]), np.nan)
+    mean = views[0].astype(np.float64)
+    for t in range(1, len(views)):
+        rate = max(1.0 / (t + 1), 1.0 / tau)
+        mean = mean + rate * (views[t] - mean)
+        out[t] = np.clip(views[t] - mean, 0, None).mean(axis=0)
+    return out
+
+
+def test_residuals_are_the_causal_positive_difference_from_the_dive_mean():
+    rng = np.random.default_rng(0)
+    views = rng.normal(size=(40, 3, 16))
+    got = SceneMemory(tau=10).residuals(views)
+    want = _reference(views, tau=10)
+    assert np.isnan(got[0]).all() and np.isfinite(got[1:]).all()
+    np.testing.assert_allclose(got[1:], want[1:], rtol=1e-12, atol=1e-12)
+    assert (got[1:] >= 0).all()
+    memory = SceneMemory(tau=10)  # batches of any size give the same residuals
+    parts = [memory.residuals(views[i:i + k]) for i, k in ((0, 1), (1, 7), (8, 32))]
+    np.testing.assert_allclose(np.concatenate(parts)[1:], want[1:], rtol=1e-12, atol=1e-12)
+
+
+def test_a_frame_scored_again_does_not_join_the_scene():
+    rng = np.random.default_rng(1)
+    views = rng.normal(size=(6, 2, 8))
+    memory = SceneMemory()
+    assert np.isnan(memory.residuals(views[:1], join=False)).all() and not memory.seen  # no dive yet
+    memory.residuals(views[:3])
+    again = memory.residuals(views[3:5] * 2.0, join=False)  # e.g. enhanced copies
+    mean = views[:3].mean(axis=0)
+    np.testing.assert_allclose(again, np.clip(views[3:5] * 2.0 - mean, 0, None).mean(axis=1), atol=1e-12)
+    np.testing.assert_allclose(memory.residuals(views[3:]), _reference(views)[3:], atol=1e-12)
+    with pytest.raises(ValueError, match="views must be"):
+        memory.residuals(views[0])
+
+
+@pytest.fixture(scope="module")
+def dive():
+    """The packaged encoder (with its shipped heads) and a short 'dive': one scene, a bright object coming and
+    going in one corner."""
+    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"))
+    rng = np.random.default_rng(2)
+    scene = rng.integers(40, 120, size=(256, 448, 3), dtype=np.uint8)
+    frames = []
+    for t in range(8):
+        f = np.clip(scene.astype(int) + rng.integers(-6, 7, size=scene.shape), 0, 255).astype(np.uint8)
+        if t % 3 == 2:
+            f[20:110, 300:420] = (230, 210, 90)
+        frames.append(f)
+    return encoder, encoder.encode_images(frames)
+
+
+def test_presampler_scores_a_dive_by_the_scene_head_after_its_first_frame(dive):
+    encoder, emb = dive
+    pooled_head = next(h for h in encoder.heads if h.input == "pooled")
+    scene_head = next(h for h in encoder.heads if h.input == "scene")
+    presampler = PreSampler(encoder, "fish")
+    scores = np.concatenate([presampler.scores(emb[:3]), presampler.scores(emb[3:])])
+    residual = _reference(encoder.view_features(emb).astype(np.float64))
+    # the first frame has no scene before it: the pooled head answers; then the scene head on the residual
+    assert scores[0] == pytest.approx(pooled_head.probabilities(emb[:1, :FEATURES])[0], abs=1e-6)
+    np.testing.assert_allclose(scores[1:], scene_head.probabilities(residual[1:]), atol=1e-6)
+    assert len(set(np.round(scores[1:], 6))) > 1  # the frames are told apart
+    # scoring copies again does not move the scene; a new dive starts from nothing
+    presampler.query_scores(emb[::-1])
+    presampler.new_dive()
+    assert presampler.scores(emb[:1])[0] == pytest.approx(scores[0], abs=1e-6)
+    np.testing.assert_allclose(presampler.scores(emb[1:]), scores[1:], atol=1e-6)
+
+
+def test_an_encoder_without_a_scene_head_scores_as_before(dive):
+    encoder, emb = dive
+    plain = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
+    assert plain.scene_views(emb) is None
+    presampler = PreSampler(plain, "fish")
+    np.testing.assert_allclose(presampler.scores(emb), plain.semantic_scores(emb, presampler.text_embeddings))
+    assert not presampler.scene.seen
