@@ -29,6 +29,9 @@ def register(add_command) -> None:
     p.add_argument("--unlike", metavar="FILE", action="append", default=[],
                    help="an example of what is not wanted (image or folder of images), repeatable")
     p.add_argument("--config", metavar="FILE", help="YAML configuration; the options above override it")
+    p.add_argument("--dive", action="store_true",
+                   help="the images are one dive's frames, in order: each is also judged against the ones before it "
+                        "(the packaged encoder's scene head; default: each image on its own)")
     p.add_argument("--json", action="store_true", help='JSON lines: {"file": ..., "score": ...}')
     p.add_argument("--explain", action="store_true", help="first say on stderr what each query resolves to")
     p.set_defaults(func=run)
@@ -49,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if args.explain:
         print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
     failed = 0
-    for item in score_images(cfg, args.paths, like=args.like, unlike=args.unlike):
+    for item in score_images(cfg, args.paths, like=args.like, unlike=args.unlike, dive=args.dive):
         if item.score is None:
             failed += 1
             print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)

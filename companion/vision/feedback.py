@@ -252,6 +252,7 @@ class MarkedPreSampler(PreSampler):
         self.positive, self.negatives, self.text_embeddings = base.positive, base.negatives, base.text_embeddings
         self.dive = getattr(base, "dive", None) or DiveWindow()  # the dive so far, as the base saw it
         self.scene = getattr(base, "scene", None) or SceneMemory()
+        self.use_scene = getattr(base, "use_scene", True)
         self.centred_weight = CENTRED_WEIGHT
         self.set_marks(marks)
 

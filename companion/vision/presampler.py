@@ -40,6 +40,8 @@ class PreSampler:
         """The dive so far (running mean of the scored frames' features): what the operator's marks need."""
         self.scene = SceneMemory()
         """The dive's scene so far, region by region: what a head reading the scene residual needs."""
+        self.use_scene = True
+        """Whether frames are judged against the dive's scene (False: each on its own, e.g. unrelated photos)."""
         self.set_queries(positive, negatives)
 
     def new_dive(self) -> None:
@@ -92,7 +94,7 @@ class PreSampler:
     def _scored(self, image_embeddings: np.ndarray, *, join: bool) -> np.ndarray:
         if len(image_embeddings) == 0:
             return np.zeros(0, dtype=np.float32)
-        views = self.encoder.scene_views(image_embeddings)
+        views = self.encoder.scene_views(image_embeddings) if self.use_scene else None
         if views is not None:
             image_embeddings = self.encoder.with_scene(image_embeddings, self.scene.residuals(views, join=join))
         return np.asarray(self.encoder.semantic_scores(image_embeddings, self.text_embeddings), dtype=np.float32)

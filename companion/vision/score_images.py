@@ -34,9 +34,13 @@ class ImageScore:
 
 
 def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | None = None, *,
-                 like: Sequence[str | Path] = (), unlike: Sequence[str | Path] = ()) -> Iterator[ImageScore]:
+                 like: Sequence[str | Path] = (), unlike: Sequence[str | Path] = (),
+                 dive: bool = False) -> Iterator[ImageScore]:
     """Yield each image's score as soon as its batch is encoded (batches of ``cfg.encoder.batch``).
 
+    ``dive``: the images are one dive's frames in order, so each is also judged against the scene of those before
+    it (``PreSampler.use_scene``); by default photos are scored each on its own, since a folder of unrelated
+    photos has no scene (docs/encoders.md).
     ``like``/``unlike``: marked example images (files or folders) combined with the query score
     (``companion.vision.feedback``).
     """
@@ -48,6 +52,8 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
         encoder = make_encoder(cfg.encoder)
     topics = cfg.queries.topic_list()
     presamplers = [PreSampler(encoder, t.positive, t.negatives, cfg.queries.tau_ss) for t in topics]
+    for presampler in presamplers:
+        presampler.use_scene = dive
     presamplers[0] = with_marks(presamplers[0], like_images, unlike_images)  # marks teach the first topic
     batch = cfg.encoder.batch
     for start in range(0, len(files), batch):

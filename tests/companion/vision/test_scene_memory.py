@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+
+import cv2
 import numpy as np
 import pytest
 
@@ -10,6 +13,7 @@ from companion.vision.dive_mean import TAU
 from companion.vision.encoders.imagenet import FEATURES, ImageNetEncoder
 from companion.vision.presampler import PreSampler
 from companion.vision.scene_memory import SceneMemory
+from tests.conftest import run_merlion
 
 
 def _reference(views: np.ndarray, tau: float = TAU) -> np.ndarray:
@@ -64,11 +68,11 @@ def dive():
         if t % 3 == 2:
             f[20:110, 300:420] = (230, 210, 90)
         frames.append(f)
-    return encoder, encoder.encode_images(frames)
+    return encoder, encoder.encode_images(frames), frames
 
 
 def test_presampler_scores_a_dive_by_the_scene_head_after_its_first_frame(dive):
-    encoder, emb = dive
+    encoder, emb, _ = dive
     pooled_head = next(h for h in encoder.heads if h.input == "pooled")
     scene_head = next(h for h in encoder.heads if h.input == "scene")
     presampler = PreSampler(encoder, "fish")
@@ -86,9 +90,25 @@ def test_presampler_scores_a_dive_by_the_scene_head_after_its_first_frame(dive):
 
 
 def test_an_encoder_without_a_scene_head_scores_as_before(dive):
-    encoder, emb = dive
+    encoder, emb, _ = dive
     plain = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
     assert plain.scene_views(emb) is None
     presampler = PreSampler(plain, "fish")
     np.testing.assert_allclose(presampler.scores(emb), plain.semantic_scores(emb, presampler.text_embeddings))
     assert not presampler.scene.seen
+
+
+def test_score_judges_images_on_their_own_unless_they_are_one_dive(dive, tmp_path):
+    encoder, emb, frames = dive
+    for i, f in enumerate(frames[:5]):
+        cv2.imwrite(str(tmp_path / f"f{i}.png"), f)
+    alone = run_merlion("score", str(tmp_path), "--query", "fish", "--encoder", "imagenet", "--json")
+    as_dive = run_merlion("score", str(tmp_path), "--query", "fish", "--encoder", "imagenet", "--json", "--dive")
+    assert alone.returncode == 0 and as_dive.returncode == 0, (alone.stderr, as_dive.stderr)
+    a = [json.loads(line)["score"] for line in alone.stdout.splitlines()]
+    d = [json.loads(line)["score"] for line in as_dive.stdout.splitlines()]
+    pooled = next(h for h in encoder.heads if h.input == "pooled").probabilities(emb[:5, :FEATURES])
+    scene = next(h for h in encoder.heads if h.input == "scene")
+    np.testing.assert_allclose(a, pooled, atol=2e-3)  # PNG round trip: same pixels
+    assert d[0] == pytest.approx(a[0], abs=1e-6)
+    np.testing.assert_allclose(d[1:], scene.probabilities(_reference(encoder.view_features(emb[:5]))[1:]), atol=2e-3)
