@@ -16,9 +16,11 @@ import numpy as np
 
 from companion.config import Config
 from companion.sources.folder import collect_images
+from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.feedback import read_mark_images, with_marks
 from companion.vision.presampler import PreSampler
+from companion.vision.topics import score_matrix
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +49,8 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
 
         encoder = make_encoder(cfg.encoder)
     topics = cfg.queries.topic_list()
-    presamplers = [PreSampler(encoder, t.positive, t.negatives, cfg.queries.tau_ss) for t in topics]
+    dive = DiveWindow()  # the images scored so far, in order: one for every topic, fed once per image
+    presamplers = [PreSampler(encoder, t.positive, t.negatives, cfg.queries.tau_ss, dive) for t in topics]
     presamplers[0] = with_marks(presamplers[0], like_images, unlike_images)  # marks teach the first topic
     batch = cfg.encoder.batch
     for start in range(0, len(files), batch):
@@ -63,7 +66,8 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
                 images.append(img)
                 readable.append(f)
         emb = encoder.encode_images(images) if images else None  # one pass serves every topic
-        scores = np.stack([p.scores(emb) for p in presamplers], axis=1) if images else np.zeros((0, len(topics)))
+        scores = (score_matrix(presamplers, emb, dive.take(encoder.sampler_features(emb)))[0] if images
+                  else np.zeros((0, len(topics))))
         by_file = dict(zip(readable, scores, strict=True))
         for f in chunk:
             if f in errors:
