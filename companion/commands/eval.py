@@ -398,8 +398,8 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     scores, features, kept = [], [], []
     for i in range(0, len(frames), batch):
         emb = encoder.encode_images([f.image for f in frames[i:i + batch]])
-        scores.append(presampler.scores(emb))
         features.append(encoder.sampler_features(emb))
+        scores.append(presampler.scores(emb, pooled=features[-1]))
         if args.marks:
             kept.append(emb)
     scores = np.concatenate(scores)
