@@ -205,9 +205,10 @@ def paper_loop_fps(cfg: Config, encoder: Encoder, frames: int, *,
         with tqdm(total=frames, desc="paper loop", unit="frame", file=sys.stderr, disable=not progress) as bar:
             for frame in source:
                 emb = encode([frame.image])
-                score = presampler.scores(emb)
+                pooled = paper.sampler_features(emb)
+                score = presampler.scores(emb, pooled=pooled)
                 if presampler.passes(score)[0]:
-                    sampler.offer(frame.index, paper.sampler_features(emb)[0])
+                    sampler.offer(frame.index, pooled[0])
                 if start is None:
                     start, cpu_start = time.perf_counter(), time.process_time()
                     continue

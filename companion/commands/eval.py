@@ -411,8 +411,9 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
         for i in range(0, len(stream), batch):
             idx = stream[i:i + batch]
             emb = encoder.encode_images([frames[j].image for j in idx])
-            scores[idx] = presampler.scores(emb)
-            for j, row, v, e in zip(idx, encoder.sampler_features(emb), _views(encoder, emb), emb, strict=True):
+            pooled = encoder.sampler_features(emb)
+            scores[idx] = presampler.scores(emb, pooled=pooled)
+            for j, row, v, e in zip(idx, pooled, _views(encoder, emb), emb, strict=True):
                 features[j], views[j], kept[j] = row, v, e
     features = np.stack(features)
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}

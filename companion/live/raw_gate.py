@@ -4,7 +4,8 @@ With selective enhancement the inference thread only scores frames and hands tho
 worker (companion/live/enhance_worker.py). With several topics (issue 13 item 4) every topic scores the one
 embedding with its own queries and threshold: a frame is a candidate when any topic passes, and it carries the
 names of the topics it passed for, so that after enhancement it may enter only those topics' summaries (the
-method's ss_t > tau_ss, then ss_e > tau_ses, per topic, as ``Pipeline`` does offline).
+method's ss_t > tau_ss, then ss_e > tau_ses, per topic, as ``Pipeline`` does offline). Like the pipeline, the
+gate owns the dive's running mean of the frames it scores (``dive``), fed once per frame and read by every topic.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
 from companion.vision.topics import TopicSpec, check_names, follow, score_matrix
@@ -24,6 +26,8 @@ class RawGate:
     def __init__(self, encoder: Encoder, specs: Sequence[TopicSpec], tau_ss: float) -> None:
         self.encoder = encoder
         self.default_tau = tau_ss
+        self.dive = DiveWindow()
+        """The dive as captured (the frames this gate scores), one for every topic."""
         self.presamplers: dict[str, PreSampler] = {}
         self.set_topics(specs)
 
@@ -35,7 +39,7 @@ class RawGate:
         """Follow these topics: a kept name keeps its pre-sampler (and marks) under its new queries."""
         check_names([s.name for s in specs])
         old = self.presamplers
-        self.presamplers = {spec.name: follow(spec, old.get(spec.name), self.encoder, self.default_tau)
+        self.presamplers = {spec.name: follow(spec, old.get(spec.name), self.encoder, self.default_tau, self.dive)
                             for spec in specs}
 
     @property
@@ -55,6 +59,7 @@ class RawGate:
 
     def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]]]:
         """Each frame's best ss_t over the topics, and the names of the topics it passed for (empty: none)."""
-        scores, passed = score_matrix(list(self.presamplers.values()), embeddings)
+        frames = self.dive.take(self.encoder.sampler_features(embeddings), views=self.encoder.scene_views(embeddings))
+        scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names
         return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed]

@@ -3,39 +3,24 @@
 Every frame of a dive shares its water, light and sea bed; a frame's features minus the dive's running mean keep
 what sets it apart from its own dive (a fish) and drop what it shares with the dive's other frames. The operator's
 marks (``companion.vision.feedback``) are compared in that centred space, so three marks from a dive's first
-minutes teach the object and not the scene. The pre-sampler that scores a dive owns one ``DiveWindow`` and feeds
-it every frame it scores; a new run of the companion is a new dive.
+minutes teach the object and not the scene.
+
+The frames and their pooled features are the same for every topic, so one ``DiveWindow`` serves them all: whatever
+runs every topic over one encoder pass (``Pipeline``, the live raw gate, ``merlion score``) owns it, feeds it each
+batch once (``DiveWindow.take``) and hands every topic's pre-sampler the result (``DiveFrames``); each pre-sampler
+reads the window and keeps only what is its own, its query's log-odds over the recent frames (``QueryWindow``). A
+pre-sampler used alone owns a window of its own. A new run of the companion is a new dive.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
-TAU = 100.0
-"""Frames over which the dive's mean forgets (an exponential mean past the first ``TAU`` frames), and the number
-of recent frames kept. On the shared data's 60-frame DeepFish habitats 30, 100 and 300 gave AUROCs within 0.001
-of each other (docs/evaluation.md)."""
-
-
-class RunningMean:
-    """The causal mean of one dive's values (scalars or feature vectors), starting from a prior."""
-
-    def __init__(self, prior: float | np.ndarray, prior_weight: float, tau: float = TAU) -> None:
-        if prior_weight < 0 or tau < 1:
-            raise ValueError(f"prior_weight must be >= 0 and tau >= 1, got {prior_weight}, {tau}")
-        self.mean = np.array(prior, dtype=np.float64, copy=True)
-        self.weight = float(prior_weight)
-        self.tau = float(tau)
-
-    def centre(self, value: float | np.ndarray) -> float | np.ndarray:
-        """Take in one frame's value and return it minus the mean of the dive so far (this frame included)."""
-        self.weight += 1.0
-        rate = max(1.0 / self.weight, 1.0 / self.tau)
-        self.mean = self.mean + rate * (np.asarray(value, dtype=np.float64) - self.mean)
-        out = np.asarray(value, dtype=np.float64) - self.mean
-        return float(out) if out.ndim == 0 else out
+from companion.vision.running_mean import TAU, RunningMean
+from companion.vision.scene_memory import SceneMemory
 
 
 def logit(scores: np.ndarray) -> np.ndarray:
@@ -44,14 +29,34 @@ def logit(scores: np.ndarray) -> np.ndarray:
     return np.log(p / (1.0 - p))
 
 
+@dataclass(frozen=True)
+class DiveFrames:
+    """One batch as its dive saw it, handed to every topic's pre-sampler."""
+
+    pooled: np.ndarray
+    """(N, D) the encoder's pooled (sampler) features, as it gives them."""
+    centred: np.ndarray
+    """(N, D) float64: each row minus the dive's mean; up to and including that frame when it joined the dive,
+    else the mean as it stands."""
+    joined: bool
+    """The frames joined the dive (False: a frame scored again, e.g. its enhanced copy)."""
+    scene: np.ndarray | None = None
+    """(N, D) each frame's scene residual (``scene_memory``; NaN rows: no scene before the frame), when the owner
+    gave the views; None: the frames are not judged against the dive's scene."""
+
+
 class DiveWindow:
-    """One dive's running mean of pooled features, and the last ``tau`` frames' centred features and query
-    log-odds (what the marks' score is scaled against)."""
+    """One dive's running mean of pooled features, and the last ``tau`` frames' centred features (what the marks'
+    score is scaled against); fed once per frame by its owner, read by every topic."""
 
     def __init__(self, tau: float = TAU) -> None:
         self.tau = tau
         self._mean: RunningMean | None = None
-        self.recent: deque[tuple[np.ndarray, float]] = deque(maxlen=int(tau))
+        self.recent: deque[np.ndarray] = deque(maxlen=int(tau))
+        self.frames = 0
+        """Frames taken in so far."""
+        self.scene = SceneMemory(tau)
+        """The dive's scene, region by region (for a head that reads the scene residual)."""
 
     @property
     def seen(self) -> bool:
@@ -62,15 +67,16 @@ class DiveWindow:
         """The dive's mean so far (None before the first frame)."""
         return None if self._mean is None else self._mean.mean
 
-    def add(self, features: np.ndarray, query_scores: np.ndarray) -> np.ndarray:
+    def add(self, features: np.ndarray) -> np.ndarray:
         """Take in a batch in frame order; each row minus the dive's mean up to and including that frame."""
         f = np.asarray(features, dtype=np.float64)
         out = np.zeros_like(f)
-        for i, (row, q) in enumerate(zip(f, logit(query_scores), strict=True)):
+        for i, row in enumerate(f):
             if self._mean is None:
                 self._mean = RunningMean(row, 0.0, self.tau)
             out[i] = self._mean.centre(row)
-            self.recent.append((out[i], float(q)))
+            self.recent.append(out[i])
+        self.frames += len(f)
         return out
 
     def offsets(self, features: np.ndarray) -> np.ndarray:
@@ -78,8 +84,25 @@ class DiveWindow:
         f = np.asarray(features, dtype=np.float64)
         return np.zeros_like(f) if self._mean is None else f - self._mean.mean
 
-    def recent_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """(frames, features) centred features and (frames,) query log-odds of the last ``tau`` frames."""
-        if not self.recent:
-            return np.zeros((0, 0)), np.zeros(0)
-        return np.stack([f for f, _ in self.recent]), np.array([q for _, q in self.recent])
+    def take(self, pooled: np.ndarray, join: bool = True, views: np.ndarray | None = None) -> DiveFrames:
+        """A batch's pooled features for every topic: taken into the dive (``join``), or only centred by it; with
+        ``views`` (``Encoder.scene_views``) also each frame's scene residual."""
+        scene = None if views is None else self.scene.residuals(views, join=join)
+        return DiveFrames(pooled, self.add(pooled) if join else self.offsets(pooled), join, scene)
+
+    def recent_features(self) -> np.ndarray:
+        """(frames, features) centred features of the last ``tau`` frames ((0, 0) before the first)."""
+        return np.stack(self.recent) if self.recent else np.zeros((0, 0))
+
+
+class QueryWindow:
+    """One topic's query log-odds over the dive's last ``tau`` frames: the spread its marks are scaled to."""
+
+    def __init__(self, tau: float = TAU) -> None:
+        self.recent: deque[float] = deque(maxlen=int(tau))
+
+    def add(self, query_scores: np.ndarray) -> None:
+        self.recent.extend(float(q) for q in logit(query_scores))
+
+    def values(self) -> np.ndarray:
+        return np.array(self.recent, dtype=np.float64)

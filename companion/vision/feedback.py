@@ -19,7 +19,7 @@ nothing). Without the marks' query scores, trust is the marks' leave-one-out agr
 1)``. The score stays in (0, 1), so tau_ss keeps its meaning. The same ``MarkedPreSampler`` serves ``merlion score``, ``merlion summarize`` and the live companion.
 
 Dive-centred marks (``CentredMarks``): a frame's pooled features minus its dive's running mean
-(``companion.vision.dive_mean``, kept by the pre-sampler that scores the dive) drop the dive's water and sea bed.
+(``companion.vision.dive_mean``, one per dive, read by every topic's pre-sampler) drop the dive's water and sea bed.
 With two or more marks of each kind, the marks' centred features give a direction, ``like mean - unlike mean``;
 every frame's centred features are projected on it and the result, scaled to the query's spread over the dive's
 recent frames, is added to the score's log-odds with weight ``CENTRED_WEIGHT x trust``. Trust is the marks'
@@ -41,10 +41,9 @@ import numpy as np
 
 from companion.errors import UsageError
 from companion.sources.folder import collect_images
-from companion.vision.dive_mean import DiveWindow, logit
+from companion.vision.dive_mean import DiveFrames, DiveWindow, QueryWindow, logit
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
-from companion.vision.scene_memory import SceneMemory
 
 TRIAL_TRUST = (0.25, 0.5, 0.75, 1.0)
 """Fractions of ``mark_weight`` tried, leave-one-out on the marks, to decide how far they are trusted."""
@@ -186,10 +185,11 @@ class CentredMarks:
                  else logit(np.concatenate([marks.like_query, marks.unlike_query])))
         return cls(direction, trust, np.concatenate([like, unlike]) @ direction, query)
 
-    def lift(self, centred: np.ndarray, dive: DiveWindow, weight: float = CENTRED_WEIGHT) -> np.ndarray:
+    def lift(self, centred: np.ndarray, dive: DiveWindow, queries: QueryWindow,
+             weight: float = CENTRED_WEIGHT) -> np.ndarray:
         """What the marks add to each frame's log-odds: its centred features along the direction, less the recent
-        frames' mean, in units of the query's spread over the recent frames."""
-        recent, recent_q = dive.recent_arrays()
+        frames' mean, in units of the query's spread (``queries``, the topic's own) over the recent frames."""
+        recent, recent_q = dive.recent_features(), queries.values()
         along = np.concatenate([recent @ self.direction if len(recent) else np.zeros(0), self.along])
         spread_q = float(np.std(np.concatenate([recent_q, self.logits])))
         spread_m = float(np.std(along))
@@ -250,9 +250,8 @@ class MarkedPreSampler(PreSampler):
         self.encoder = base.encoder
         self.tau_ss = base.tau_ss
         self.positive, self.negatives, self.text_embeddings = base.positive, base.negatives, base.text_embeddings
-        self.dive = getattr(base, "dive", None) or DiveWindow()  # the dive so far, as the base saw it
-        self.scene = getattr(base, "scene", None) or SceneMemory()
-        self.use_scene = getattr(base, "use_scene", True)
+        self.dive = getattr(base, "dive", None) or DiveWindow()  # the dive so far, as the base saw it (shared)
+        self.recent_queries = getattr(base, "recent_queries", None) or QueryWindow()
         self.centred_weight = CENTRED_WEIGHT
         self.set_marks(marks)
 
@@ -273,20 +272,19 @@ class MarkedPreSampler(PreSampler):
     def text_scores(self, image_embeddings: np.ndarray) -> np.ndarray:
         return self.query_scores(image_embeddings)
 
-    def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
-        text = self._scored(image_embeddings, join=join)
+    def scores_in_dive(self, image_embeddings: np.ndarray, frames: DiveFrames) -> np.ndarray:
+        text = super().scores_in_dive(image_embeddings, frames)
         if len(image_embeddings) == 0:
             return text
-        pooled = self.encoder.sampler_features(image_embeddings)
-        centred = self.dive.add(pooled, text) if join else self.dive.offsets(pooled)
         out = np.asarray(text, dtype=np.float64)
         if self.weight > 0.0:
             feats = (self.encoder.object_features(image_embeddings, self.text_embeddings) if self.objects
-                     else self.encoder.sampler_features(image_embeddings))
+                     else frames.pooled)
             self.examples.observe(feats)
             out = (1.0 - self.weight) * out + self.weight * self.examples.scores(feats)
         if self.centred_trust > 0.0:
-            out = 1.0 / (1.0 + np.exp(-(logit(out) + self.centred.lift(centred, self.dive, self.centred_weight))))
+            lift = self.centred.lift(frames.centred, self.dive, self.recent_queries, self.centred_weight)
+            out = 1.0 / (1.0 + np.exp(-(logit(out) + lift)))
         return out.astype(np.float32)
 
 

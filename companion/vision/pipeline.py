@@ -15,7 +15,9 @@ Enhancement (REFERENCE.md step 8, MERLION-E), by ``enhance.mode``:
 
 Several named topics (``companion.vision.topics``, config ``queries.topics``) share one encoder pass: each
 scores the same embeddings with its own queries and keeps its own summary; a frame may enter several of them
-(each entry is its own summary frame with its own image index).
+(each entry is its own summary frame with its own image index). They share the dive too: the pipeline owns the
+dive's running mean (``dive``, ``companion.vision.dive_mean``), feeds it each encoded frame once and every topic's
+pre-sampler reads it (the operator's marks are centred by it).
 
 While a topic's summary is empty and nothing passes its gate, its best frames so far stand in, marked
 ``below_threshold`` (``companion.vision.below_threshold``): after ``quiet_s`` seconds of footage, or at ``finish``.
@@ -41,6 +43,7 @@ from companion.errors import UsageError
 from companion.sources.frame import Frame
 from companion.vision import distances as dist
 from companion.vision.below_threshold import KEEP
+from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.enhancers.factory import make_enhancer
@@ -141,6 +144,10 @@ class Pipeline:
         if enhance_mode != "none" and enhancer is None:
             raise UsageError(f"enhance.mode {enhance_mode}: no enhancer given")
         self.encoder = encoder
+        self.dive = DiveWindow()
+        """The dive so far, one for every topic: fed once per encoded frame (``_process_encoded``)."""
+        for topic in topics:
+            topic.presampler.dive = self.dive
         self.topics: list[Topic] = list(topics)
         """The topics followed, the default (first) one first."""
         duplicate = getattr(encoder, "duplicate_cosine", None)
@@ -168,7 +175,7 @@ class Pipeline:
     def from_config(cls, cfg: Config, encoder: Encoder, *, first_image_index: int = 0) -> Pipeline:
         """Everything but the encoder from the configuration; the enhancer is imported only when it is used."""
         s = cfg.sampler
-        topics = [Topic(t.name, PreSampler(encoder, t.positive, t.negatives,
+        topics = [Topic(t.name, PreSampler(encoder, t.positive, t.negatives,  # the pipeline gives them its dive
                                            cfg.queries.tau_ss if t.tau_ss is None else t.tau_ss),
                         InformativeSampler(s.k, s.distance, s.threshold))
                   for t in cfg.queries.topic_list()]
@@ -190,6 +197,7 @@ class Pipeline:
 
     @presampler.setter
     def presampler(self, value: PreSampler) -> None:
+        value.dive = self.dive
         self.topics[0].presampler = value
 
     @property
@@ -226,10 +234,10 @@ class Pipeline:
         for spec in specs:
             topic = old.pop(spec.name, None)
             if topic is None:
-                topic = Topic(spec.name, follow(spec, None, self.encoder, self.default_tau_ss),
+                topic = Topic(spec.name, follow(spec, None, self.encoder, self.default_tau_ss, self.dive),
                               InformativeSampler(*self._sampler_args))
             else:
-                follow(spec, topic.presampler, self.encoder, self.default_tau_ss)
+                follow(spec, topic.presampler, self.encoder, self.default_tau_ss, self.dive)
             topics.append(topic)
         self.topics = topics
         gone = [frame for topic in old.values() for frame in topic.summary]
@@ -385,7 +393,9 @@ class Pipeline:
         emb = self._encode(prepared, "encode")
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
-            scores, passed = score_matrix([t.presampler for t in self.topics], emb)
+            pooled = self.encoder.sampler_features(emb)  # the dive's and the sampler's features, asked for once
+            frames_in_dive = self.dive.take(pooled, views=self.encoder.scene_views(emb))
+            scores, passed = score_matrix([t.presampler for t in self.topics], emb, frames_in_dive)
             if only is not None:
                 passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
                                    dtype=bool).reshape(passed.shape)
@@ -399,13 +409,13 @@ class Pipeline:
         final_images = list(images)
         final_scores = scores.astype(np.float64)
         if self.enhance_mode == "selective" and passed.any():
-            passed, emb, final_images, final_scores = self._enhance_selected(frames, passed, emb, results,
-                                                                             final_images, final_scores)
+            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, pooled, results,
+                                                                                final_images, final_scores)
         events: list[SummaryEvent] = []
         go = np.flatnonzero(passed.any(axis=1))
         if len(go):
             with self.clock.stage("sample", len(go)):
-                feats = dist.prepare_features(self.encoder.sampler_features(emb[go]))
+                feats = dist.prepare_features(pooled[go])
                 for row, i in enumerate(go):
                     results[i].offered = True
                     self.counts["offered"] += 1
@@ -413,10 +423,10 @@ class Pipeline:
                         events.extend(self._offer(self.topics[t], frames[i], results[i], feats[row],
                                                   final_images[i], final_scores[i, t],
                                                   poses[i] if poses is not None else None))
-        events.extend(self._stand_ins(frames, emb, passed, final_scores, final_images, poses))
+        events.extend(self._stand_ins(frames, pooled, passed, final_scores, final_images, poses))
         return BatchOutcome(results, events)
 
-    def _stand_ins(self, frames, emb, passed, scores, images, poses) -> list[SummaryEvent]:
+    def _stand_ins(self, frames, pooled, passed, scores, images, poses) -> list[SummaryEvent]:
         """Per topic: a pass ends the quiet period (its stand-ins leave); else, while its summary is empty, the
         batch's best frame may become a stand-in, and stand-ins enter once the quiet period is long enough."""
         events: list[SummaryEvent] = []
@@ -433,7 +443,7 @@ class Pipeline:
                 continue
             below.keep = min(KEEP, topic.sampler.k)
             i = int(np.argmax(scores[:, t]))
-            feature = dist.prepare_features(self.encoder.sampler_features(emb[i:i + 1]))[0]
+            feature = dist.prepare_features(pooled[i:i + 1])[0]
             frame = frames[i]
             enhanced = images[i] is not frame.image
             below.consider(SummaryFrame(
@@ -464,7 +474,7 @@ class Pipeline:
                 events.extend(self._show_stand_ins(topic))
         return events
 
-    def _enhance_selected(self, frames, passed, emb, results, images, scores):
+    def _enhance_selected(self, frames, passed, pooled, results, images, scores):
         """MERLION-E: enhance the frames that passed (for any topic), re-encode them once, and keep, per topic,
         those whose ss_e passes tau_ses."""
         go = np.flatnonzero(passed.any(axis=1))
@@ -472,8 +482,10 @@ class Pipeline:
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
-        ss_e = np.stack([t.presampler.scores(emb_e, join=False) for t in self.topics], axis=1)  # not new frames
-        ok = np.stack([t.presampler.passes(ss_e[:, j], self._tau_ses) for j, t in enumerate(self.topics)], axis=1)
+        pooled_e = self.encoder.sampler_features(emb_e)
+        ss_e, ok = score_matrix([t.presampler for t in self.topics], emb_e,
+                                self.dive.take(pooled_e, join=False, views=self.encoder.scene_views(emb_e)),
+                                self._tau_ses)  # not new frames
         ok &= passed[go]
         self.counts["enhanced"] += len(go)
         self.counts["enhanced_passed"] += int(ok.any(axis=1).sum())
@@ -486,9 +498,9 @@ class Pipeline:
             scores[i] = ss_e[row]
             passed[i] = ok[row]
         # the sampler compares enhanced embeddings: rows of frames that go on are replaced by theirs
-        emb = emb.copy()
-        emb[go] = emb_e
-        return passed, emb, images, scores
+        pooled = np.array(pooled, copy=True)
+        pooled[go] = pooled_e
+        return passed, pooled, images, scores
 
     def _offer(self, topic: Topic, frame: Frame, result: FrameResult, feature: np.ndarray, image: np.ndarray,
                score: float, pose: Pose | None) -> list[SummaryEvent]:

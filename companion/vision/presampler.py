@@ -21,9 +21,8 @@ import numpy as np
 
 from companion.config import as_fraction
 from companion.errors import MerlionError, UsageError
-from companion.vision.dive_mean import DiveWindow
+from companion.vision.dive_mean import DiveFrames, DiveWindow, QueryWindow
 from companion.vision.encoders.base import Encoder
-from companion.vision.scene_memory import SceneMemory
 
 log = logging.getLogger(__name__)
 
@@ -33,21 +32,22 @@ GENERIC_NEGATIVE = "an underwater image"
 class PreSampler:
     """Scores image embeddings against the queries and says which frames pass ``tau_ss`` (strictly)."""
 
-    def __init__(self, encoder: Encoder, positive: str, negatives: Sequence[str] = (), tau_ss: float = 0.5) -> None:
+    def __init__(self, encoder: Encoder, positive: str, negatives: Sequence[str] = (), tau_ss: float = 0.5,
+                 dive: DiveWindow | None = None) -> None:
         self.encoder = encoder
         self.tau_ss = tau_ss
-        self.dive = DiveWindow()
-        """The dive so far (running mean of the scored frames' features): what the operator's marks need."""
-        self.scene = SceneMemory()
-        """The dive's scene so far, region by region: what a head reading the scene residual needs."""
-        self.use_scene = True
-        """Whether frames are judged against the dive's scene (False: each on its own, e.g. unrelated photos)."""
+        self.dive = DiveWindow() if dive is None else dive
+        """The dive so far (running mean of the scored frames' features): what the operator's marks need. Shared
+        with the other topics when what runs them all gives it (``dive``), else this pre-sampler's own."""
+        self.recent_queries = QueryWindow()
+        """This topic's query log-odds over the dive's recent frames (the marks' scale)."""
         self.set_queries(positive, negatives)
 
     def new_dive(self) -> None:
-        """Forget the frames scored so far: the next frame starts a new dive's running means."""
+        """Forget the frames scored so far: the next frame starts a new dive's running mean, this pre-sampler's
+        own (it no longer reads a dive it shared)."""
         self.dive = DiveWindow()
-        self.scene = SceneMemory()
+        self.recent_queries = QueryWindow()
 
     @property
     def tau_ss(self) -> float:
@@ -89,22 +89,33 @@ class PreSampler:
 
     def query_scores(self, image_embeddings: np.ndarray) -> np.ndarray:
         """(N,) float32 ss_t in (0, 1) for a batch of image embeddings, without taking them into the dive."""
-        return self._scored(image_embeddings, join=False)
-
-    def _scored(self, image_embeddings: np.ndarray, *, join: bool) -> np.ndarray:
         if len(image_embeddings) == 0:
             return np.zeros(0, dtype=np.float32)
-        views = self.encoder.scene_views(image_embeddings) if self.use_scene else None
-        if views is not None:
-            image_embeddings = self.encoder.with_scene(image_embeddings, self.scene.residuals(views, join=join))
         return np.asarray(self.encoder.semantic_scores(image_embeddings, self.text_embeddings), dtype=np.float32)
 
-    def scores(self, image_embeddings: np.ndarray, *, join: bool = True) -> np.ndarray:
-        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order; each joins ``dive`` and
-        ``scene`` unless ``join`` is False (a frame scored again, e.g. its enhanced copy)."""
-        s = self._scored(image_embeddings, join=join)
-        if len(s) and join:
-            self.dive.add(self.encoder.sampler_features(image_embeddings), s)
+    def scores(self, image_embeddings: np.ndarray, *, join: bool = True,
+               pooled: np.ndarray | None = None) -> np.ndarray:
+        """(N,) float32 ss_t in (0, 1) for a batch of frames of the dive, in order, by a pre-sampler used alone:
+        each frame joins ``dive`` unless ``join`` is False (a frame scored again, e.g. its enhanced copy).
+        ``pooled``: the batch's ``encoder.sampler_features``, when the caller has them already.
+
+        Several topics over one encoder pass share one dive, fed once per frame: their runner calls
+        ``dive.take`` and then ``scores_in_dive`` of each topic (``companion.vision.topics.score_matrix``)."""
+        if len(image_embeddings) == 0:
+            return self.query_scores(image_embeddings)
+        if pooled is None:
+            pooled = self.encoder.sampler_features(image_embeddings)
+        return self.scores_in_dive(image_embeddings,
+                                   self.dive.take(pooled, join, self.encoder.scene_views(image_embeddings)))
+
+    def scores_in_dive(self, image_embeddings: np.ndarray, frames: DiveFrames) -> np.ndarray:
+        """(N,) float32 ss_t of a batch that ``dive`` has already seen (``frames``: what ``dive.take`` gave); with
+        the frames' scene residuals, a head that reads them answers (``Encoder.with_scene``)."""
+        if frames.scene is not None and len(image_embeddings):
+            image_embeddings = self.encoder.with_scene(image_embeddings, frames.scene)
+        s = self.query_scores(image_embeddings)
+        if len(s) and frames.joined:
+            self.recent_queries.add(s)
         return s
 
     def passes(self, scores: np.ndarray, tau: float | None = None) -> np.ndarray:

@@ -10,14 +10,14 @@ leave-one-group-out AUROC 0.73 -> 0.85 on the shared data (docs/encoders.md).
 
 The first frame of a dive has no scene to be judged against: its residual is NaN, and the head on the pooled
 features scores it (as it does a frame scored before any dive, e.g. one image). After that the mean, this frame
-included, is plain up to ``tau`` frames and exponential past them, as ``dive_mean.RunningMean``.
+included, is plain up to ``tau`` frames and exponential past them (``running_mean``). The dive window (``dive_mean.DiveWindow``) owns one per dive.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from companion.vision.dive_mean import TAU, RunningMean
+from companion.vision.running_mean import TAU, RunningMean
 
 
 class SceneMemory:

@@ -16,9 +16,11 @@ import numpy as np
 
 from companion.config import Config
 from companion.sources.folder import collect_images
+from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.feedback import read_mark_images, with_marks
 from companion.vision.presampler import PreSampler
+from companion.vision.topics import score_matrix
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +41,8 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
     """Yield each image's score as soon as its batch is encoded (batches of ``cfg.encoder.batch``).
 
     ``dive``: the images are one dive's frames in order, so each is also judged against the scene of those before
-    it (``PreSampler.use_scene``); by default photos are scored each on its own, since a folder of unrelated
-    photos has no scene (docs/encoders.md).
+    it (the scene residual, ``companion.vision.scene_memory``); by default photos are scored each on its own, since
+    a folder of unrelated photos has no scene (docs/encoders.md).
     ``like``/``unlike``: marked example images (files or folders) combined with the query score
     (``companion.vision.feedback``).
     """
@@ -51,9 +53,8 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
 
         encoder = make_encoder(cfg.encoder)
     topics = cfg.queries.topic_list()
-    presamplers = [PreSampler(encoder, t.positive, t.negatives, cfg.queries.tau_ss) for t in topics]
-    for presampler in presamplers:
-        presampler.use_scene = dive
+    window = DiveWindow()  # the images scored so far, in order: one for every topic, fed once per image
+    presamplers = [PreSampler(encoder, t.positive, t.negatives, cfg.queries.tau_ss, window) for t in topics]
     presamplers[0] = with_marks(presamplers[0], like_images, unlike_images)  # marks teach the first topic
     batch = cfg.encoder.batch
     for start in range(0, len(files), batch):
@@ -69,7 +70,9 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
                 images.append(img)
                 readable.append(f)
         emb = encoder.encode_images(images) if images else None  # one pass serves every topic
-        scores = np.stack([p.scores(emb) for p in presamplers], axis=1) if images else np.zeros((0, len(topics)))
+        views = encoder.scene_views(emb) if images and dive else None
+        scores = (score_matrix(presamplers, emb, window.take(encoder.sampler_features(emb), views=views))[0]
+                  if images else np.zeros((0, len(topics))))
         by_file = dict(zip(readable, scores, strict=True))
         for f in chunk:
             if f in errors:

@@ -4,6 +4,10 @@ An operator on a survey may want the fish, the corals and any debris, each as it
 encoder is the expensive part and its image embedding does not depend on the query, so one encoder pass per
 frame serves every topic: each topic scores the same embeddings with its own pre-sampler and offers the frames
 that pass to its own informative sampler. With one topic (the default) this is exactly the paper's pipeline.
+
+The dive's running mean of pooled features (``companion.vision.dive_mean``) does not depend on the query either:
+what runs the topics (``Pipeline``, the live ``RawGate``) owns one ``DiveWindow``, gives it to every pre-sampler
+it makes (``follow``) and feeds it once per batch before the topics score it (``score_matrix``).
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 
 from companion.errors import UsageError
 from companion.vision.below_threshold import BestBelow
+from companion.vision.dive_mean import DiveFrames, DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.events import SummaryFrame
 from companion.vision.presampler import PreSampler
@@ -67,22 +72,25 @@ def check_names(names: Sequence[str]) -> None:
         raise UsageError(f"queries: topic name {twice[0]!r} is used twice")
 
 
-def score_matrix(presamplers: Sequence[PreSampler], embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, T) scores and (N, T) pass masks of every topic's pre-sampler on one batch of embeddings."""
+def score_matrix(presamplers: Sequence[PreSampler], embeddings: np.ndarray, frames: DiveFrames,
+                 tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(N, T) scores and (N, T) pass masks (of each topic's tau_ss, or ``tau``) of every topic's pre-sampler on one
+    batch of embeddings; ``frames``: the batch as the topics' shared dive took it in (``DiveWindow.take``)."""
     n = len(embeddings)
     scores = np.zeros((n, len(presamplers)), dtype=np.float32)
     passed = np.zeros((n, len(presamplers)), dtype=bool)
     for t, presampler in enumerate(presamplers):
-        scores[:, t] = presampler.scores(embeddings)
-        passed[:, t] = presampler.passes(scores[:, t])
+        scores[:, t] = presampler.scores_in_dive(embeddings, frames)
+        passed[:, t] = presampler.passes(scores[:, t], tau)
     return scores, passed
 
 
-def follow(spec: TopicSpec, kept: PreSampler | None, encoder: Encoder, default_tau_ss: float) -> PreSampler:
+def follow(spec: TopicSpec, kept: PreSampler | None, encoder: Encoder, default_tau_ss: float,
+           dive: DiveWindow) -> PreSampler:
     """The pre-sampler of ``spec`` from now on: a kept topic's own (its marks stay) under the new queries, or a
-    new one at the shared threshold; the spec's own tau_ss, if it has one, wins."""
+    new one at the shared threshold, reading the topics' ``dive``; the spec's own tau_ss, if it has one, wins."""
     if kept is None:
-        kept = PreSampler(encoder, spec.positive, spec.negatives, default_tau_ss)
+        kept = PreSampler(encoder, spec.positive, spec.negatives, default_tau_ss, dive)
     else:
         kept.set_queries(spec.positive, spec.negatives)
     if spec.tau_ss is not None:

@@ -73,6 +73,7 @@ def test_the_gate_follows_query_changes_and_tau_for_every_topic(encoder) -> None
     assert gate.names == ["fish", "wreck"]
     assert gate.presamplers["fish"] is fish and fish.positive == "underwater image of fish"  # kept: marks too
     assert fish.tau_ss == 0.5 and gate.tau_of("wreck") == 0.4  # its own tau stays; a new one takes the default
+    assert all(p.dive is gate.dive for p in gate.presamplers.values())  # one dive for every topic, new ones too
     gate.tau_ss = 0.3  # MERL_TAU_SS
     assert [p.tau_ss for p in gate.presamplers.values()] == [0.3, 0.3] and gate.tau_ss == 0.3
 

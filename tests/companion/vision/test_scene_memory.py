@@ -95,7 +95,7 @@ def test_an_encoder_without_a_scene_head_scores_as_before(dive):
     assert plain.scene_views(emb) is None
     presampler = PreSampler(plain, "fish")
     np.testing.assert_allclose(presampler.scores(emb), plain.semantic_scores(emb, presampler.text_embeddings))
-    assert not presampler.scene.seen
+    assert not presampler.dive.scene.seen
 
 
 def test_score_judges_images_on_their_own_unless_they_are_one_dive(dive, tmp_path):

@@ -1,0 +1,33 @@
+"""A causal running mean of one dive's values: plain over the first ``tau`` frames, exponential after.
+
+Shared by the dive window (pooled features, ``dive_mean``) and the scene memory (view features, ``scene_memory``),
+and by the evaluation that centres scores the same way (``companion.evaluation.dive_centring``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TAU = 100.0
+"""Frames over which the dive's mean forgets (an exponential mean past the first ``TAU`` frames), and the number
+of recent frames kept. On the shared data's 60-frame DeepFish habitats 30, 100 and 300 gave AUROCs within 0.001
+of each other (docs/evaluation.md)."""
+
+
+class RunningMean:
+    """The causal mean of one dive's values (scalars or feature vectors), starting from a prior."""
+
+    def __init__(self, prior: float | np.ndarray, prior_weight: float, tau: float = TAU) -> None:
+        if prior_weight < 0 or tau < 1:
+            raise ValueError(f"prior_weight must be >= 0 and tau >= 1, got {prior_weight}, {tau}")
+        self.mean = np.array(prior, dtype=np.float64, copy=True)
+        self.weight = float(prior_weight)
+        self.tau = float(tau)
+
+    def centre(self, value: float | np.ndarray) -> float | np.ndarray:
+        """Take in one frame's value and return it minus the mean of the dive so far (this frame included)."""
+        self.weight += 1.0
+        rate = max(1.0 / self.weight, 1.0 / self.tau)
+        self.mean = self.mean + rate * (np.asarray(value, dtype=np.float64) - self.mean)
+        out = np.asarray(value, dtype=np.float64) - self.mean
+        return float(out) if out.ndim == 0 else out
