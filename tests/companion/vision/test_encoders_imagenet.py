@@ -129,7 +129,7 @@ def test_sampler_features_are_the_pooled_1280(encoder, suim):
     feats = encoder.sampler_features(emb)
     assert feats.shape == (2, FEATURES)
     assert not np.allclose(feats[0], feats[1])
-    assert encoder.encode_images([]).shape == (0, FEATURES + encoder.views * (CLASSES + FEATURES) - FEATURES)
+    assert encoder.encode_images([]).shape == (0, FEATURES + encoder.views * (CLASSES + FEATURES))  # + scene slot
 
 
 def test_mixed_portrait_and_landscape_batches_keep_frame_order(suim):
