@@ -98,3 +98,14 @@ def run_merlion(*args: str, timeout: float = 240, cwd: Path | None = None, env: 
         capture_output=True, text=True, timeout=timeout, cwd=cwd or REPO, env=full_env, input=input,
     )
 
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under xdist (pyproject's ``-n 2 --dist loadgroup``) a module runs whole on one worker, so its
+    module-scoped fixtures (an encoder, 803 encoded frames, a Ray cluster) are built once, not once per worker; a
+    test marked ``xdist_group(NAME)`` runs with the other tests of that group instead (tests that must not run side
+    by side with each other)."""
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
