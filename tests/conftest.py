@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 import os
+import random
 import socket
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -29,17 +32,49 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+PORT_BLOCK = 1000
+"""Ports each pytest process (each xdist worker) takes its loopback ports from, in a block of its own."""
+_PORT_BASE = 20000
+"""Below Linux's ephemeral range (32768-60999 by default): the OS never hands these out on its own, so a port
+picked here and bound a moment later by a child cannot meanwhile become another socket's source port."""
+_ports: Iterator[int] | None = None
+
+
+def _worker_ports() -> Iterator[int]:
+    """This process's ports, in turn: a block per xdist worker (gw0, gw1, ...) so that two workers never pick the
+    same port, starting at a random place in it so that a second test run beside this one rarely shares a
+    port either; a port is handed out again only after the whole block went round."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    low = _PORT_BASE + (index % ((32768 - _PORT_BASE) // PORT_BLOCK)) * PORT_BLOCK
+    start = random.randrange(PORT_BLOCK)
+    return itertools.cycle([low + (start + i) % PORT_BLOCK for i in range(PORT_BLOCK)])
+
+
+def _free_port(kind: socket.SocketKind) -> int:
+    global _ports
+    if _ports is None:
+        _ports = _worker_ports()
+    for _ in range(PORT_BLOCK):
+        port = next(_ports)
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:  # something outside the tests holds it
+                continue
+            return port
+    raise RuntimeError(f"no free loopback port in this worker's block of {PORT_BLOCK}")
+
+
 def free_udp_port() -> int:
-    """A UDP port on 127.0.0.1 the OS says is free now (never a fixed port)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A UDP port on 127.0.0.1 that is free now and that no other test (in this process or another xdist
+    worker) is handed until this block of ports went round (never a fixed port)."""
+    return _free_port(socket.SOCK_DGRAM)
 
 
 def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A TCP port on 127.0.0.1, picked as free_udp_port picks one."""
+    return _free_port(socket.SOCK_STREAM)
 
 
 def stop_process(proc: subprocess.Popen, grace_s: float) -> None:
@@ -62,3 +97,15 @@ def run_merlion(*args: str, timeout: float = 240, cwd: Path | None = None, env: 
         [sys.executable, "-m", "companion", *args],
         capture_output=True, text=True, timeout=timeout, cwd=cwd or REPO, env=full_env, input=input,
     )
+
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under xdist (pyproject's ``-n 2 --dist loadgroup``) a module runs whole on one worker, so its
+    module-scoped fixtures (an encoder, 803 encoded frames, a Ray cluster) are built once, not once per worker; a
+    test marked ``xdist_group(NAME)`` runs with the other tests of that group instead (tests that must not run side
+    by side with each other)."""
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))

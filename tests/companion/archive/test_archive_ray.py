@@ -23,7 +23,8 @@ from tests.waiting import wait_until
 ray = pytest.importorskip("ray")
 from ray.cluster_utils import Cluster  # noqa: E402
 
-pytestmark = pytest.mark.slow
+# one xdist worker runs every test that starts Ray (see test_archive_cli.py)
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ray")]
 
 T0 = 1_700_000_000.0
 CLIPS = 6
