@@ -249,7 +249,8 @@ class ImageNetEncoder(Encoder):
 
     def scene_views(self, image_embeddings: np.ndarray) -> np.ndarray | None:
         """The views the dive's scene memory compares, when a head reads the scene residual."""
-        return self.view_features(image_embeddings) if any(h.input == "scene" for h in self.heads) else None
+        wanted = self._regions and any(h.input == "scene" for h in self.heads)  # trained on the 9 views
+        return self.view_features(image_embeddings) if wanted else None
 
     def with_scene(self, image_embeddings: np.ndarray, residuals: np.ndarray) -> np.ndarray:
         out = np.array(image_embeddings, copy=True)

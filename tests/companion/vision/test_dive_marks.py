@@ -21,7 +21,7 @@ from companion.evaluation.feedback_eval import evaluate
 from companion.evaluation.roc import auroc
 from companion.sources.frame import Frame
 from companion.vision.encoders.base import Encoder
-from companion.vision.feedback import MarkedPreSampler, Marks
+from companion.vision.feedback import CENTRED_WEIGHT, MarkedPreSampler, Marks
 from companion.vision.pipeline import Pipeline
 from companion.vision.presampler import PreSampler
 from companion.vision.topics import TopicSpec
@@ -127,7 +127,8 @@ def _logit(p: np.ndarray) -> np.ndarray:
     return np.log(p / (1.0 - p))
 
 
-def alone_with_its_own_mean(x, query, like, unlike, batches, marks_after, tau=100, weight=3.0) -> np.ndarray:
+def alone_with_its_own_mean(x, query, like, unlike, batches, marks_after, tau=100,
+                            weight=CENTRED_WEIGHT) -> np.ndarray:
     """One topic's scores as its own pre-sampler gave them: its running mean of ``x`` (rate max(1/n, 1/tau)),
     3 + 3 centred marks set after ``marks_after`` frames, each batch lifted by its centred features along the
     marks' direction, scaled by the last ``tau`` frames' spreads (docs/encoders.md)."""
