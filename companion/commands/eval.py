@@ -381,12 +381,6 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
     return 0
 
 
-def _views(encoder, embeddings: np.ndarray) -> list:
-    """Each frame's view features, when the encoder has regions (the scene head's input); else Nones."""
-    view_features = getattr(encoder, "view_features", None)
-    return list(view_features(embeddings)) if view_features else [None] * len(embeddings)
-
-
 def _auroc_by_source(args: argparse.Namespace) -> int:
     """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
     import sys
@@ -405,17 +399,17 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     if args.marks is not None and args.marks < 1:
         raise UsageError(f"--marks {args.marks}: must be 1 or more")
     scores = np.zeros(len(frames), dtype=np.float32)
-    features, views, kept = [None] * len(frames), [None] * len(frames), [None] * len(frames)
+    embeddings: np.ndarray | None = None
     for stream in stream_order(frames):  # each source is one dive, scored in its own order
         presampler.new_dive()
         for i in range(0, len(stream), batch):
             idx = stream[i:i + batch]
             emb = encoder.encode_images([frames[j].image for j in idx])
-            pooled = encoder.sampler_features(emb)
-            scores[idx] = presampler.scores(emb, pooled=pooled)
-            for j, row, v, e in zip(idx, pooled, _views(encoder, emb), emb, strict=True):
-                features[j], views[j], kept[j] = row, v, e
-    features = np.stack(features)
+            if embeddings is None:
+                embeddings = np.zeros((len(frames), emb.shape[1]), dtype=emb.dtype)
+            embeddings[idx] = emb
+            scores[idx] = presampler.scores(emb)
+    features = encoder.sampler_features(embeddings)
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
     result["by_group"] = per_group(scores, frames)
     result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
@@ -425,14 +419,15 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             from companion.evaluation.dive_centring import held_out_centred
 
             result["dive_centred"] = held_out_centred(features, frames)
-            if views[0] is not None:
+            if hasattr(encoder, "view_features"):  # the scene head's input: the region views
                 from companion.evaluation.scene_holdout import held_out_scene
 
-                result["scene"] = held_out_scene(np.stack(views), frames)
+                result["scene"] = held_out_scene(encoder.view_features(embeddings), frames)
     if args.marks:
-        from companion.evaluation.group_feedback import ORDER_SEEDS, marks_by_group
+        from companion.evaluation.dive_centring import ORDER_SEEDS
+        from companion.evaluation.group_feedback import marks_by_group
 
-        result["marks"] = marks_by_group(encoder, presampler, np.stack(kept), frames, args.marks,
+        result["marks"] = marks_by_group(encoder, presampler, embeddings, frames, args.marks,
                                          held_out=args.holdout, seeds=ORDER_SEEDS)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep

@@ -38,8 +38,6 @@ def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: n
                       {"lambda": lam, "held_out": True}, head.input)
 
 
-ORDER_SEEDS = (0, 1, 2)
-"""The frame orders ``merlion eval auroc --marks`` streams each group in (seed 0 is reported per group)."""
 WEIGHTS = (1.0, 2.0, 3.0, 4.0, 6.0)
 """Candidate weights of the dive-centred marks (``companion.vision.feedback.CENTRED_WEIGHT``)."""
 MAX_LOSS = 0.02

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion.evaluation.dive_centring import ORDER_SEED, stream_order
+from companion.evaluation.dive_centring import ORDER_SEED, ORDER_SEEDS, stream_order
 from companion.evaluation.head_training import nested_holdout, train_head
 from companion.evaluation.holdout import per_group, spread
 from companion.evaluation.roc import auroc
@@ -24,7 +24,6 @@ from companion.vision.scene_memory import SceneMemory
 
 SCENE_LAMBDAS = (1e4, 3e4, 1e5)
 """Ridge strengths tried for the scene head (its features are smaller and sparser than the pooled ones)."""
-ORDER_SEEDS = (0, 1, 2)
 
 
 def scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], seed: int = ORDER_SEED) -> np.ndarray:

@@ -235,7 +235,7 @@ class ImageNetEncoder(Encoder):
         out = np.array(mass, dtype=np.float64, copy=True)
         pooled = image_embeddings[:, :FEATURES]
         scene = image_embeddings[:, self._scene_at:self._scene_at + FEATURES]
-        in_dive = np.isfinite(scene).all(axis=1) if scene.shape[1] == FEATURES else np.zeros(len(out), bool)
+        in_dive = np.isfinite(scene).all(axis=1)
         for m in range(text_embeddings.shape[0]):
             head = head_for(self.heads, text_embeddings[m, :CLASSES])
             if head is None:

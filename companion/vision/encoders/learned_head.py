@@ -101,7 +101,7 @@ def shipped_heads(backbone: str, features: int, colour: str) -> list[LinearHead]
     return [h for h in heads if h.backbone == backbone and h.w.shape == (features,) and h.colour == colour]
 
 
-def head_for(heads: list[LinearHead], class_weights: np.ndarray, input: str = "pooled") -> LinearHead | None:
-    """The first head reading ``input`` whose concept the query names, else None (the lexical class mapping
-    answers)."""
-    return next((h for h in heads if h.input == input and h.matches(class_weights)), None)
+def head_for(heads: list[LinearHead], class_weights: np.ndarray, reads: str = "pooled") -> LinearHead | None:
+    """The first head reading ``reads`` (its ``input``) whose concept the query names, else None (the lexical
+    class mapping answers)."""
+    return next((h for h in heads if h.input == reads and h.matches(class_weights)), None)
