@@ -10,8 +10,9 @@ whose noun synsets ImageNet's classes are:
    definitions name them ("reef fish" -> fish whose definition says reef, never the class "coral reef");
    a modifier that would keep nothing is left out, and a noun phrase that WordNet lists but under which no
    class lies ("marine animal") is read as its head noun ("animal") with its modifiers when it is a kind of it;
-3. a noun with no class below it climbs its hypernyms (at most ``CLIMB`` steps) to the nearest one that has
-   some: "flatfish" -> the spiny-finned fish the model knows; among those, classes whose name the word contains
+3. a noun with no class below it climbs its hypernyms (at most ``CLIMB`` steps) to the nearest everyday word
+   that has some, else the nearest one that has some: "flatfish" -> "fish" (past the taxa "spiny-finned fish",
+   "teleost fish", "bony fish"), "octopus" -> "cephalopod"; among those, classes whose name the word contains
    are preferred ("shipwreck" -> "wreck").
 
 Each phrase is a term; a class's weight is the number of terms that reach it over the most any class gets, so
@@ -40,8 +41,9 @@ FILLER = frozenset("""a an the some any many few several lots lot one two three 
     showing shows show shown containing contains contain seen visible just only small large big little tiny huge
     kind kinds type types sort sorts something thing things
     school schools shoal shoals group groups swarm swarms pod pods bunch colony colonies pair couple""".split())
-CLIMB = 4
-"""Hypernym steps a noun with no ImageNet class below it may climb to find its nearest relatives."""
+CLIMB = 6
+"""Hypernym steps a noun with no ImageNet class below it may climb to find its relatives ("wrasse" is 6 below
+"fish": percoid, spiny-finned, teleost and bony fish lie between)."""
 ANIMALS = 5
 """WordNet's lexicographer file of animals (noun.animal)."""
 MIN_DEPTH = 6
@@ -180,27 +182,32 @@ def _depth(wn: WordNetNouns, offset: int) -> int:
 
 
 def _climb(wn: WordNetNouns, phrase: str) -> tuple[set[int], str]:
-    """The classes of the same kind (animal, artifact, ...) below the nearest hypernym that has some, for a noun
-    with none below it. Animal senses are tried first, those the word is the main name of first, then the
-    others, most frequent first; an ancestor nearer the root than ``MIN_DEPTH``
-    ("material", "natural object") is too general to stand for the word."""
+    """The classes of the same kind (animal, artifact, ...) below a hypernym that has some, for a noun with none
+    below it: the nearest hypernym within ``CLIMB`` steps that is an everyday word (``WordNetNouns.everyday``) or
+    a class itself ("moray" -> "eel"), else the nearest.
+
+    Taxa people never say stand between a word and the category it belongs to: "flatfish" is a spiny-finned
+    fish, a teleost and a bony fish before it is a fish, and the four spiny-finned reef fish ImageNet has say
+    less about a flatfish than "fish" does. Animal senses are tried first, those the word is the main name of
+    first, then the others, most frequent first; an ancestor nearer the root than ``MIN_DEPTH`` ("material",
+    "natural object") or with more than ``MAX_RELATIVES`` classes is too general to stand for the word."""
     offsets = class_offsets()
     # the camera is under water: animal senses first; then senses the word is the main name of ("seahorse" is
     # the fish's first name, and only the walrus's third)
     word = wn.base_forms(phrase)[0] if wn.base_forms(phrase) else phrase
     senses = sorted(wn.lookup(phrase), key=lambda s: (s.lexfile != ANIMALS, s.lemmas[0] != word))
     for sense in senses:
-        frontier = [sense.offset]
+        frontier, hits = [sense.offset], []
         for _ in range(CLIMB):
             frontier = [h for o in frontier for h in wn.synsets[o].hypernyms if _depth(wn, h) >= MIN_DEPTH]
-            hits = [(o, {c for c in _classes_below(wn, o) if wn.synsets[offsets[c]].lexfile == sense.lexfile})
-                    for o in frontier]
-            hits = [(o, found) for o, found in hits if 0 < len(found) <= MAX_RELATIVES]
-            if hits:
-                offset, found = min(hits, key=lambda h: len(h[1]))
-                compact = phrase.replace(" ", "")
-                named = {c for c in found if class_name(c).replace(" ", "") in compact}  # "shipwreck" -> "wreck"
-                return (named or found), f"nearest: {wn.synsets[offset].name}"
+            found = [(o, {c for c in _classes_below(wn, o) if wn.synsets[offsets[c]].lexfile == sense.lexfile})
+                     for o in frontier]
+            hits += sorted(((o, f) for o, f in found if 0 < len(f) <= MAX_RELATIVES), key=lambda h: len(h[1]))
+        if hits:
+            offset, found = next((h for h in hits if wn.everyday(h[0]) or h[0] in class_of_offset()), hits[0])
+            compact = phrase.replace(" ", "")
+            named = {c for c in found if class_name(c).replace(" ", "") in compact}  # "shipwreck" -> "wreck"
+            return (named or found), f"nearest: {wn.synsets[offset].name}"
     return set(), ""
 
 

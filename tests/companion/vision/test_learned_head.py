@@ -61,6 +61,8 @@ def test_the_shipped_fish_head_is_small_answers_fish_and_not_other_concepts():
     assert [(h.concept, h.input) for h in encoder.heads] == [("fish", "pooled"), ("fish", "scene")]
     assert encoder.describe()["heads"] == ["fish", "fish (scene)"]
     assert encoder.head_of(encoder.encode_texts(["fish"])) is not None
+    for kind in ("flatfish", "seahorse", "grouper"):  # kinds of fish the model has no class of: the head answers
+        assert encoder.head_of(encoder.encode_texts([kind])) is not None, kind
     assert encoder.head_of(encoder.encode_texts(["coral"])) is None
     assert ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), colour="grayworld").heads == []
 

@@ -31,7 +31,8 @@ def test_every_imagenet_class_is_its_wordnet_synset():
 NINE = [
     ("marine animal", {"great white shark", "jellyfish", "brain coral", "sea cucumber", "starfish", "sea urchin",
                        "american lobster", "sea lion", "eel", "anemone fish"}, {"tench", "goldfish", "tabby"}),
-    ("flatfish", {"rock beauty", "lionfish"}, {"goldfish", "coral reef"}),
+    # no flatfish class: past the taxa nobody says (spiny-finned, teleost, bony fish) to every fish the model knows
+    ("flatfish", {"rock beauty", "lionfish", "goldfish", "tench", "stingray"}, {"coral reef"}),
     ("crustacean", {"dungeness crab", "rock crab", "king crab", "american lobster", "spiny lobster", "hermit crab",
                     "crayfish", "isopod"}, {"conch"}),
     ("sea cucumber", {"sea cucumber"}, {"cucumber"}),
@@ -67,7 +68,10 @@ MARINE = [
     ("seal", {"sea lion"}, set()),
     ("medusae", {"jellyfish"}, set()),
     ("salmon", {"coho"}, set()),
-    ("barracuda", {"lionfish"}, set()),
+    ("barracuda", {"lionfish", "tench"}, set()),
+    ("halibut", {"tench", "puffer"}, {"coral reef"}),
+    ("wrasse", {"tench", "anemone fish"}, set()),
+    ("moray", {"eel"}, {"tench"}),  # the nearest class itself, before any everyday word above it
     ("diver", {"scuba diver"}, set()),
     ("coral reef", {"coral reef"}, {"brain coral"}),
     ("bottle", {"beer bottle", "water bottle", "pop bottle"}, set()),
