@@ -87,6 +87,20 @@ def test_marine_words_resolve_to_their_classes(query, must, must_not):
     assert not must_not & got, got
 
 
+def test_everyday_words_are_told_from_taxa_by_their_semcor_counts():
+    """What a noun with no class climbs to: "fish" is a word people use, the taxa below it are not."""
+    wn = wordnet_nouns()
+
+    def sense(lemma: str, gloss_word: str) -> int:
+        return next(s.offset for s in wn.lookup(lemma) if gloss_word in s.gloss)
+
+    assert wn.everyday(sense("fish", "gills"))
+    assert not wn.everyday(sense("spiny-finned fish", "spiny"))
+    assert not wn.everyday(sense("teleost fish", "Teleostei"))
+    assert resolve_query("flatfish").terms[0].how == "nearest: fish"
+    assert resolve_query("octopus").terms[0].how == "nearest: cephalopod"  # no everyday word within reach
+
+
 def test_wording_changes_the_weights_and_negation_is_kept():
     fish, listed = resolve_query("fish").weights, resolve_query("fish or shark or ray or eel").weights
     assert set(fish) == set(listed) and set(fish.values()) == {1.0}
