@@ -109,3 +109,14 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node, ids: list[str]) -> None:
+    """Stops the run when xdist could not group the tests: without the ``@group`` suffix xdist adds to each nodeid,
+    loadgroup sends every test on its own, so a module's tests run on both workers at once (its module fixtures
+    built twice; the extension's stop test stopped a companion still importing torch). pytest 9.2 made nodeids
+    read-only to xdist 3.8 that way (pyproject caps pytest below 9.2)."""
+    if node.config.getoption("dist") == "loadgroup" and ids and "@" not in ids[0]:
+        pytest.exit(f"pytest-xdist's loadgroup did not group the tests under pytest {pytest.__version__} ({ids[0]} "
+                    f"has no @group): pip install 'pytest<9.2', or run with -n 0", returncode=4)

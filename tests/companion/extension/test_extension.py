@@ -76,12 +76,13 @@ def extension(tmp_path_factory):
     cfg = write_config(root / "merlion.yaml", sampler={"k": 4}, queries={"tau_ss": 0.3},
                        surface={"budget_bytes_per_s": 40000, "status_hz": 2, "ftp_writable": True})
     placed = compile_profile({**DEFAULT_PROFILE, "origin": {**DEFAULT_PROFILE["origin"], "after_s": 0}})
-    with simulated_vehicle(profile=placed) as (router, _sim, _listener):  # an EKF origin from the start
+    with (open(root / "extension.log", "wb") as ext_log,
+          simulated_vehicle(profile=placed) as (router, _sim, _listener)):  # an EKF origin from the start
         proc = subprocess.Popen(
             [sys.executable, "-m", "companion", "extension", "--data", str(root / "data"), "--port", "0",
              "--host", "127.0.0.1", "--router", f"127.0.0.1:{router.port}", "--config", str(cfg),
-             "--source", SOURCE], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+             "--source", SOURCE], cwd=REPO, stdout=subprocess.PIPE, stderr=ext_log,
+            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         proxy = None
         try:
             line = proc.stdout.readline()
@@ -195,9 +196,20 @@ def test_switch_topic_through_the_proxy(extension):
     assert answer["topic"] == "main" and any(s.startswith(("Queries set", "Topics set")) for s in answer["status"])
 
 
+def _logs(data: Path) -> str:
+    """The tails of the companion's and the extension's logs, for a failure's message."""
+    tails = []
+    for path in (data / "companion.log", data.parent / "extension.log"):
+        text = path.read_text(errors="replace") if path.exists() else "(none)"
+        tails.append(f"{path.name}: ...{text[-1500:]}")
+    return "\n".join(tails)
+
+
 def test_stop_and_start_the_companion_through_the_proxy(extension):
     _, proxy, data = extension
     base = f"{proxy.base}/extensionv2/merlion/"
+    wait_until(lambda: "companion running" in (data / "companion.log").read_text(errors="replace"), 120,
+               "the companion's start in its log")  # stopping one still importing torch tells nothing
     stub = get(base)[1].decode()
     token = re.search(r"token=([\w-]+)", stub).group(1)
     origin = {"Origin": proxy.base, "X-Merlion-Token": token}
@@ -207,7 +219,7 @@ def test_stop_and_start_the_companion_through_the_proxy(extension):
     status, answer = post(base + "api/companion", {"run": False}, origin)
     assert status == 200 and answer == {"companion_running": False}
     assert json.loads(get(base + "api/extension")[1])["companion_running"] is False
-    assert "merlion run: seen" in (data / "companion.log").read_text()  # it stopped cleanly, store saved
+    assert "merlion run: seen" in (data / "companion.log").read_text(), _logs(data)  # stopped cleanly, store saved
     status, answer = post(base + "api/companion", {"run": True}, origin)
     assert status == 200 and answer == {"companion_running": True}
     wait_until(lambda: "resuming with" in (data / "companion.log").read_text(), 120, "the companion resumed")
