@@ -10,8 +10,12 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from xdist.workermanage import WorkerController
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("MERLION_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -112,7 +116,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 @pytest.hookimpl(optionalhook=True)
-def pytest_xdist_node_collection_finished(node, ids: list[str]) -> None:
+def pytest_xdist_node_collection_finished(node: WorkerController, ids: list[str]) -> None:
     """Stops the run when xdist could not group the tests: without the ``@group`` suffix xdist adds to each nodeid,
     loadgroup sends every test on its own, so a module's tests run on both workers at once (its module fixtures
     built twice; the extension's stop test stopped a companion still importing torch). pytest 9.2 made nodeids

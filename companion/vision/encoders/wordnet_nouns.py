@@ -87,16 +87,16 @@ class WordNetNouns:
                     s = _parse_synset(line.rstrip("\r\n"))
                     self.synsets[s.offset] = s
         self._index: dict[str, tuple[int, ...]] = {}
-        self._tagged: dict[str, int] = {}
+        self._tagged: set[int] = set()  # senses tagged in SemCor: each lemma lists its tagged senses first
         with open(root / "index.noun", encoding="utf-8", errors="replace") as fp:
             for line in fp:  # lemma pos synset_cnt p_cnt ptr_symbol* sense_cnt tagsense_cnt synset_offset*
                 if line[:1] == " " or not line.strip():
                     continue
                 f = line.split()
                 n = int(f[2])
-                lemma = f[0].replace("_", " ")
-                self._index[lemma] = tuple(int(o) for o in f[-n:])
-                self._tagged[lemma] = int(f[5 + int(f[3])])
+                senses = tuple(int(o) for o in f[-n:])
+                self._index[f[0].replace("_", " ")] = senses
+                self._tagged.update(senses[:int(f[5 + int(f[3])])])
         self._other_words: set[str] = set()  # adjectives, adverbs, verbs: known words, never looked up as things
         for part in ("adj", "adv", "verb"):
             with open(root / f"index.{part}", encoding="utf-8", errors="replace") as fp:
@@ -139,10 +139,10 @@ class WordNetNouns:
         return self.knows(word) or bool(stems & self._other_words)
 
     def everyday(self, offset: int) -> bool:
-        """Whether the synset's main name is a word people use: tagged at least once in the SemCor corpus that
-        WordNet's sense counts come from ("fish" is; the taxa between it and "flatfish", such as "spiny-finned
-        fish" and "teleost fish", are not)."""
-        return self._tagged.get(self.synsets[offset].name, 0) > 0
+        """Whether people use the word in this sense: tagged at least once in the SemCor corpus that WordNet's
+        sense counts come from ("fish" the animal is; the taxa between it and "flatfish", such as "spiny-finned
+        fish" and "teleost fish", are not; nor is "whale" the animal, only "whale" the very large person)."""
+        return offset in self._tagged
 
     def lemmas(self) -> list[str]:
         """Every noun lemma (for "did you mean" suggestions)."""

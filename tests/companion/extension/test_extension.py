@@ -23,6 +23,7 @@ from tests.companion.extension.reverse_proxy import ReverseProxy
 from tests.companion.live_harness import simulated_vehicle, wait_until, write_config
 from tests.companion.topside.browser import Page, chromium_or_skip
 from tests.conftest import REPO, run_merlion, stop_process
+from tests.waiting import wait_until as poll_until
 from vehicle.sim.dive_profile import DEFAULT_PROFILE, compile_profile
 
 WIDGET_SIZE = (384, 389)
@@ -208,8 +209,8 @@ def _logs(data: Path) -> str:
 def test_stop_and_start_the_companion_through_the_proxy(extension):
     _, proxy, data = extension
     base = f"{proxy.base}/extensionv2/merlion/"
-    wait_until(lambda: "companion running" in (data / "companion.log").read_text(errors="replace"), 120,
-               "the companion's start in its log")  # stopping one still importing torch tells nothing
+    started = poll_until(lambda: "companion running" in (data / "companion.log").read_text(errors="replace"), 120)
+    assert started, f"the companion's start never reached its log\n{_logs(data)}"  # stopping it mid-import tells nothing
     stub = get(base)[1].decode()
     token = re.search(r"token=([\w-]+)", stub).group(1)
     origin = {"Origin": proxy.base, "X-Merlion-Token": token}

@@ -97,6 +97,9 @@ def test_everyday_words_are_told_from_taxa_by_their_semcor_counts():
     assert wn.everyday(sense("fish", "gills"))
     assert not wn.everyday(sense("spiny-finned fish", "inflexible"))
     assert not wn.everyday(sense("teleost fish", "Teleostei"))
+    assert not wn.everyday(sense("whale", "cetacean"))  # per sense: only "a very large person" is tagged
+    assert wn.everyday(sense("whale", "person"))
+    assert resolve_query("porpoise").terms[0].how == "nearest: dolphin"
     assert resolve_query("flatfish").terms[0].how == "nearest: fish"
     assert resolve_query("octopus").terms[0].how == "nearest: cephalopod"  # no everyday word within reach
 
