@@ -4,7 +4,8 @@ ImageNet-1k's classes are WordNet 3.0 noun synsets, so WordNet's is-a links are 
 ("crustacean") to the classes the packaged classifier knows ("rock crab", "American lobster", ...). The files are
 read here, not through NLTK's reader: the wheel's copies have CRLF line ends, which shifts every byte offset that
 NLTK seeks to, whereas this reader keys each synset by the offset written at the start of its own line. Only
-nouns are read in full (queries name things; other words only as a list of known words) and only the is-a links (hypernyms and hyponyms, instances included).
+nouns are read in full (queries name things; other words only as a list of known words), with only the is-a
+links (hypernyms and hyponyms, instances included) and which senses SemCor tagged (``everyday``).
 Parsing the noun files takes about a second and 75 MB, once per process (``wordnet_nouns()``), and only in a
 process that resolves a query not resolved before (``query_cache``).
 """
