@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from companion.config import EncoderConfig
+from companion.evaluation.roc import auroc
 from companion.vision.encoders.clip import ClipEncoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from tests.conftest import run_merlion, shared_file
@@ -95,3 +96,27 @@ def test_summarize_on_cuda_keeps_the_frames_the_cpu_keeps(tmp_path):
         summary = json.loads((out / "summary.json").read_text())
         kept[device] = [f["index"] for f in summary["frames"]]
     assert kept["cuda"] == kept["cpu"] and len(kept["cpu"]) == 6
+
+
+def test_scene_head_on_cuda_scores_a_fish_habitat_as_the_cpu_does(tmp_path):
+    """``merlion score --dive`` streams a habitat's frames as one dive: the first by the pooled fish head, each
+    later one by the scene head against the frames before it. The GPU's features feed the same running mean."""
+    images = shared_file("deepfish/images")
+    habitat = tmp_path / "7117"
+    habitat.mkdir()
+    for path in sorted(images.glob("7117_*.jpg")):
+        (habitat / path.name).write_bytes(path.read_bytes())
+    scores = {}
+    for device in ("cpu", "cuda"):
+        config = tmp_path / f"{device}.yaml"
+        config.write_text(f"encoder:\n  name: imagenet\n  device: {device}\n")
+        done = run_merlion("score", str(habitat), "--dive", "--json", "--query", "fish", "--config", str(config))
+        assert done.returncode == 0, done.stderr
+        rows = [json.loads(line) for line in done.stdout.splitlines()]
+        scores[device] = {row["file"]: row["score"] for row in rows}
+    assert len(scores["cpu"]) == 60 and scores["cuda"].keys() == scores["cpu"].keys()
+    files = sorted(scores["cpu"])
+    cpu, gpu = (np.array([scores[d][f] for f in files]) for d in ("cpu", "cuda"))
+    assert np.abs(cpu - gpu).max() < 0.02
+    fish = np.array(["no_fish" not in f for f in files])
+    assert abs(auroc(cpu, fish) - auroc(gpu, fish)) < 0.01 and auroc(gpu, fish) > 0.7
