@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from companion.errors import MerlionError, UsageError
+
+if TYPE_CHECKING:
+    from companion.evaluation.pasted_fish import PastedFish
+    from companion.evaluation.sources import LabelledFrame
+    from companion.vision.encoders.imagenet import ImageNetEncoder
 
 GROUP = "eval"
 GROUP_HELP = "evaluate summaries: SRUM, Table I, labels, AUROC, comparison with the visual baseline"
@@ -383,11 +391,10 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
 
 def _auroc_by_source(args: argparse.Namespace) -> int:
     """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
-    import sys
-
     from companion.evaluation.dive_centring import stream_order
     from companion.evaluation.head_training import held_out_head
     from companion.evaluation.holdout import leave_one_group_out, per_group, per_source, spread
+    from companion.evaluation.pasted_fish import fish_crops
     from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.presampler import PreSampler
 
@@ -398,6 +405,9 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     batch = cfg.encoder.batch
     if args.marks is not None and args.marks < 1:
         raise UsageError(f"--marks {args.marks}: must be 1 or more")
+    scene_heads = [h for h in getattr(encoder, "heads", []) if h.input == "scene"]
+    # the held-out scene heads also learn from pasted fish: their boxes are read before the long encoding
+    crops = fish_crops(args.data) if args.holdout and scene_heads else []
     scores = np.zeros(len(frames), dtype=np.float32)
     embeddings: np.ndarray | None = None
     for stream in stream_order(frames):  # each source is one dive, scored in its own order
@@ -410,6 +420,7 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             embeddings[idx] = emb
             scores[idx] = presampler.scores(emb)
     features = encoder.sampler_features(embeddings)
+    pasted = None
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
     result["by_group"] = per_group(scores, frames)
     result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
@@ -422,13 +433,16 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             if hasattr(encoder, "view_features"):  # the scene head's input: the region views
                 from companion.evaluation.scene_holdout import held_out_scene
 
-                result["scene"] = held_out_scene(encoder.view_features(embeddings), frames)
+                pasted = _pasted(encoder, frames, crops) if crops else None
+                result["scene"] = held_out_scene(encoder.view_features(embeddings), frames, pasted=pasted)
     if args.marks:
         from companion.evaluation.dive_centring import ORDER_SEEDS
         from companion.evaluation.group_feedback import marks_by_group
 
+        if pasted is None and crops:
+            pasted = _pasted(encoder, frames, crops)
         result["marks"] = marks_by_group(encoder, presampler, embeddings, frames, args.marks,
-                                         held_out=args.holdout, seeds=ORDER_SEEDS)
+                                         held_out=args.holdout, seeds=ORDER_SEEDS, pasted=pasted)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
 
@@ -495,22 +509,33 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: list[np.ndarray]) -> PastedFish:
+    """The scene head's extra training frames (``pasted_fish``), encoded, with a line on stderr: it takes a while."""
+    from companion.evaluation.pasted_fish import pasted_fish
+
+    print("scene head: encoding empty DeepFish frames with fish pasted in", file=sys.stderr, flush=True)
+    return pasted_fish(lambda images: encoder.view_features(encoder.encode_images(images)), frames, crops)
+
+
 def _cmd_train_head(args: argparse.Namespace) -> int:
     from companion.config import EncoderConfig
     from companion.evaluation.head_training import frame_views, nested_holdout, train_head
     from companion.evaluation.holdout import per_group, spread
+    from companion.evaluation.pasted_fish import fish_crops
     from companion.evaluation.scene_holdout import train_scene_head
     from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.encoders.imagenet import ImageNetEncoder
 
     frames = load_sources(args.data)
+    crops = fish_crops(args.data) if args.scene_out else []  # before the long encoding: no boxes, no wait
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
     classes = np.flatnonzero(encoder.encode_texts(["fish"])[0, :1000] > 0)
     views = frame_views(encoder, frames)
     features = np.ascontiguousarray(views[:, 0])
     head, figures = train_head(frames, features, concept="fish", classes=classes)
     if args.scene_out:
-        scene_head, scene_figures = train_scene_head(frames, views, concept="fish", classes=classes)
+        pasted = _pasted(encoder, frames, crops)
+        scene_head, scene_figures = train_scene_head(frames, views, concept="fish", classes=classes, pasted=pasted)
         figures["scene"] = {**scene_figures, "deepfish_habitats": spread(scene_figures["groups"], DEEPFISH),
                             "file": str(scene_head.save(args.scene_out))}
     figures["deepfish_habitats"] = spread(figures["groups"], DEEPFISH)

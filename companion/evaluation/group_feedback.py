@@ -2,7 +2,7 @@
 negative frames become the operator's marks and the rest are scored with and without them.
 
 With ``held_out`` the learned heads that answer the query (the pooled one, and the scene one on each order's scene
-residuals) are retrained without the group first, so neither the query score nor the marks' effect comes from a
+residuals, with the pasted frames of the other groups when given) are retrained without the group first, so neither the query score nor the marks' effect comes from a
 head that saw the group. Each group is streamed in its dive's
 order (``dive_centring.stream_order``: videos in order, each DeepFish habitat in a seeded random order, since its
 label file lists the fish frames first), once per seed.
@@ -21,19 +21,22 @@ import numpy as np
 from companion.errors import MerlionError
 from companion.evaluation.dive_centring import ORDER_SEED, stream_order
 from companion.evaluation.feedback_eval import evaluate
-from companion.evaluation.head_training import fit
+from companion.evaluation.head_training import Extra, extra_without, fit, with_extra
 from companion.evaluation.holdout import groups_of
-from companion.evaluation.scene_holdout import scene_features
+from companion.evaluation.pasted_fish import PastedFish
+from companion.evaluation.scene_holdout import pasted_rows, scene_features
 from companion.evaluation.sources import LabelledFrame
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.encoders.learned_head import LinearHead
 from companion.vision.presampler import PreSampler
 
 
-def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: np.ndarray) -> LinearHead:
+def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: np.ndarray,
+                  extra: Extra | None = None) -> LinearHead:
+    """``head`` refitted at its own strength on the ``keep`` rows (and ``extra``, already without the group)."""
     keep = keep & np.isfinite(features).all(axis=1)  # a scene head: not the dives' first frames
     lam = float(head.trained_on.get("lambda", 1e4))
-    refit = fit(features[keep], y[keep], lam)
+    refit = fit(*with_extra(features[keep], y[keep], extra), lam, calibrate=int(keep.sum()))
     return LinearHead(head.concept, head.classes, head.backbone, head.colour, refit.w, refit.b,
                       {"lambda": lam, "held_out": True}, head.input)
 
@@ -70,7 +73,8 @@ def _summary(rows: dict) -> dict:
 
 def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, embeddings: np.ndarray,
                    frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True,
-                   seeds: Sequence[int] = (ORDER_SEED,), weights: Sequence[float] = WEIGHTS) -> dict:
+                   seeds: Sequence[int] = (ORDER_SEED,), weights: Sequence[float] = WEIGHTS,
+                   pasted: PastedFish | None = None) -> dict:
     """{"groups": {group: {auroc_query, auroc_marked, gain, trust, centred_trust, weight}}, "mean_gain",
     "worst_gain", ...} for the first seed's order, the same per seed under "orders", and "weight": the rule
     applied on every group; each group's weight is chosen without it. Groups without n + n frames and something
@@ -82,8 +86,9 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     shipped = list(getattr(encoder, "heads", []))
     scene_head = next((h for h in shipped if h.input == "scene" and head is not None and h.concept == head.concept),
                       None)
-    scene = ({seed: scene_features(encoder.view_features(embeddings), frames, seed) for seed in seeds}
-             if scene_head is not None else {})
+    views = encoder.view_features(embeddings) if scene_head is not None else None
+    scene = {seed: scene_features(views, frames, seed) for seed in seeds} if views is not None else {}
+    extra = {seed: pasted_rows(views, frames, pasted, seed) for seed in seeds} if views is not None else {}
     orders = {seed: np.concatenate(stream_order(frames, seed)) for seed in seeds}
     tried: dict[int, dict[float, dict]] = {seed: {w: {} for w in weights} for seed in seeds}
     skipped = []
@@ -97,7 +102,8 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
             try:
                 for seed, order in orders.items():
                     if held_out and scene_head is not None:  # the scene head too, retrained without the group
-                        encoder.heads = [encoder.heads[0], _head_without(scene_head, scene[seed], y, ~mask)]
+                        encoder.heads = [encoder.heads[0], _head_without(scene_head, scene[seed], y, ~mask,
+                                                                         extra_without(extra[seed], g))]
                     idx = order[mask[order]]  # the group's frames in its dive's order
                     for w in weights:
                         r = evaluate(encoder, presampler, embeddings[idx], y[idx], n, w)

@@ -1,7 +1,7 @@
 """Training a learned head (``companion.vision.encoders.learned_head``) on labelled underwater frames, honestly.
 
 The head is a linear classifier on the packaged encoder's 1280 pooled features: ridge regression on standardised
-features (closed form through one SVD or Gram eigendecomposition per training set, so every regularisation strength costs nothing more),
+features (closed form: one linear solve per regularisation strength on the smaller of the two Gram matrices),
 then a two-parameter logistic fit (Platt) that turns its output into a probability. The regularisation strength
 is chosen by leave-one-group-out on the training groups only, and ``nested_holdout`` reports each group with a
 head whose every choice was made without it: the figures ``merlion eval train-head`` prints.
@@ -39,7 +39,7 @@ class LinearFit:
 
 
 def _ridge_all(x: np.ndarray, y: np.ndarray, lambdas: Sequence[float]) -> tuple[np.ndarray, np.ndarray, list]:
-    """Standardisation (mean, scale) and one ridge weight vector per lambda, from one SVD."""
+    """Standardisation (mean, scale) and one ridge weight vector per lambda, by a linear solve each."""
     mean, scale = x.mean(axis=0), x.std(axis=0) + 1e-6
     z = (x - mean) / scale
     target = np.where(y, 1.0, -1.0)
@@ -52,10 +52,12 @@ def _ridge_all(x: np.ndarray, y: np.ndarray, lambdas: Sequence[float]) -> tuple[
         eye = np.eye(len(z))
         ws = [z.T @ np.linalg.solve(gram + lam * eye, target - offset) for lam in lambdas]
         return mean, scale, [(w, offset) for w in ws]
-    u, s, vt = np.linalg.svd(z, full_matrices=False)
-    uty = u.T @ (target - offset)
-    ws = [vt.T @ (s / (s * s + lam) * uty) for lam in lambdas]
-    return mean, scale, [(w, offset) for w in ws]
+    # More frames than features (the scene head with its pasted frames): the same weights from the features'
+    # Gram matrix (D x D), one linear solve per strength.
+    gram = z.T @ z
+    zty = z.T @ (target - offset)
+    eye = np.eye(z.shape[1])
+    return mean, scale, [(np.linalg.solve(gram + lam * eye, zty), offset) for lam in lambdas]
 
 
 def _platt(scores: np.ndarray, y: np.ndarray, iterations: int = 50) -> tuple[float, float]:
@@ -75,12 +77,14 @@ def _platt(scores: np.ndarray, y: np.ndarray, iterations: int = 50) -> tuple[flo
     return float(a), float(b)
 
 
-def fit(x: np.ndarray, y: np.ndarray, lam: float) -> LinearFit:
-    """Ridge on standardised features, calibrated by Platt on the training scores, folded into raw-feature w, b."""
+def fit(x: np.ndarray, y: np.ndarray, lam: float, calibrate: int | None = None) -> LinearFit:
+    """Ridge on standardised features, calibrated by Platt on the training scores, folded into raw-feature w, b.
+    ``calibrate``: Platt on the first rows only (the real frames, not the extra ones, whose share of fish would
+    shift every probability)."""
     y = np.asarray(y, dtype=bool)
     mean, scale, [(w, offset)] = _ridge_all(np.asarray(x, np.float64), y, [lam])
     raw = ((x - mean) / scale) @ w + offset
-    a, c = _platt(raw, y)
+    a, c = _platt(raw[:calibrate], y[:calibrate])
     w_raw = a * w / scale
     return LinearFit(w_raw, float(a * (offset - (mean / scale) @ w) + c), lam)
 
@@ -94,13 +98,34 @@ def group_names(groups: np.ndarray) -> list[str]:
     return list(dict.fromkeys(n for g in groups for n in str(g).split("+")))
 
 
+Extra = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""Training-only rows (features, labels, groups): fitted on, never scored, held out with every group they name."""
+
+
+def with_extra(x: np.ndarray, y: np.ndarray, extra: Extra | None, without: str | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The training rows plus the extra rows that do not belong to group ``without``."""
+    if extra is None or not len(extra[0]):
+        return x, y
+    keep = ~_held(extra[2], without) if without is not None else np.ones(len(extra[0]), bool)
+    return np.concatenate([x, extra[0][keep]]), np.concatenate([y, np.asarray(extra[1], bool)[keep]])
+
+
+def extra_without(extra: Extra | None, group: str) -> Extra | None:
+    """The extra rows that do not belong to ``group``."""
+    if extra is None:
+        return None
+    keep = ~_held(extra[2], group)
+    return extra[0][keep], extra[1][keep], extra[2][keep]
+
+
 def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
-                    lambdas: Sequence[float] = LAMBDAS) -> dict[float, np.ndarray]:
+                    lambdas: Sequence[float] = LAMBDAS, extra: Extra | None = None) -> dict[float, np.ndarray]:
     """For every lambda, each frame's ridge score from a fit without its group (no calibration: ranks only)."""
     out = {lam: np.zeros(len(y)) for lam in lambdas}
     for g in group_names(groups):
         held = _held(groups, g)
-        mean, scale, fits = _ridge_all(x[~held], y[~held], lambdas)
+        mean, scale, fits = _ridge_all(*with_extra(x[~held], y[~held], extra, g), lambdas)
         z = (x[held] - mean) / scale
         for lam, (w, offset) in zip(lambdas, fits, strict=True):
             out[lam][held] = z @ w + offset
@@ -112,22 +137,24 @@ def group_mean_auroc(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> f
     return float(np.mean([subset_auroc(scores, y, _held(groups, g)) for g in group_names(groups)]))
 
 
-def choose_lambda(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Sequence[float] = LAMBDAS) -> float:
+def choose_lambda(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Sequence[float] = LAMBDAS,
+                  extra: Extra | None = None) -> float:
     """The ridge strength whose leave-one-group-out scores have the best mean per-group AUROC."""
-    scores = held_out_scores(x, y, groups, lambdas)
+    scores = held_out_scores(x, y, groups, lambdas, extra)
     return max(lambdas, key=lambda lam: (group_mean_auroc(scores[lam], y, groups), lam))
 
 
-def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
-                   lambdas: Sequence[float] = LAMBDAS) -> tuple[np.ndarray, dict[str, float]]:
-    """Each frame's head probability from a head trained and tuned without its group, and each group's lambda."""
+def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Sequence[float] = LAMBDAS,
+                   extra: Extra | None = None) -> tuple[np.ndarray, dict[str, float]]:
+    """Each frame's head probability from a head trained and tuned without its group, and each group's lambda.
+    ``extra`` rows are trained on wherever none of their groups is held out."""
     y = np.asarray(y, dtype=bool)
     out = np.zeros(len(y))
     chosen: dict[str, float] = {}
     for g in group_names(groups):
         held = _held(groups, g)
-        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas)
-        head = fit(x[~held], y[~held], lam)
+        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_without(extra, g))
+        head = fit(*with_extra(x[~held], y[~held], extra, g), lam, calibrate=int((~held).sum()))
         out[held] = 1.0 / (1.0 + np.exp(-(x[held] @ head.w + head.b)))
         chosen[str(g)] = lam
     return out, chosen
@@ -142,14 +169,14 @@ def frame_views(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], batch
 
 def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept: str, classes: Sequence[int],
                backbone: str = "lite0", colour: str = "none", lambdas: Sequence[float] = LAMBDAS,
-               reads: str = "pooled") -> tuple[LinearHead, dict]:
-    """The head for ``concept`` trained on every frame, its strength chosen by leave-one-group-out; and the
-    leave-one-group-out figures at that strength (per group, group mean, pooled)."""
+               reads: str = "pooled", extra: Extra | None = None) -> tuple[LinearHead, dict]:
+    """The head for ``concept`` trained on every frame (and the ``extra`` rows), its strength chosen by
+    leave-one-group-out; and the leave-one-group-out figures at that strength (per group, group mean, pooled)."""
     y = np.array([f.fish for f in frames])
     groups = np.array([f.group for f in frames])
-    scores = held_out_scores(features, y, groups, lambdas)
+    scores = held_out_scores(features, y, groups, lambdas, extra)
     lam = max(lambdas, key=lambda v: (group_mean_auroc(scores[v], y, groups), v))
-    result = fit(features, y, lam)
+    result = fit(*with_extra(features, y, extra), lam, calibrate=len(y))
     figures = {"lambda": lam, "group_mean_auroc": group_mean_auroc(scores[lam], y, groups),
                "pooled_auroc": float(auroc(scores[lam], y)),
                "groups": {g: float(subset_auroc(scores[lam], y, _held(groups, g))) for g in group_names(groups)}}
@@ -159,6 +186,8 @@ def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept
     trained_on = {"command": "merlion eval train-head --data ../shared/data --out <file>", "frames": len(frames),
                   "positives": int(y.sum()), "sources": sources, "lambda": lam,
                   "logo_group_mean_auroc": round(figures["group_mean_auroc"], 4)}
+    if extra is not None and len(extra[0]):
+        trained_on["extra_rows"] = {"rows": len(extra[0]), "positives": int(np.sum(extra[1]))}
     head = LinearHead(concept=concept, classes=tuple(int(c) for c in classes), backbone=backbone, colour=colour,
                       w=result.w, b=result.b, trained_on=trained_on, input=reads)
     return head, figures

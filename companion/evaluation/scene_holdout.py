@@ -5,7 +5,8 @@ DeepFish habitat in a seeded random order, since its label file lists the fish f
 residual needs the frames before it in its dive, so the features depend on the order: every figure is given for
 three orders. A dive's first frame has no scene and is scored by the pooled head, as the companion does. Both
 heads are trained without the reported group, their ridge strengths chosen by leave-one-group-out on the other
-groups (``head_training.nested_holdout``).
+groups (``head_training.nested_holdout``). With ``pasted`` (``pasted_fish``), the scene head also trains on
+empty frames with fish pasted in, each judged against its own dive as it stood at its empty original.
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.evaluation.dive_centring import ORDER_SEED, ORDER_SEEDS, stream_order
-from companion.evaluation.head_training import nested_holdout, train_head
+from companion.evaluation.head_training import Extra, nested_holdout, train_head
 from companion.evaluation.holdout import per_group, spread
+from companion.evaluation.pasted_fish import PastedFish
 from companion.evaluation.roc import auroc
 from companion.evaluation.sources import DEEPFISH, LabelledFrame
 from companion.vision.encoders.learned_head import LinearHead
@@ -34,8 +36,37 @@ def scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], seed: int
     return out
 
 
+def pasted_scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], pasted: PastedFish,
+                          seed: int = ORDER_SEED) -> np.ndarray:
+    """(M, D) each pasted frame's scene residual: against its dive's mean just after its empty original joined
+    it (NaN where that was the dive's first frame)."""
+    out = np.full((len(pasted.base), pasted.views.shape[2]), np.nan)
+    copies: dict[int, list[int]] = {}
+    for k, i in enumerate(pasted.base):
+        copies.setdefault(int(i), []).append(k)
+    for idx in stream_order(frames, seed):
+        memory = SceneMemory()
+        for i in idx:
+            first = not memory.seen
+            memory.residuals(views[i][None])
+            mine = copies.get(int(i), [])
+            if mine and not first:
+                out[mine] = memory.residuals(pasted.views[mine], join=False)
+    return out
+
+
+def pasted_rows(views: np.ndarray, frames: Sequence[LabelledFrame], pasted: PastedFish | None,
+                seed: int = ORDER_SEED) -> Extra | None:
+    """The pasted frames as training-only rows for the scene head (all fish), or None."""
+    if pasted is None or not len(pasted.base):
+        return None
+    x = pasted_scene_features(views, frames, pasted, seed)
+    ok = np.isfinite(x).all(axis=1)
+    return x[ok], np.ones(int(ok.sum()), bool), pasted.groups[ok]
+
+
 def held_out_scene(views: np.ndarray, frames: Sequence[LabelledFrame],
-                   seeds: Sequence[int] = ORDER_SEEDS) -> dict:
+                   seeds: Sequence[int] = ORDER_SEEDS, pasted: PastedFish | None = None) -> dict:
     """Per order: per-group AUROC of the scene head (pooled head on each dive's first frame), every choice made
     without the reported group; and the same for the pooled head alone, for comparison."""
     y = np.array([f.fish for f in frames])
@@ -55,20 +86,27 @@ def held_out_scene(views: np.ndarray, frames: Sequence[LabelledFrame],
         x = scene_features(views, frames, seed)
         ok = np.isfinite(x).all(axis=1)
         scores = pooled.copy()
-        scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS)
+        scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS,
+                                            pasted_rows(views, frames, pasted, seed))
         orders[str(seed)] = {**figures(scores), "lambda": chosen}
-    return {"method": "fish head on the scene residual (each dive's first frame: the pooled head), trained and "
-                      "tuned without each group, per frame order",
+    method = ("fish head on the scene residual (each dive's first frame: the pooled head), trained and tuned "
+              "without each group, per frame order")
+    if pasted is not None:
+        method += f"; also trained on {len(pasted.base)} empty frames with fish pasted in"
+    return {"method": method,
             "pooled_head": figures(pooled), "orders": orders}
 
 
 def train_scene_head(frames: Sequence[LabelledFrame], views: np.ndarray, *, concept: str,
-                     classes: Sequence[int], seed: int = ORDER_SEED) -> tuple[LinearHead, dict]:
-    """The shipped scene head: trained on every frame's scene residual (order ``seed``) but the dives' first."""
+                     classes: Sequence[int], seed: int = ORDER_SEED,
+                     pasted: PastedFish | None = None) -> tuple[LinearHead, dict]:
+    """The shipped scene head: trained on every frame's scene residual (order ``seed``) but the dives' first,
+    and on the pasted frames'."""
     x = scene_features(views, frames, seed)
     ok = np.isfinite(x).all(axis=1)
     kept = [f for f, k in zip(frames, ok, strict=True) if k]
-    head, figures = train_head(kept, x[ok], concept=concept, classes=classes, lambdas=SCENE_LAMBDAS, reads="scene")
+    head, figures = train_head(kept, x[ok], concept=concept, classes=classes, lambdas=SCENE_LAMBDAS, reads="scene",
+                               extra=pasted_rows(views, frames, pasted, seed))
     head.trained_on.update(command="merlion eval train-head --data ../shared/data --out <file> --scene-out <file>",
                            order_seed=seed)
     return head, figures

@@ -49,11 +49,12 @@ TRIAL_TRUST = (0.25, 0.5, 0.75, 1.0)
 """Fractions of ``mark_weight`` tried, leave-one-out on the marks, to decide how far they are trusted."""
 GAIN = 3.0
 """Slope of the example score at the mid point: d = +1 (the like prototype) maps to sigmoid(3) = 0.95."""
-CENTRED_WEIGHT = 4.0
+CENTRED_WEIGHT = 3.0
 """The dive-centred marks' score, in units of the query's spread, times their trust (module docstring): chosen
 among 1, 2, 3, 4 and 6 by ``companion.evaluation.group_feedback.choose_weight`` on the shared data's 13 groups
 (3 + 3 marks, three frame orders); the evaluation chooses it again without each reported group. It was 3 while
-the query was the pooled fish head; with the scene head answering "fish" (2026-11-27) the same rule gives 4."""
+the query was the pooled fish head, 4 with the first scene head, and 3 again since the scene head also learns
+from pasted fish (2026-11-27)."""
 
 
 def _normalised(features: np.ndarray) -> np.ndarray:

@@ -1,0 +1,160 @@
+"""Pasted-fish training frames for the scene head (companion.evaluation.pasted_fish), and the rule that keeps them
+out of every figure: training-only rows, held out with each group they name."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.errors import MerlionError
+from companion.evaluation.head_training import held_out_scores, nested_holdout
+from companion.evaluation.pasted_fish import MIN_BOX, PastedFish, fish_crops, paste, pasted_images
+from companion.evaluation.scene_holdout import pasted_scene_features
+from companion.evaluation.sources import DEEPFISH, LabelledFrame, load_sources
+from companion.vision.encoders.learned_head import load_head
+from companion.vision.scene_memory import SceneMemory
+from tests.conftest import SHARED_DATA, run_merlion, shared_file
+
+
+@pytest.fixture(scope="module")
+def crops() -> list[np.ndarray]:
+    shared_file("aquarium_fish/frames/000001.xml")
+    return fish_crops(SHARED_DATA)
+
+
+def test_crops_are_the_aquarium_frames_labelled_fish(crops):
+    assert len(crops) > 200  # 50 frames, 3-8 boxes each, the smallest left out
+    assert all(c.ndim == 3 and c.shape[1] > MIN_BOX[0] and c.shape[0] > MIN_BOX[1] for c in crops)
+
+
+def test_paste_adds_small_fish_and_leaves_the_rest_of_the_frame(crops):
+    frame = np.full((202, 360, 3), (120, 140, 60), np.uint8)  # a turbid green sea floor, DeepFish's size
+    out = paste(frame, crops, np.random.default_rng(0))
+    again = paste(frame, crops, np.random.default_rng(0))
+    changed = np.abs(out.astype(int) - frame).max(axis=2) > 3
+    assert out.shape == frame.shape and out.dtype == np.uint8 and np.array_equal(out, again)
+    assert 0 < changed.mean() < 0.1  # 1-3 fish of 8-48 px in a 360 x 202 frame
+    assert not np.array_equal(paste(frame, crops, np.random.default_rng(1)), out)
+
+
+def test_only_empty_deepfish_frames_get_pasted_copies(crops):
+    shared_file("deepfish/labels.csv")
+    frames = load_sources(SHARED_DATA)
+    base, images = pasted_images(frames, crops)
+    empty = [i for i, f in enumerate(frames) if f.source.startswith(DEEPFISH) and not f.fish]
+    assert len(empty) == 300 and sorted(set(base.tolist())) == empty and len(images) == 600
+    assert all(images[k].shape == frames[i].image.shape for k, i in enumerate(base[:20]))
+    assert np.array_equal(pasted_images(frames, crops)[1][5], images[5])  # reproducible: the shipped head depends on it
+
+
+def test_a_folder_without_boxes_is_refused_naming_it(tmp_path):
+    (tmp_path / "aquarium_fish" / "frames").mkdir(parents=True)
+    with pytest.raises(MerlionError, match="aquarium_fish/frames: no fish boxes"):
+        fish_crops(tmp_path)
+
+
+def test_pasted_copies_are_judged_against_their_dive_as_it_stood_at_the_original():
+    rng = np.random.default_rng(3)
+    views = rng.normal(size=(6, 3, 4))
+    frames = [LabelledFrame("rov_clips", f"f{i}", False, np.zeros((2, 2, 3), np.uint8)) for i in range(6)]
+    copies = views[[0, 2, 4]] + 5.0
+    pasted = PastedFish(base=np.array([0, 2, 4]), groups=np.array(["rov+aquarium"] * 3), views=copies)
+    got = pasted_scene_features(views, frames, pasted)
+    memory = SceneMemory()
+    memory.residuals(views[:3])  # frames 0, 1, 2 joined: the dive as it stood at frame 2
+    assert np.isnan(got[0]).all()  # frame 0 was the dive's first: no scene
+    np.testing.assert_allclose(got[1], memory.residuals(copies[1:2], join=False)[0])
+    assert (got[1:] > 0).all()
+
+
+def _groups_data(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(120, 10))
+    y = np.arange(120) % 2 == 0
+    x[y, 0] += 2.0
+    return x, y, np.repeat([f"g{k}" for k in range(4)], 30)
+
+
+def test_extra_rows_train_every_fold_but_the_groups_they_name():
+    x, y, g = _groups_data()
+    rng = np.random.default_rng(1)
+    ex = rng.normal(size=(40, 10))
+    eg = np.array(["g0+aquarium"] * 20 + ["g1+aquarium"] * 20)
+    plain = held_out_scores(x, y, g, [10.0])[10.0]
+    a = held_out_scores(x, y, g, [10.0], extra=(ex, np.ones(40, bool), eg))[10.0]
+    moved = ex.copy()
+    moved[:20] += 50.0  # g0's extra rows changed: g0's own scores must not move, the others' must
+    b = held_out_scores(x, y, g, [10.0], extra=(moved, np.ones(40, bool), eg))[10.0]
+    assert np.allclose(a[g == "g0"], b[g == "g0"]) and not np.allclose(a[g == "g1"], b[g == "g1"])
+    assert not np.allclose(a[g == "g2"], plain[g == "g2"])  # they are trained on where no named group is held out
+    # the crops' own group held out: no extra row at all (every one names it)
+    g2 = np.where(g == "g3", "aquarium", g)
+    c = held_out_scores(x, y, g2, [10.0], extra=(ex, np.ones(40, bool), eg))[10.0]
+    assert np.allclose(c[g2 == "aquarium"], held_out_scores(x, y, g2, [10.0])[10.0][g2 == "aquarium"])
+    probs, chosen = nested_holdout(x, y, g, (1.0, 10.0), extra=(ex, np.ones(40, bool), eg))
+    assert set(chosen) == {"g0", "g1", "g2", "g3"} and len(probs) == 120
+
+
+def _small_data(root: Path, *, boxes: bool = True) -> Path:
+    """A copy of the shared data folder's layout with three DeepFish habitats and six aquarium frames (links to
+    the real files), small enough to train and evaluate both heads from the command in a test."""
+    src = SHARED_DATA
+    data = root / "data"
+    (data / "deepfish" / "images").mkdir(parents=True)
+    with (src / "deepfish" / "labels.csv").open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    keep = [r for r in rows if r["habitat_id"] in ("7117", "7393", "9907")]
+    with (data / "deepfish" / "labels.csv").open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(keep)
+    for r in keep:
+        (data / "deepfish" / r["file"]).symlink_to(src / "deepfish" / r["file"])
+    (data / "suim").symlink_to(src / "suim")
+    (data / "survey").symlink_to(src / "survey")
+    (data / "aquarium_fish" / "frames").mkdir(parents=True)
+    (data / "aquarium_fish" / "fish.mp4").symlink_to(src / "aquarium_fish" / "fish.mp4")
+    for n in range(1, 7):
+        for ext in (".jpg", ".xml") if boxes else (".jpg",):
+            name = f"{n:06d}{ext}"
+            (data / "aquarium_fish" / "frames" / name).symlink_to(src / "aquarium_fish" / "frames" / name)
+    return data
+
+
+@pytest.mark.timeout(600)
+def test_train_head_and_eval_auroc_learn_from_pasted_fish_end_to_end(tmp_path):
+    shared_file("aquarium_fish/frames/000006.xml")
+    shared_file("deepfish/labels.csv")
+    data = _small_data(tmp_path)
+    scene = tmp_path / "fish-scene.json"
+    done = run_merlion("eval", "train-head", "--data", str(data), "--out", str(tmp_path / "fish.json"),
+                       "--scene-out", str(scene), "--json", timeout=500)
+    assert done.returncode == 0, done.stderr
+    assert "fish pasted in" in done.stderr  # the slow step says what it is doing
+    figures = json.loads(done.stdout)
+    head = load_head(scene)
+    # 90 empty frames x 2 copies, less the copies of a dive's first frame (no scene to judge them against)
+    assert head.input == "scene" and 174 <= head.trained_on["extra_rows"]["rows"] <= 180
+    assert head.trained_on["extra_rows"]["positives"] == head.trained_on["extra_rows"]["rows"]
+    assert set(figures["scene"]["groups"]) >= {"deepfish:7117", "deepfish:7393", "deepfish:9907", "suim"}
+    done = run_merlion("eval", "auroc", "--data", str(data), "--holdout", "--json", timeout=500)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)["scene"]
+    assert "180 empty frames with fish pasted in" in result["method"]
+    assert set(result["orders"]) == {"0", "1", "2"}
+    assert all(o["deepfish_habitats"]["groups"] == 3 for o in result["orders"].values())
+
+
+def test_train_head_without_the_fish_boxes_is_one_line_naming_the_folder(tmp_path):
+    shared_file("aquarium_fish/frames/000006.jpg")
+    shared_file("deepfish/labels.csv")
+    data = _small_data(tmp_path, boxes=False)
+    done = run_merlion("eval", "train-head", "--data", str(data), "--scene-out", str(tmp_path / "s.json"),
+                       timeout=500)
+    assert done.returncode != 0 and not (tmp_path / "s.json").exists()
+    last = done.stderr.strip().splitlines()[-1]
+    assert "aquarium_fish/frames: no fish boxes to paste" in last and "Traceback" not in done.stderr
