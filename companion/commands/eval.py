@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from companion.evaluation.pasted_fish import PastedFish
     from companion.evaluation.sources import LabelledFrame
     from companion.vision.encoders.imagenet import ImageNetEncoder
+    from companion.vision.presampler import PreSampler
 
 GROUP = "eval"
 GROUP_HELP = "evaluate summaries: SRUM, Table I, labels, AUROC, comparison with the visual baseline"
@@ -405,9 +406,8 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     batch = cfg.encoder.batch
     if args.marks is not None and args.marks < 1:
         raise UsageError(f"--marks {args.marks}: must be 1 or more")
-    scene_heads = [h for h in getattr(encoder, "heads", []) if h.input == "scene"]
-    # the held-out scene heads also learn from pasted fish: their boxes are read before the long encoding
-    crops = fish_crops(args.data) if args.holdout and scene_heads else []
+    # the held-out scene head that answers the query also learns from pasted fish: their boxes are read first
+    crops = fish_crops(args.data) if args.holdout and _scene_head_answers(encoder, presampler) else []
     scores = np.zeros(len(frames), dtype=np.float32)
     embeddings: np.ndarray | None = None
     for stream in stream_order(frames):  # each source is one dive, scored in its own order
@@ -507,6 +507,14 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
     return 0
+
+
+def _scene_head_answers(encoder: object, presampler: PreSampler) -> bool:
+    """Whether the query is answered by a learned head that has a scene head of the same concept."""
+    head_of = getattr(encoder, "head_of", None)
+    head = head_of(presampler.text_embeddings) if head_of else None
+    return head is not None and any(h.input == "scene" and h.concept == head.concept
+                                    for h in getattr(encoder, "heads", []))
 
 
 def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: list[np.ndarray]) -> PastedFish:

@@ -53,10 +53,17 @@ def fish_crops(root: str | Path) -> list[np.ndarray]:
         image = cv2.imread(str(label.with_suffix(".jpg")))
         if image is None:
             raise MerlionError(f"{label.with_suffix('.jpg')}: missing or unreadable (its boxes are in {label.name})")
-        for box in ET.parse(label).getroot().iter("bndbox"):
-            x0, y0, x1, y1 = (int(float(box.findtext(k, "0"))) for k in ("xmin", "ymin", "xmax", "ymax"))
-            if x1 - x0 > MIN_BOX[0] and y1 - y0 > MIN_BOX[1]:
-                crops.append(image[max(y0, 0):y1, max(x0, 0):x1].copy())
+        try:
+            boxes = [[float(box.findtext(k, "nan")) for k in ("xmin", "ymin", "xmax", "ymax")]
+                     for box in ET.parse(label).getroot().iter("bndbox")]
+        except (ET.ParseError, ValueError) as exc:
+            raise MerlionError(f"{label}: not a Pascal-VOC box file ({exc})") from None
+        for x0, y0, x1, y1 in boxes:
+            if not np.isfinite([x0, y0, x1, y1]).all():
+                raise MerlionError(f"{label}: a box lacks one of xmin, ymin, xmax, ymax")
+            crop = image[max(int(y0), 0):max(int(y1), 0), max(int(x0), 0):max(int(x1), 0)]
+            if crop.shape[1] > MIN_BOX[0] and crop.shape[0] > MIN_BOX[1]:  # what was cut, not what was claimed
+                crops.append(crop.copy())
     if not crops:
         raise MerlionError(f"{folder}: no fish boxes to paste (Pascal-VOC .xml beside each .jpg)")
     return crops

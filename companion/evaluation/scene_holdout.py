@@ -6,11 +6,12 @@ residual needs the frames before it in its dive, so the features depend on the o
 three orders. A dive's first frame has no scene and is scored by the pooled head, as the companion does. Both
 heads are trained without the reported group, their ridge strengths chosen by leave-one-group-out on the other
 groups (``head_training.nested_holdout``). With ``pasted`` (``pasted_fish``), the scene head also trains on
-empty frames with fish pasted in, each judged against its own dive as it stood at its empty original.
+empty frames with fish pasted in, each judged as if it had come in place of its empty original.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -38,8 +39,9 @@ def scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], seed: int
 
 def pasted_scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], pasted: PastedFish,
                           seed: int = ORDER_SEED) -> np.ndarray:
-    """(M, D) each pasted frame's scene residual: against its dive's mean just after its empty original joined
-    it (NaN where that was the dive's first frame)."""
+    """(M, D) each pasted frame's scene residual, as if it had come in place of its empty original: against a
+    copy of the dive's memory as it stood before the original, the pasted frame joining it the way a real frame
+    joins (NaN where the original was the dive's first frame)."""
     out = np.full((len(pasted.base), pasted.views.shape[2]), np.nan)
     copies: dict[int, list[int]] = {}
     for k, i in enumerate(pasted.base):
@@ -47,11 +49,10 @@ def pasted_scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], pa
     for idx in stream_order(frames, seed):
         memory = SceneMemory()
         for i in idx:
-            first = not memory.seen
+            if memory.seen:
+                for k in copies.get(int(i), []):
+                    out[k] = copy.deepcopy(memory).residuals(pasted.views[k][None])[0]
             memory.residuals(views[i][None])
-            mine = copies.get(int(i), [])
-            if mine and not first:
-                out[mine] = memory.residuals(pasted.views[mine], join=False)
     return out
 
 
@@ -92,7 +93,8 @@ def held_out_scene(views: np.ndarray, frames: Sequence[LabelledFrame],
     method = ("fish head on the scene residual (each dive's first frame: the pooled head), trained and tuned "
               "without each group, per frame order")
     if pasted is not None:
-        method += f"; also trained on {len(pasted.base)} empty frames with fish pasted in"
+        method += (f"; also trained on {len(pasted.base)} pasted-fish copies of {len(set(pasted.base.tolist()))} "
+                   "empty frames (less the copies of a dive's first frame)")
     return {"method": method,
             "pooled_head": figures(pooled), "orders": orders}
 

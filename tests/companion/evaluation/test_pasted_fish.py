@@ -7,11 +7,13 @@ import csv
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from companion.errors import MerlionError
-from companion.evaluation.head_training import held_out_scores, nested_holdout
+from companion.evaluation.dive_centring import stream_order
+from companion.evaluation.head_training import _ridge_all, fit, held_out_scores, nested_holdout
 from companion.evaluation.pasted_fish import MIN_BOX, PastedFish, fish_crops, paste, pasted_images
 from companion.evaluation.scene_holdout import pasted_scene_features
 from companion.evaluation.sources import DEEPFISH, LabelledFrame, load_sources
@@ -57,18 +59,48 @@ def test_a_folder_without_boxes_is_refused_naming_it(tmp_path):
         fish_crops(tmp_path)
 
 
-def test_pasted_copies_are_judged_against_their_dive_as_it_stood_at_the_original():
+def _voc(folder: Path, name: str, boxes: str) -> None:
+    cv2.imwrite(str(folder / f"{name}.jpg"), np.full((100, 200, 3), 90, np.uint8))
+    (folder / f"{name}.xml").write_text(f"<annotation><object><name>Fish</name>{boxes}</object></annotation>")
+
+
+def test_boxes_outside_the_frame_are_cut_as_far_as_the_frame_goes_and_bad_files_are_named(tmp_path):
+    folder = tmp_path / "aquarium_fish" / "frames"
+    folder.mkdir(parents=True)
+    box = "<bndbox><xmin>{}</xmin><ymin>{}</ymin><xmax>{}</xmax><ymax>{}</ymax></bndbox>"
+    _voc(folder, "a", box.format(150, 10, 260, 60) + box.format(250, 10, 400, 60) + box.format(-50, -50, 20, 20))
+    [crop] = fish_crops(tmp_path)  # the first cut to the frame's edge (50 x 50); the others leave nothing to cut
+    assert crop.shape == (50, 50, 3)
+    (folder / "b.jpg").write_bytes((folder / "a.jpg").read_bytes())
+    (folder / "b.xml").write_text("<annotation><object>")
+    with pytest.raises(MerlionError, match=r"b\.xml: not a Pascal-VOC box file"):
+        fish_crops(tmp_path)
+    (folder / "b.xml").write_text("<annotation><object><bndbox><xmin>3</xmin></bndbox></object></annotation>")
+    with pytest.raises(MerlionError, match=r"b\.xml: a box lacks one of xmin"):
+        fish_crops(tmp_path)
+
+
+def test_pasted_copies_are_judged_as_if_they_came_in_place_of_their_original():
     rng = np.random.default_rng(3)
-    views = rng.normal(size=(6, 3, 4))
-    frames = [LabelledFrame("rov_clips", f"f{i}", False, np.zeros((2, 2, 3), np.uint8)) for i in range(6)]
-    copies = views[[0, 2, 4]] + 5.0
-    pasted = PastedFish(base=np.array([0, 2, 4]), groups=np.array(["rov+aquarium"] * 3), views=copies)
-    got = pasted_scene_features(views, frames, pasted)
-    memory = SceneMemory()
-    memory.residuals(views[:3])  # frames 0, 1, 2 joined: the dive as it stood at frame 2
-    assert np.isnan(got[0]).all()  # frame 0 was the dive's first: no scene
-    np.testing.assert_allclose(got[1], memory.residuals(copies[1:2], join=False)[0])
-    assert (got[1:] > 0).all()
+    views = rng.normal(size=(8, 3, 4))
+    # one DeepFish habitat: streamed in a seeded shuffled order, not in file order
+    frames = [LabelledFrame(f"{DEEPFISH}1", f"f{i}", False, np.zeros((2, 2, 3), np.uint8)) for i in range(8)]
+    base = np.arange(8)
+    copies = views + rng.normal(0, 2, size=views.shape)
+    pasted = PastedFish(base=base, groups=np.array([f"{DEEPFISH}1+aquarium"] * 8), views=copies)
+    got = pasted_scene_features(views, frames, pasted, seed=1)
+    [order] = stream_order(frames, 1)
+    assert order.tolist() != list(range(8))
+    assert np.isnan(got[order[0]]).all() and np.isfinite(np.delete(got, order[0], axis=0)).all()
+    for t in range(1, 8):
+        memory = SceneMemory()
+        memory.residuals(views[order[:t]])  # the dive as it stood before frame order[t]
+        want = memory.residuals(copies[order[t]][None])[0]  # the copy joins as a real frame would
+        np.testing.assert_allclose(got[order[t]], want, rtol=1e-12, atol=1e-12)
+    # what comes after a frame never reaches its copy
+    later = views.copy()
+    later[order[5:]] += 100.0
+    np.testing.assert_allclose(pasted_scene_features(later, frames, pasted, seed=1)[order[:6]], got[order[:6]])
 
 
 def _groups_data(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -95,19 +127,48 @@ def test_extra_rows_train_every_fold_but_the_groups_they_name():
     g2 = np.where(g == "g3", "aquarium", g)
     c = held_out_scores(x, y, g2, [10.0], extra=(ex, np.ones(40, bool), eg))[10.0]
     assert np.allclose(c[g2 == "aquarium"], held_out_scores(x, y, g2, [10.0])[10.0][g2 == "aquarium"])
-    probs, chosen = nested_holdout(x, y, g, (1.0, 10.0), extra=(ex, np.ones(40, bool), eg))
+    probs, chosen = nested_holdout(x, y, g, (1.0, 100.0), extra=(ex, np.ones(40, bool), eg))
+    again, chosen_again = nested_holdout(x, y, g, (1.0, 100.0), extra=(moved, np.ones(40, bool), eg))
     assert set(chosen) == {"g0", "g1", "g2", "g3"} and len(probs) == 120
+    # nested too: g0's pasted rows reach neither g0's head nor the strength chosen for it
+    assert np.allclose(probs[g == "g0"], again[g == "g0"]) and chosen["g0"] == chosen_again["g0"]
+    assert not np.allclose(probs[g == "g1"], again[g == "g1"])
+
+
+def test_platt_calibrates_on_the_real_rows_only():
+    x, y, _ = _groups_data()
+    extra = x[y] + 0.1  # many more fish: calibrated on them, every probability would rise
+    both = np.concatenate([x, extra]), np.concatenate([y, np.ones(len(extra), bool)])
+    real_only = fit(*both, 10.0, calibrate=len(y))
+    with_extra_too = fit(*both, 10.0)
+    p_real = 1 / (1 + np.exp(-(x @ real_only.w + real_only.b)))
+    p_all = 1 / (1 + np.exp(-(x @ with_extra_too.w + with_extra_too.b)))
+    assert abs(p_real.mean() - y.mean()) < 0.05 < p_all.mean() - y.mean()
+    assert np.allclose(real_only.w / np.linalg.norm(real_only.w), with_extra_too.w / np.linalg.norm(with_extra_too.w))
+
+
+@pytest.mark.parametrize("rows", [60, 300])  # fewer frames than features, and more
+def test_ridge_solves_equal_the_svd_solution(rows):
+    rng = np.random.default_rng(rows)
+    x, y = rng.normal(size=(rows, 120)), rng.random(rows) < 0.5
+    mean, scale, fits = _ridge_all(x, y, [1.0, 100.0])
+    z = (x - mean) / scale
+    t = np.where(y, 1.0, -1.0)
+    u, sv, vt = np.linalg.svd(z, full_matrices=False)
+    for lam, (w, offset) in zip([1.0, 100.0], fits, strict=True):
+        np.testing.assert_allclose(w, vt.T @ (sv / (sv * sv + lam) * (u.T @ (t - t.mean()))), rtol=1e-8, atol=1e-10)
+        assert offset == pytest.approx(t.mean())
 
 
 def _small_data(root: Path, *, boxes: bool = True) -> Path:
-    """A copy of the shared data folder's layout with three DeepFish habitats and six aquarium frames (links to
+    """A copy of the shared data folder's layout with two DeepFish habitats and six aquarium frames (links to
     the real files), small enough to train and evaluate both heads from the command in a test."""
     src = SHARED_DATA
     data = root / "data"
     (data / "deepfish" / "images").mkdir(parents=True)
     with (src / "deepfish" / "labels.csv").open(newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
-    keep = [r for r in rows if r["habitat_id"] in ("7117", "7393", "9907")]
+    keep = [r for r in rows if r["habitat_id"] in ("7393", "9907")]
     with (data / "deepfish" / "labels.csv").open("w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -137,16 +198,16 @@ def test_train_head_and_eval_auroc_learn_from_pasted_fish_end_to_end(tmp_path):
     assert "fish pasted in" in done.stderr  # the slow step says what it is doing
     figures = json.loads(done.stdout)
     head = load_head(scene)
-    # 90 empty frames x 2 copies, less the copies of a dive's first frame (no scene to judge them against)
-    assert head.input == "scene" and 174 <= head.trained_on["extra_rows"]["rows"] <= 180
+    # 60 empty frames x 2 copies, less the copies of a dive's first frame (no scene to judge them against)
+    assert head.input == "scene" and 116 <= head.trained_on["extra_rows"]["rows"] <= 120
     assert head.trained_on["extra_rows"]["positives"] == head.trained_on["extra_rows"]["rows"]
-    assert set(figures["scene"]["groups"]) >= {"deepfish:7117", "deepfish:7393", "deepfish:9907", "suim"}
+    assert set(figures["scene"]["groups"]) >= {"deepfish:7393", "deepfish:9907", "suim"}
     done = run_merlion("eval", "auroc", "--data", str(data), "--holdout", "--json", timeout=500)
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)["scene"]
-    assert "180 empty frames with fish pasted in" in result["method"]
+    assert "120 pasted-fish copies of 60 empty frames" in result["method"]
     assert set(result["orders"]) == {"0", "1", "2"}
-    assert all(o["deepfish_habitats"]["groups"] == 3 for o in result["orders"].values())
+    assert all(o["deepfish_habitats"]["groups"] == 2 for o in result["orders"].values())
 
 
 def test_train_head_without_the_fish_boxes_is_one_line_naming_the_folder(tmp_path):
