@@ -17,7 +17,6 @@ if TYPE_CHECKING:
     from companion.evaluation.pasted_fish import PastedFish
     from companion.evaluation.sources import LabelledFrame
     from companion.vision.encoders.imagenet import ImageNetEncoder
-    from companion.vision.presampler import PreSampler
 
 GROUP = "eval"
 GROUP_HELP = "evaluate summaries: SRUM, Table I, labels, AUROC, comparison with the visual baseline"
@@ -407,7 +406,8 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     if args.marks is not None and args.marks < 1:
         raise UsageError(f"--marks {args.marks}: must be 1 or more")
     # the held-out scene head that answers the query also learns from pasted fish: their boxes are read first
-    crops = fish_crops(args.data) if args.holdout and _scene_head_answers(encoder, presampler) else []
+    scene_head = encoder.scene_head_of(presampler.text_embeddings) if hasattr(encoder, "scene_head_of") else None
+    crops = fish_crops(args.data) if args.holdout and scene_head is not None else []
     scores = np.zeros(len(frames), dtype=np.float32)
     embeddings: np.ndarray | None = None
     for stream in stream_order(frames):  # each source is one dive, scored in its own order
@@ -420,7 +420,7 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             embeddings[idx] = emb
             scores[idx] = presampler.scores(emb)
     features = encoder.sampler_features(embeddings)
-    pasted = None
+    pasted = _pasted(encoder, frames, crops) if crops else None
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
     result["by_group"] = per_group(scores, frames)
     result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
@@ -433,14 +433,11 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             if hasattr(encoder, "view_features"):  # the scene head's input: the region views
                 from companion.evaluation.scene_holdout import held_out_scene
 
-                pasted = _pasted(encoder, frames, crops) if crops else None
                 result["scene"] = held_out_scene(encoder.view_features(embeddings), frames, pasted=pasted)
     if args.marks:
         from companion.evaluation.dive_centring import ORDER_SEEDS
         from companion.evaluation.group_feedback import marks_by_group
 
-        if pasted is None and crops:
-            pasted = _pasted(encoder, frames, crops)
         result["marks"] = marks_by_group(encoder, presampler, embeddings, frames, args.marks,
                                          held_out=args.holdout, seeds=ORDER_SEEDS, pasted=pasted)
     if args.sweep:
@@ -509,20 +506,12 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scene_head_answers(encoder: object, presampler: PreSampler) -> bool:
-    """Whether the query is answered by a learned head that has a scene head of the same concept."""
-    head_of = getattr(encoder, "head_of", None)
-    head = head_of(presampler.text_embeddings) if head_of else None
-    return head is not None and any(h.input == "scene" and h.concept == head.concept
-                                    for h in getattr(encoder, "heads", []))
-
-
 def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: list[np.ndarray]) -> PastedFish:
     """The scene head's extra training frames (``pasted_fish``), encoded, with a line on stderr: it takes a while."""
     from companion.evaluation.pasted_fish import pasted_fish
 
     print("scene head: encoding empty DeepFish frames with fish pasted in", file=sys.stderr, flush=True)
-    return pasted_fish(lambda images: encoder.view_features(encoder.encode_images(images)), frames, crops)
+    return pasted_fish(encoder, frames, crops)
 
 
 def _cmd_train_head(args: argparse.Namespace) -> int:

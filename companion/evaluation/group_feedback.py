@@ -84,8 +84,7 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     head = encoder.head_of(presampler.text_embeddings) if hasattr(encoder, "head_of") else None
     features = encoder.sampler_features(embeddings).astype(np.float64)
     shipped = list(getattr(encoder, "heads", []))
-    scene_head = next((h for h in shipped if h.input == "scene" and head is not None and h.concept == head.concept),
-                      None)
+    scene_head = encoder.scene_head_of(presampler.text_embeddings) if hasattr(encoder, "scene_head_of") else None
     views = encoder.view_features(embeddings) if scene_head is not None else None
     scene = {seed: scene_features(views, frames, seed) for seed in seeds} if views is not None else {}
     extra = {seed: pasted_rows(views, frames, pasted, seed) for seed in seeds} if views is not None else {}

@@ -91,7 +91,7 @@ def fit(x: np.ndarray, y: np.ndarray, lam: float, calibrate: int | None = None) 
 
 def _held(groups: np.ndarray, group: str) -> np.ndarray:
     """Frames of ``group``, including frames of a source shared with it (group names joined by "+")."""
-    return np.array([group in g.split("+") for g in groups])
+    return np.array([group in g.split("+") for g in groups], dtype=bool)
 
 
 def group_names(groups: np.ndarray) -> list[str]:
@@ -102,13 +102,11 @@ Extra = tuple[np.ndarray, np.ndarray, np.ndarray]
 """Training-only rows (features, labels, groups): fitted on, never scored, held out with every group they name."""
 
 
-def with_extra(x: np.ndarray, y: np.ndarray, extra: Extra | None, without: str | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """The training rows plus the extra rows that do not belong to group ``without``."""
+def with_extra(x: np.ndarray, y: np.ndarray, extra: Extra | None) -> tuple[np.ndarray, np.ndarray]:
+    """The training rows, then the extra rows (real rows first: ``fit(..., calibrate=len(y))`` relies on it)."""
     if extra is None or not len(extra[0]):
         return x, y
-    keep = ~_held(extra[2], without) if without is not None else np.ones(len(extra[0]), bool)
-    return np.concatenate([x, extra[0][keep]]), np.concatenate([y, np.asarray(extra[1], bool)[keep]])
+    return np.concatenate([x, extra[0]]), np.concatenate([y, np.asarray(extra[1], bool)])
 
 
 def extra_without(extra: Extra | None, group: str) -> Extra | None:
@@ -125,7 +123,7 @@ def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
     out = {lam: np.zeros(len(y)) for lam in lambdas}
     for g in group_names(groups):
         held = _held(groups, g)
-        mean, scale, fits = _ridge_all(*with_extra(x[~held], y[~held], extra, g), lambdas)
+        mean, scale, fits = _ridge_all(*with_extra(x[~held], y[~held], extra_without(extra, g)), lambdas)
         z = (x[held] - mean) / scale
         for lam, (w, offset) in zip(lambdas, fits, strict=True):
             out[lam][held] = z @ w + offset
@@ -153,8 +151,9 @@ def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Se
     chosen: dict[str, float] = {}
     for g in group_names(groups):
         held = _held(groups, g)
-        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_without(extra, g))
-        head = fit(*with_extra(x[~held], y[~held], extra, g), lam, calibrate=int((~held).sum()))
+        extra_g = extra_without(extra, g)
+        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_g)
+        head = fit(*with_extra(x[~held], y[~held], extra_g), lam, calibrate=int((~held).sum()))
         out[held] = 1.0 / (1.0 + np.exp(-(x[held] @ head.w + head.b)))
         chosen[str(g)] = lam
     return out, chosen
@@ -162,8 +161,13 @@ def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Se
 
 def frame_views(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], batch: int = 8) -> np.ndarray:
     """(N, V, 1280) view features of the frames (the whole frame's pooled features first, then the regions)."""
-    parts = [encoder.view_features(encoder.encode_images([f.image for f in frames[i:i + batch]]))
-             for i in range(0, len(frames), batch)]
+    return image_views(encoder, [f.image for f in frames], batch)
+
+
+def image_views(encoder: ImageNetEncoder, images: Sequence[np.ndarray], batch: int = 8) -> np.ndarray:
+    """(N, V, 1280) view features of BGR images, encoded ``batch`` at a time."""
+    parts = [encoder.view_features(encoder.encode_images(list(images[i:i + batch])))
+             for i in range(0, len(images), batch)]
     return np.concatenate(parts).astype(np.float64) if parts else np.zeros((0, encoder.views, 1280))
 
 

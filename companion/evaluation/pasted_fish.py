@@ -12,7 +12,7 @@ only, never scored or reported, and each carries the groups of both its frame an
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +20,9 @@ import cv2
 import numpy as np
 
 from companion.errors import MerlionError
+from companion.evaluation.head_training import image_views
 from companion.evaluation.sources import DEEPFISH, GROUPS, LabelledFrame
+from companion.vision.encoders.imagenet import ImageNetEncoder
 
 CROPS_FOLDER = "aquarium_fish/frames"
 CROPS_GROUP = GROUPS["aquarium_frames"]
@@ -107,13 +109,11 @@ def pasted_images(frames: Sequence[LabelledFrame], crops: Sequence[np.ndarray], 
     return np.array(base, dtype=int), images
 
 
-def pasted_fish(view_features: Callable[[list[np.ndarray]], np.ndarray], frames: Sequence[LabelledFrame],
-                crops: Sequence[np.ndarray], *, batch: int = 8) -> PastedFish:
-    """The pasted frames of ``frames`` and their view features (``view_features``: images -> (N, V, D), e.g.
-    the packaged encoder's ``view_features(encode_images(...))``); ``crops`` from ``fish_crops``, read before
-    any long work so that a data folder without boxes fails at once."""
+def pasted_fish(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: Sequence[np.ndarray]
+                ) -> PastedFish:
+    """The pasted frames of ``frames`` and their view features from the packaged ``encoder``; ``crops`` from
+    ``fish_crops``, read before any long work so that a data folder without boxes fails at once."""
     base, images = pasted_images(frames, crops)
-    parts = [view_features(images[i:i + batch]) for i in range(0, len(images), batch)]
-    views = np.concatenate(parts).astype(np.float64) if parts else np.zeros((0, 1, 1))
+    views = image_views(encoder, images)
     groups = np.array([f"{frames[i].group}+{CROPS_GROUP}" for i in base])
     return PastedFish(base=base, groups=groups, views=views)

@@ -229,6 +229,13 @@ class ImageNetEncoder(Encoder):
         """The learned head that answers the positive query (None: the lexical class mapping answers)."""
         return head_for(self.heads, text_embeddings[0, :CLASSES]) if len(text_embeddings) else None
 
+    def scene_head_of(self, text_embeddings: np.ndarray) -> LinearHead | None:
+        """The head that answers the positive query on the scene residual, beside its pooled head (None: no
+        such pair; the pooled head or the lexical mapping answers)."""
+        if self.head_of(text_embeddings) is None:
+            return None
+        return head_for(self.heads, text_embeddings[0, :CLASSES], "scene")
+
     def with_head_masses(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray,
                          mass: np.ndarray) -> np.ndarray:
         """(N, M) masses with each query a learned head answers replaced by the head's probability."""

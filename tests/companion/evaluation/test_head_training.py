@@ -124,7 +124,7 @@ def pasted(encoded):
     encoder, frames, _ = encoded
     shared_file("aquarium_fish/frames/000001.xml")
     crops = fish_crops(SHARED_DATA)
-    return pasted_fish(lambda images: encoder.view_features(encoder.encode_images(images)), frames, crops)
+    return pasted_fish(encoder, frames, crops)
 
 
 @pytest.mark.slow

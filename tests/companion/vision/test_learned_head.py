@@ -64,6 +64,8 @@ def test_the_shipped_fish_head_is_small_answers_fish_and_not_other_concepts():
     for kind in ("flatfish", "seahorse", "grouper"):  # kinds of fish the model has no class of: the head answers
         assert encoder.head_of(encoder.encode_texts([kind])) is not None, kind
     assert encoder.head_of(encoder.encode_texts(["coral"])) is None
+    assert encoder.scene_head_of(encoder.encode_texts(["flatfish"])) is encoder.heads[1]  # its scene partner
+    assert encoder.scene_head_of(encoder.encode_texts(["coral"])) is None
     assert ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), colour="grayworld").heads == []
 
 
