@@ -104,6 +104,21 @@ def run_merlion(*args: str, timeout: float = 240, cwd: Path | None = None, env: 
 
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Under xdist, each worker gets its share of the cores for torch and BLAS (``OMP_NUM_THREADS``, read by
+    ``torch_runtime.configure_threads``; the BLAS variables by numpy at import). Two workers each running one
+    thread per core put four busy threads on two cores, and the encoding and ridge fits of the fish-head tests
+    then thrash. Set here, on the controller, before the workers start, so they and the commands they run inherit
+    it; a value already set by the caller is kept."""
+    workers = getattr(config.option, "numprocesses", None)
+    if os.environ.get("PYTEST_XDIST_WORKER") or not isinstance(workers, int) or workers < 2:
+        return
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    share = str(max(1, cores // workers))
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, share)
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Under xdist (pyproject's ``-n 2 --dist loadgroup``) a module runs whole on one worker, so its
