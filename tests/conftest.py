@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import pytest
 
+from companion.vision.encoders.cpu_threads import usable_cores
+
 if TYPE_CHECKING:
     from xdist.workermanage import WorkerController
 
@@ -111,10 +113,12 @@ def pytest_configure(config: pytest.Config) -> None:
     then thrash. Set here, on the controller, before the workers start, so they and the commands they run inherit
     it; a value already set by the caller is kept."""
     workers = getattr(config.option, "numprocesses", None)
+    most = getattr(config.option, "maxprocesses", None)
+    if isinstance(workers, int) and isinstance(most, int) and most > 0:
+        workers = min(workers, most)
     if os.environ.get("PYTEST_XDIST_WORKER") or not isinstance(workers, int) or workers < 2:
         return
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    share = str(max(1, cores // workers))
+    share = str(max(1, usable_cores() // workers))
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(name, share)
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from companion.vision.encoders.clip_child_runner import run_clip_child
 from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
 from companion.vision.encoders.clip_scores import positive_share
 from companion.vision.encoders.clip_texts import TextEmbeddings, resolved_request
+from companion.vision.encoders.cpu_threads import intra_op_threads
 from companion.vision.encoders.heap_trim import release_freed_memory
 from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
 
@@ -55,10 +55,6 @@ def recorded_weights(cfg: EncoderConfig) -> ResolvedWeights | None:
     if not path.is_file():
         return None
     return ResolvedWeights(path=path, source=found["source"], preprocess=found.get("preprocess") or {})
-
-
-def _threads() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 class OnnxClipEncoder(Encoder):
@@ -94,7 +90,7 @@ class OnnxClipEncoder(Encoder):
         self._dim = int(manifest["dim"]) or None
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = _threads()
+        opts.intra_op_num_threads = intra_op_threads()
         opts.inter_op_num_threads = 1
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         # idle ORT workers otherwise spin, taking the two cores from the decode thread

@@ -8,12 +8,12 @@ written down once.
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 import torch
 
 from companion.errors import UsageError
+from companion.vision.encoders.cpu_threads import intra_op_threads
 
 log = logging.getLogger(__name__)
 
@@ -82,20 +82,9 @@ def padded_to(batch: torch.Tensor, size: int) -> torch.Tensor:
     return torch.cat([batch, batch[-1:].expand(size - batch.shape[0], *batch.shape[1:])])
 
 
-def intra_op_threads() -> int:
-    """``OMP_NUM_THREADS`` where it is set to a positive number (the usual way to share a host's cores between
-    processes: the camera server, a second encoder, test workers), else one per core this process may run on."""
-    wanted = os.environ.get("OMP_NUM_THREADS", "").strip()
-    if wanted.isdigit() and int(wanted) > 0:
-        return int(wanted)
-    if wanted:
-        log.warning("OMP_NUM_THREADS=%r is not a positive whole number: one thread per core", wanted)
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def configure_threads() -> None:
-    """One intra-op thread per core (or ``OMP_NUM_THREADS``) and a single inter-op thread (on a 2-core companion
-    more only thrashes); denormals flushed to zero, which costs inference nothing in accuracy."""
+    """One intra-op thread per core (or as many as ``OMP_NUM_THREADS`` sets) and a single inter-op thread (on a
+    2-core companion more only thrashes); denormals flushed to zero, which costs inference nothing in accuracy."""
     global _threads_set
     if _threads_set:
         return

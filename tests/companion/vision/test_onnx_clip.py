@@ -22,6 +22,7 @@ from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.vision.encoders.clip import ClipEncoder, ClipPreprocess
 from companion.vision.encoders.clip_pixels import NumpyClipPreprocess
+from companion.vision.encoders.cpu_threads import usable_cores
 from companion.vision.encoders.factory import make_encoder
 from companion.vision.encoders.onnx_clip import OnnxClipEncoder
 from tests.conftest import run_merlion, shared_file
@@ -167,6 +168,14 @@ def test_settings_the_onnx_runtime_cannot_honour_are_one_line_errors(ckpt, cache
             make_encoder(_cfg(ckpt, cache_dir, providers=["CUDAExecutionProvider", "CPUExecutionProvider"]))
     with pytest.raises(MerlionError, match="only with encoder.runtime onnx"):
         make_encoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt, providers=["CPUExecutionProvider"]))
+
+
+def test_the_onnx_session_takes_as_many_threads_as_omp_num_threads_sets(onnx_enc, ckpt, cache_dir, monkeypatch):
+    """ONNX Runtime does not read OMP_NUM_THREADS once the session names its threads: the encoder passes it on."""
+    wanted = usable_cores() + 1
+    monkeypatch.setenv("OMP_NUM_THREADS", str(wanted))
+    again = make_encoder(_cfg(ckpt, cache_dir))  # from the cache: no export, no torch
+    assert again.cached and again._session.get_session_options().intra_op_num_threads == wanted
 
 
 def test_replaced_weights_export_afresh(onnx_enc, ckpt, cache_dir, tmp_path):
