@@ -40,6 +40,7 @@ from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
 from vehicle.link.fair_replies import FairReplies, Requester
 from vehicle.link.request_gate import RequestGate
+from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.ftp import Op
 from vehicle.protocol.image_push import push_messages
 from vehicle.protocol.marks import MARKS_PATH, format_marks, marks_text, parse_marks
@@ -145,6 +146,7 @@ class Downlink:
         self.requests = RequestGate(on_flood=self._flood)
         """Commands and parameter requests per requester and second (FTP is bounded by its sessions)."""
         self._floods: set[Requester] = set()
+        self._stranger_warnings = WarningBucket()
         self.router = RequestRouter(lambda: (link.system_id, link.component_id), self.requests)
         """Request type -> handler: the one place that decides whether a request is for us."""
         for kind in ("COMMAND_LONG", "COMMAND_INT"):
@@ -405,14 +407,16 @@ class Downlink:
 
     def _flood(self, who: Requester) -> None:
         """Said once per requester that asked too fast or whose replies overflowed its share (the counts are in
-        ``requests.stats()`` and ``replies.stats()``)."""
+        ``requests.stats()`` and ``replies.stats()``); unsigned requesters' warnings share one small bucket."""
         with self._lock:
             if who in self._floods:
                 return
             self._floods.add(who)
         name = f"{who[0]}/{who[1]}{'' if who[2] else ' unsigned'}"
-        log.warning("request flood from %s: replies beyond its share are dropped (further ones only counted)", name)
-        self.event(f"Request flood from {name}: replies dropped"[:50], st.WARNING)
+        if who[2] or self._stranger_warnings.take():  # made-up unsigned ids are free: their warnings share a bucket
+            log.warning("request flood from %s: replies beyond its share are dropped (further ones only counted)",
+                        name)
+            self.event(f"Request flood from {name}: replies dropped"[:50], st.WARNING)
 
     def _on_refused(self, msg: mav.MAVLink_message, reason: str) -> None:
         """An FTP write the link's signing refused still gets its NAK (on the FTP worker, off the receive loop)."""

@@ -75,4 +75,4 @@ class RequestRouter:
             return
         if route.gated and self._gate is not None and not self._gate.admit(requester(msg)):
             return
-        route.worker.submit(lambda: route.handler(msg))
+        route.worker.submit(lambda: route.handler(msg), signed=requester(msg)[2])

@@ -48,6 +48,8 @@ _MAGIC = (mavlink2.PROTOCOL_MARKER_V2, mavlink2.PROTOCOL_MARKER_V1)
 _UDP_BURST = 64
 _SERIAL_WRITE_TIMEOUT_S = 0.2
 _SEND_WAIT_S = 2.0
+BAD_LOG_S = 10.0
+"""At most one log line per this many seconds about bad input (the count is in ``rx_bad``)."""
 _UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
 
 
@@ -134,6 +136,7 @@ class MavLink:
         self.rx_bytes = 0
         self.rx_messages = 0
         self.rx_bad = 0
+        self._bad_logged_at = float("-inf")
         self.rx_unknown = 0
         self.tx_messages = 0
         self.reconnects = 0
@@ -447,7 +450,9 @@ class MavLink:
     def _count_bad(self, reason: str) -> None:
         """Count bad input and say so, without flooding the log when a link spews garbage."""
         self.rx_bad += 1
-        if self.rx_bad == 1 or self.rx_bad % 100 == 0:
+        now = time.monotonic()
+        if now - self._bad_logged_at >= BAD_LOG_S:  # by time, not by count: a flood's rate must not set the log's
+            self._bad_logged_at = now
             log.warning("%s: bad MAVLink input on %s (%s); %d bad so far", self.name, self.endpoint, reason,
                         self.rx_bad)
 

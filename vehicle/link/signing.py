@@ -30,6 +30,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from vehicle.errors import UsageError
+from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.ftp import Op
 from vehicle.settings import MavlinkConfig
 
@@ -45,8 +46,6 @@ RESERVE_AHEAD = 60 * UNITS_PER_S
 MAX_SOURCES = 256
 OTHER_SOURCES = (0, 0)
 """Refusals from sources beyond the first ``MAX_SOURCES`` are counted together under this key."""
-WARN_BURST = 5
-WARN_REFILL_S = 10.0
 _SIGNED_FLAG = mavlink2.MAVLINK_IFLAG_SIGNED
 _SIGNATURE_LEN = mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN
 
@@ -232,8 +231,7 @@ class LinkSigning:
         self.accepted_unsigned_reads = 0
         self.dropped_for_others = 0
         self.warnings_withheld = 0
-        self._warn_tokens = float(WARN_BURST)
-        self._warn_at = time.monotonic()
+        self._warnings = WarningBucket()
         self.rejected: dict[tuple[int, int], int] = {}
         """Refused state-changing messages by source (system, component)."""
         self.reasons: dict[tuple[int, int], str] = {}
@@ -363,7 +361,7 @@ class LinkSigning:
             name = "FTP write" if msg.get_type() == "FILE_TRANSFER_PROTOCOL" else msg.get_type()
             text = f"{reason} {name} from {source[0]}/{source[1]} ignored"  # fits STATUSTEXT's 50 characters
             log.warning("%s: %s (further ones from it are only counted)", self.name, text)
-            if self._may_warn():
+            if self._warnings.take():
                 send(mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text[:50].encode()))
             else:
                 self.warnings_withheld += 1
@@ -398,17 +396,6 @@ class LinkSigning:
         if count == 1:
             log.warning("%s: %s %s claiming to be the autopilot %d/%d ignored (it signs); further ones are only "
                         "counted", self.name, reason, mtype, *source)
-
-    def _may_warn(self) -> bool:
-        """A small bucket of STATUSTEXT warnings (a burst of 5, then one per 10 s), so that many spoofed sources
-        cannot turn the warnings into a flood on a slow downlink."""
-        now = time.monotonic()
-        self._warn_tokens = min(WARN_BURST, self._warn_tokens + (now - self._warn_at) / WARN_REFILL_S)
-        self._warn_at = now
-        if self._warn_tokens < 1:
-            return False
-        self._warn_tokens -= 1
-        return True
 
     def _verify(self, msg: mavlink2.MAVLink_message) -> str | None:
         """None when ``msg`` carries a valid signature with a fresh timestamp; else why not."""

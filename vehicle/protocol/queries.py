@@ -23,6 +23,7 @@ Everything from the wire is bounded: the file's size, the number of topics, the 
 from __future__ import annotations
 
 import re
+import unicodedata
 from dataclasses import dataclass
 
 MAX_BYTES = 8192
@@ -54,6 +55,9 @@ def parse_queries(data: bytes | str, default_name: str) -> list[QueryTopic]:
             data = data.decode("utf-8")
         except UnicodeDecodeError:
             raise ValueError("queries file is not UTF-8 text") from None
+    control = next((c for c in data if unicodedata.category(c) == "Cc" and c not in "\n\r\t"), None)
+    if control is not None:  # a NUL would reach the encoder and the store while the surface shows the text before it
+        raise ValueError(f"queries file holds a control character (U+{ord(control):04X})")
     lines = [ln.strip() for ln in data.replace("\r", "").split("\n")]
     lines = [ln for ln in lines if ln and not ln.startswith("#")]
     groups: list[tuple[str, list[str]]] = []
