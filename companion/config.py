@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError, field_validator
 
 from vehicle.settings import MavlinkConfig, SurfaceConfig, TelemetryConfig
 
@@ -80,6 +80,9 @@ class EncoderConfig(_Section):
     $XDG_CACHE_HOME/merlion or ~/.cache/merlion). Unwritable: queries still work, later starts encode them again."""
 
 
+QueryText = Annotated[str, StringConstraints(min_length=1, max_length=300)]
+"""One query as typed: not empty, and short enough for a STATUSTEXT-sized explanation and the surface's file."""
+
 TOPIC_NAME = r"^[a-z0-9][a-z0-9_-]{0,23}$"
 """A topic's name: it is in file names, FTP paths and 50-character STATUSTEXT lines, so short and plain."""
 
@@ -87,8 +90,8 @@ TOPIC_NAME = r"^[a-z0-9][a-z0-9_-]{0,23}$"
 class TopicConfig(_Section):
     name: str = Field(pattern=TOPIC_NAME)
     """Short name (lower-case letters, digits, - and _; at most 24), carried by every capture of the topic."""
-    positive: str = Field(min_length=1, max_length=300)
-    negatives: list[str] = Field(default_factory=list)
+    positive: QueryText
+    negatives: list[QueryText] = Field(default_factory=list)
     """With none, a generic negative ("an underwater image"), as for --query alone."""
     tau_ss: float | None = None
     """This topic's threshold; None: queries.tau_ss."""
@@ -102,8 +105,8 @@ class TopicConfig(_Section):
 class QueryConfig(_Section):
     name: str = Field("main", pattern=TOPIC_NAME)
     """The name of the one topic that positive/negatives define (captures and the gallery carry it)."""
-    positive: str = "underwater image with fish"
-    negatives: list[str] = Field(default_factory=lambda: ["underwater image without fish"])
+    positive: QueryText = "underwater image with fish"
+    negatives: list[QueryText] = Field(default_factory=lambda: ["underwater image without fish"])
     tau_ss: float = 0.5
     """Semantic pre-sampling threshold, a fraction in [0, 1); a value above 1 is read as a percentage; 0 means no
     semantic gate (every frame goes on to the sampler)."""
@@ -274,9 +277,12 @@ def _given(over: dict[str, Any], key: tuple[str, ...]) -> bool:
     """Whether ``key`` (a dotted path) was set by these overrides."""
     node: Any = over
     for part in key:
-        if not isinstance(node, dict) or part not in node:
+        if isinstance(node, list) and part.isdigit() and int(part) < len(node):  # an item of a list option
+            node = node[int(part)]
+        elif isinstance(node, dict) and part in node:
+            node = node[part]
+        else:
             return False
-        node = node[part]
     return True
 
 
@@ -364,6 +370,6 @@ def load_config(
     except ValidationError as err:
         key = _error_key(err)
         if overrides and _given(overrides, key):  # the command line's value: blame its option, not the file
-            option = (options or {}).get(".".join(key))
+            option = (options or {}).get(".".join(p for p in key if not p.isdigit()))
             raise ConfigError(f"{option or 'command line'}: {_describe(err)}") from None
         raise ConfigError(f"{origin}: {_describe(err)}") from None

@@ -39,6 +39,8 @@ def test_percentage_threshold_is_read_as_fraction(tmp_path):
         ("mavlink:\n  system_id: 255\n", "mavlink.system_id"),
         ("[1, 2]\n", "top level must be a mapping"),
         ("sampler: {k: [\n", "line"),
+        ("queries:\n  positive: ''\n", "queries.positive: String should have at least 1 character"),
+        ("queries:\n  topics: [{name: a, positive: fish, negatives: ['']}]\n", "queries.topics.0.negatives.0"),
     ],
 )
 def test_bad_values_name_file_and_key(tmp_path, text, needle):

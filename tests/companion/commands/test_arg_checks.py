@@ -47,3 +47,18 @@ def test_an_unresolvable_host_fails_at_once_naming_it(tmp_path, command):
     assert len(lines) == 1 and lines[0].startswith(f"merlion: error: --connect {command[2]}: cannot resolve host "
                                                    "'no-such-host.invalid' ("), proc.stderr
     assert "open" not in proc.stdout and not (tmp_path / "g").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--query", ""), "merlion: error: --query: queries.positive: String should have at least 1 character (got '')"),
+    (("--query", "a" * 301), "merlion: error: --query: queries.positive: String should have at most 300 characters"),
+    (("--query", "fish", "--negative", ""),
+     "merlion: error: --negative: queries.negatives.0: String should have at least 1 character (got '')"),
+])
+def test_an_empty_or_overlong_query_is_one_line_naming_the_option(tmp_path, args, message) -> None:
+    image = tmp_path / "frame.png"
+    image.write_bytes(b"")  # never read: the query is refused first
+    done = run_merlion("score", *args, str(image), timeout=60)
+    assert done.returncode != 0
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), done.stderr
