@@ -115,6 +115,11 @@ def load_dataset(path: str | Path) -> SrumDataset:
     )
 
 
+_ABSENT = ("", "0", "0.0")
+_PRESENT = ("1", "1.0")
+"""What a ``<name>_present`` cell may hold (empty: absent)."""
+
+
 def load_label_csv(path: str | Path, fps: float | None = None) -> LabelTable:
     """A per-frame label CSV in one of the two documented layouts (module docstring)."""
     p = Path(path)
@@ -145,13 +150,17 @@ def load_label_csv(path: str | Path, fps: float | None = None) -> LabelTable:
         except ValueError:
             raise MerlionError(f"{p}: line {line}: {key} {row[key]!r} is not an integer") from None
         if frame < 1:
-            raise MerlionError(f"{p}: line {line}: frame {frame} (frames are 1-based)")
+            raise MerlionError(f"{p}: line {line}: {key} {row[key]} ({'1' if offset == 0 else '0'}-based: "
+                               f"must be {1 - offset} or more)")
         if frame in table.labels:
-            raise MerlionError(f"{p}: line {line}: frame {frame} appears twice")
+            raise MerlionError(f"{p}: line {line}: {key} {row[key]} appears twice")
         if key == "frame":
             names = frozenset(n.strip() for n in _SPLIT.split(row["labels"]) if n.strip())
         else:
-            names = frozenset(c[: -len("_present")] for c in present if row.get(c, "") not in ("", "0", "0.0"))
+            for c in present:
+                if row.get(c, "") not in _ABSENT + _PRESENT:  # "no", "2", "maybe": a typo, not a fish
+                    raise MerlionError(f"{p}: line {line}: {c} {row[c]!r} is not 0 or 1")
+            names = frozenset(c[: -len("_present")] for c in present if row.get(c, "") in _PRESENT)
         table.labels[frame] = names
         if row.get("segment", "") != "":
             table.segments[frame] = row["segment"]

@@ -81,6 +81,21 @@ def test_csv_formats(tmp_path):
         load_label_csv(wide)
 
 
+@pytest.mark.parametrize(("rows", "message"), [
+    ("0,1\n1,no\n", "line 3: fish_present 'no' is not 0 or 1"),  # was read as a fish
+    ("0,1\n1,2\n", "line 3: fish_present '2' is not 0 or 1"),
+    ("0,1\n1,maybe\n", "line 3: fish_present 'maybe' is not 0 or 1"),
+    ("0,1\n-3,0\n", "line 3: frame_index -3 (0-based: must be 0 or more)"),  # was "frame -2"
+    ("5,1\n5,0\n", "line 3: frame_index 5 appears twice"),  # was "frame 6"
+])
+def test_a_present_column_holds_0_or_1_and_errors_quote_the_frame_as_written(tmp_path, rows, message):
+    f = tmp_path / "labels.csv"
+    f.write_text("frame_index,fish_present\n" + rows)
+    with pytest.raises(MerlionError) as info:
+        load_label_csv(f)
+    assert str(info.value) == f"{f}: {message}"
+
+
 def test_survey_labels_give_two_fish_segments():
     t = load_label_csv(shared_file("survey/survey_480x270_labels.csv"), fps=10)
     assert t.num_frames == 93
