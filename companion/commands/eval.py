@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from companion.atomic_write import check_target
 from companion.errors import MerlionError, UsageError
 
 if TYPE_CHECKING:
@@ -523,6 +524,9 @@ def _cmd_train_head(args: argparse.Namespace) -> int:
     from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.encoders.imagenet import ImageNetEncoder
 
+    for out in (args.out, args.scene_out):  # before the long encoding: a bad path fails at once
+        if out:
+            check_target(out)
     frames = load_sources(args.data)
     crops = fish_crops(args.data) if args.scene_out else []  # before the long encoding: no boxes, no wait
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)

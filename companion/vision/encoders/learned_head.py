@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.atomic_write import atomic_write, check_target
 from companion.errors import MerlionError
 
 HEADS_DIR = Path(__file__).with_name("heads")
@@ -67,9 +68,12 @@ class LinearHead:
                 "trained_on": self.trained_on}
 
     def save(self, path: str | Path) -> Path:
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(self.to_json(), separators=(",", ":")) + "\n", encoding="utf-8")
+        p = check_target(path)
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(p, json.dumps(self.to_json(), separators=(",", ":")) + "\n")  # a head is never half-written
+        except OSError as err:
+            raise MerlionError(f"{p}: cannot write ({err.strerror})") from None
         return p
 
 

@@ -62,3 +62,18 @@ def test_an_empty_or_overlong_query_is_one_line_naming_the_option(tmp_path, args
     assert done.returncode != 0
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), done.stderr
+
+
+@pytest.mark.parametrize("out, message", [
+    ("afile/head.json", "afile is a file, not a folder"),
+    (".", "is a folder (give the file's name)"),
+])
+@pytest.mark.parametrize("option", ["--out", "--scene-out"])
+def test_train_head_refuses_an_output_it_could_not_write_before_any_training(tmp_path, out, message, option):
+    (tmp_path / "afile").write_text("kept\n")
+    done = run_merlion("eval", "train-head", "--data", str(tmp_path / "no-data-needed"), option, str(tmp_path / out),
+                       timeout=60)
+    assert done.returncode != 0
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].endswith(message), done.stderr
+    assert (tmp_path / "afile").read_text() == "kept\n"
