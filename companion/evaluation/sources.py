@@ -66,6 +66,22 @@ def _read(path: Path) -> np.ndarray:
     return img
 
 
+def _rows(path: Path, columns: tuple[str, ...]) -> list[dict[str, str]]:
+    """A label file's rows, or a one-line MerlionError naming the file (missing, unreadable, or lacking a column)."""
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except FileNotFoundError:
+        raise MerlionError(f"{path}: missing from the shared data folder") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise MerlionError(f"{path}: cannot read as CSV ({err})") from None
+    missing = [c for c in columns if not rows or c not in rows[0]]
+    if missing:
+        raise MerlionError(f"{path}: needs a header with {', '.join(columns)} and one row per frame "
+                           f"({missing[0]!r} is missing)")
+    return rows
+
+
 def _video_frames(path: Path, step: int) -> Iterator[tuple[int, np.ndarray]]:
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
@@ -88,8 +104,7 @@ def load_deepfish(root: Path) -> list[LabelledFrame]:
     labels = root / "deepfish" / "labels.csv"
     if not labels.is_file():
         return []
-    with labels.open(newline="", encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
+    rows = _rows(labels, ("file", "habitat_id", "fish_present"))
     return [LabelledFrame(f"{DEEPFISH}{r['habitat_id']}", r["file"], r["fish_present"] == "1",
                           _read(root / "deepfish" / r["file"])) for r in rows]
 
@@ -101,7 +116,7 @@ def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False,
     if not (root / "suim" / "labels.csv").is_file():
         raise MerlionError(f"{root}: not the shared data folder (no suim/labels.csv)")
     out: list[LabelledFrame] = load_deepfish(root) if deepfish else []
-    for row in csv.DictReader((root / "suim" / "labels.csv").open()):
+    for row in _rows(root / "suim" / "labels.csv", ("image", "fish_present")):
         out.append(LabelledFrame("suim", row["image"], row["fish_present"] == "1",
                                  _read(root / "suim" / "images" / row["image"])))
     for path in sorted((root / "aquarium_fish" / "frames").glob("*.jpg")):
@@ -113,8 +128,11 @@ def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False,
             out.append(LabelledFrame("rov_clips", f"{clip.name}#{i}", False, img))
     if survey:
         video = root / "survey" / "survey_480x270.mp4"
-        labels = [r["fish_present"] == "1" for r in csv.DictReader((root / "survey" / "survey_480x270_labels.csv").open())]
+        label_file = root / "survey" / "survey_480x270_labels.csv"
+        labels = [r["fish_present"] == "1" for r in _rows(label_file, ("fish_present",))]
         for i, img in _video_frames(video, 1):
+            if i >= len(labels):
+                raise MerlionError(f"{label_file}: {len(labels)} rows, but {video.name} has more frames")
             out.append(LabelledFrame("survey", f"{video.name}#{i:03d}", labels[i], img))
     if stress:
         out += [LabelledFrame(f"{f.source}~murky", f.name, f.fish, murky(f.image, seed=i)) for i, f in enumerate(out)]

@@ -82,3 +82,23 @@ def test_eval_auroc_by_source_with_the_visual_baseline_is_chance(tmp_path):
     bad = run_merlion("eval", "auroc", "--data", str(tmp_path), "--encoder", "visual")
     assert bad.returncode == 1
     assert bad.stderr.strip() == f"merlion: error: {tmp_path}: not the shared data folder (no suim/labels.csv)"
+
+
+@pytest.mark.parametrize(("labels", "message"), [
+    (None, "survey_480x270_labels.csv: missing from the shared data folder"),
+    ("frame_index,fish_present\n0,0\n1,1\n", "survey_480x270_labels.csv: 2 rows, but survey_480x270.mp4 has more frames"),
+    ("frame_index,fish\n0,0\n", "survey_480x270_labels.csv: needs a header with fish_present and one row per frame"),
+])
+def test_a_broken_data_folder_is_one_line_naming_the_file(tmp_path, labels, message):
+    """A data folder with the survey's label file missing, short or without its column (was a traceback)."""
+    shared_file("survey/survey_480x270.mp4")
+    for part in ("suim", "aquarium_fish", "rov_clips"):
+        (tmp_path / part).symlink_to(SHARED_DATA / part)
+    (tmp_path / "survey").mkdir()
+    (tmp_path / "survey" / "survey_480x270.mp4").symlink_to(SHARED_DATA / "survey" / "survey_480x270.mp4")
+    if labels is not None:
+        (tmp_path / "survey" / "survey_480x270_labels.csv").write_text(labels)
+    done = run_merlion("eval", "auroc", "--data", str(tmp_path), "--encoder", "visual", timeout=240)
+    assert done.returncode != 0
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], done.stderr
