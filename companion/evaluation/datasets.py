@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,17 +88,27 @@ def load_dataset(path: str | Path) -> SrumDataset:
     for key in ("frame_labels", "human_summaries"):
         if key not in data:
             raise MerlionError(f"{p}: missing key {key!r}")
+    for key in ("frame_labels", "human_summaries", "human_summaries_excluded", "automatic_summaries",
+                "table_column_mapping", "paper_table"):
+        if data.get(key) is not None and not isinstance(data[key], dict):
+            raise MerlionError(f"{p}: {key} must be an object, got {type(data[key]).__name__} {data[key]!r:.40}")
     labels: dict[int, frozenset[str]] = {}
     for frame, names in data["frame_labels"].items():
         try:
-            labels[int(frame)] = frozenset(n for n in names if n)
-        except (TypeError, ValueError):
+            number = int(frame)
+        except ValueError:
             raise MerlionError(f"{p}: frame_labels key {frame!r} is not a frame number") from None
+        if isinstance(names, str) or not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise MerlionError(f"{p}: frame_labels.{frame} must be a list of label names, got {names!r:.40}")
+        labels[number] = frozenset(n for n in names if n)
     humans = {k: _frames(v, f"{p}: human_summaries.{k}") for k, v in data["human_summaries"].items()}
     excluded = {k: _frames(v, f"{p}: human_summaries_excluded.{k}")
                 for k, v in (data.get("human_summaries_excluded") or {}).items()}
     automatic = {k: _frames(v, f"{p}: automatic_summaries.{k}")
                  for k, v in (data.get("automatic_summaries") or {}).items()}
+    fps = data.get("fps", 30)
+    if isinstance(fps, bool) or not isinstance(fps, int | float) or not math.isfinite(fps) or fps <= 0:
+        raise MerlionError(f"{p}: fps must be a positive number, got {fps!r:.40}")
     paper_ids = list(data.get("paper_table_human_ids") or humans)
     missing = [h for h in paper_ids if h not in humans and h not in excluded]
     if missing:
@@ -105,7 +116,7 @@ def load_dataset(path: str | Path) -> SrumDataset:
     return SrumDataset(
         name=str(data.get("dataset", p.stem)),
         condition=str(data.get("paper_condition", "")),
-        table=LabelTable(labels=labels, source=str(p), fps=float(data.get("fps", 30))),
+        table=LabelTable(labels=labels, source=str(p), fps=float(fps)),
         humans=humans,
         paper_human_ids=paper_ids,
         automatic=automatic,

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
 
 from companion.errors import MerlionError
+from companion.evaluation.datasets import load_dataset
 from companion.evaluation.srum import SrumParams, human_score, pair_score, relative, score, srum, time_credit
 
 E1 = math.exp(-1.0)
@@ -77,3 +79,21 @@ def test_bad_inputs_are_one_line_errors(labels):
         SrumParams(tau_s=float("nan"))  # NaN slipped past "< 0"
     with pytest.raises(MerlionError, match="fps"):
         SrumParams(fps=float("nan"))
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"frame_labels": 5}, "frame_labels must be an object, got int 5"),  # was AttributeError
+    ({"human_summaries": 3}, "human_summaries must be an object, got int 3"),
+    ({"frame_labels": {"1": ["fish"], "2": 5}}, "frame_labels.2 must be a list of label names, got 5"),  # not "key '2'"
+    ({"frame_labels": {"1": "fish"}}, "frame_labels.1 must be a list of label names, got 'fish'"),
+    ({"fps": "abc"}, "fps must be a positive number, got 'abc'"),  # was ValueError
+    ({"fps": 0}, "fps must be a positive number, got 0"),
+])
+def test_a_malformed_data_set_json_is_one_line_naming_the_key(tmp_path, change, message):
+    data = {"frame_labels": {"1": ["fish"], "2": []}, "human_summaries": {"h1": [1]}, "fps": 30}
+    data.update(change)
+    f = tmp_path / "set.json"
+    f.write_text(json.dumps(data))
+    with pytest.raises(MerlionError) as info:
+        load_dataset(f)
+    assert str(info.value) == f"{f}: {message}"
