@@ -250,6 +250,8 @@ def _cmd_labels(args: argparse.Namespace) -> int:
     frames, summary, base = _summary_frames(args)
     table = load_labels(args.labels, args.fps)
     query = args.query or default_query(table)
+    if args.k is not None and not 1 <= args.k <= len(table.labels):  # a huge K never finished
+        raise UsageError(f"--k {args.k}: must be from 1 to the {len(table.labels)} labelled frames of {args.labels}")
     result = evaluate_labels(table, frames, query, args.k, _params(args, table.fps)).as_dict()
     if args.json:
         print(json.dumps(result))

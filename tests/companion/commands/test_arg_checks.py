@@ -6,7 +6,7 @@ import pytest
 
 from companion.commands.arg_checks import require_non_negative, require_positive
 from companion.errors import UsageError
-from tests.conftest import run_merlion
+from tests.conftest import run_merlion, shared_file
 
 
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf")])
@@ -77,3 +77,13 @@ def test_train_head_refuses_an_output_it_could_not_write_before_any_training(tmp
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].endswith(message), done.stderr
     assert (tmp_path / "afile").read_text() == "kept\n"
+
+
+@pytest.mark.parametrize("k", ["94", "1000000000000"])
+def test_eval_labels_refuses_an_oracle_larger_than_the_labelled_frames(k) -> None:
+    labels = shared_file("survey/survey_480x270_labels.csv")
+    done = run_merlion("eval", "labels", "--labels", str(labels), "--summary", "10", "20", "--fps", "10", "--k", k,
+                       timeout=60)  # 10**12 never finished before
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"merlion: error: --k {k}: must be from 1 to the 93 labelled frames of {labels}"]
