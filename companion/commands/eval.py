@@ -307,6 +307,10 @@ def _cmd_auroc(args: argparse.Namespace) -> int:
     if missing:
         raise MerlionError(f"{args.labels}: no label for video frame {missing[0]} (1-based); "
                            f"the video has {len(vs.indices)} frames")
+    beyond = [f for f in sorted(table.labels) if f > len(vs.indices)]
+    if beyond:  # a truncated video, or another video's labels: scoring only what decoded would hide it
+        raise MerlionError(f"{args.video}: {len(vs.indices)} frames decoded, but {args.labels} labels frame "
+                           f"{beyond[0]} (1-based) and {len(beyond) - 1} more after its end")
     positive = [is_positive(table, i + 1, query) for i in vs.indices]
     result = {"auroc": auroc(vs.scores, positive), "frames": len(positive), "positives": int(sum(positive)),
               "encoder": encoder.describe(), "query": query, "prompts": [cfg.queries.positive, *cfg.queries.negatives],

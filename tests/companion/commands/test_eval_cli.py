@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import pytest
 
 from tests.conftest import REPO, run_merlion, shared_file
@@ -162,3 +163,28 @@ def test_table_reports_a_value_that_does_not_match(tmp_path):
     assert r.returncode == 1
     assert "mismatch" in r.stdout and r.stderr.strip().endswith("0.110907 vs 0.1111")
     assert r.stderr.count("\n") == 1 and "powellscay_low ROST" in r.stderr
+
+
+def test_auroc_refuses_labels_past_the_end_of_a_truncated_video(tmp_path):
+    """The survey's 93 labels against its first 20 frames (a cut recording), and its own video with one label
+    past its end: both used to score what decoded and exit 0."""
+    video = shared_file("survey/survey_480x270.mp4")
+    labels = shared_file("survey/survey_480x270_labels.csv")
+    cap = cv2.VideoCapture(str(video))
+    short = tmp_path / "cut.mp4"
+    writer = cv2.VideoWriter(str(short), cv2.VideoWriter_fourcc(*"mp4v"), 10, (480, 270))
+    for _ in range(20):
+        ok, frame = cap.read()
+        assert ok
+        writer.write(frame)
+    writer.release()
+    cap.release()
+    extra = tmp_path / "extra.csv"
+    extra.write_text(labels.read_text().rstrip("\n") + "\n4999,9,x.mp4,0,1\n")
+    for clip, csv_file, message in (
+            (short, labels, f"{short}: 20 frames decoded, but {labels} labels frame 21 (1-based) and 72 more"),
+            (video, extra, f"{video}: 93 frames decoded, but {extra} labels frame 5000 (1-based) and 0 more")):
+        r = run_merlion("eval", "auroc", str(clip), "--labels", str(csv_file), "--encoder", "visual")
+        assert r.returncode != 0
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"merlion: error: {message}"), r.stderr
