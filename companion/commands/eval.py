@@ -296,8 +296,8 @@ def _cmd_auroc(args: argparse.Namespace) -> int:
         return _auroc_by_source(args)
     if not args.video or not args.labels:
         raise UsageError("eval auroc needs VIDEO --labels CSV, or --data DIR")
-    if args.stress or args.sweep:
-        raise UsageError("--stress and --sweep go with --data")
+    if args.stress or args.sweep or args.marks is not None or args.holdout:
+        raise UsageError("--stress, --sweep, --holdout and --marks go with --data")
     cfg = _config(args, args.encoder)
     table = load_labels(args.labels)
     query = args.query or default_query(table)
@@ -405,13 +405,13 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     from companion.evaluation.sources import DEEPFISH, load_sources
     from companion.vision.presampler import PreSampler
 
+    if args.marks is not None and args.marks < 1:  # before minutes of loading
+        raise UsageError(f"--marks {args.marks}: must be 1 or more")
     frames = load_sources(args.data, stress=args.stress)
     cfg = _config(args, args.encoder)
     encoder = make_encoder(cfg)
     presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
     batch = cfg.encoder.batch
-    if args.marks is not None and args.marks < 1:
-        raise UsageError(f"--marks {args.marks}: must be 1 or more")
     # the held-out scene head that answers the query also learns from pasted fish: their boxes are read first
     scene_head = encoder.scene_head_of(presampler.text_embeddings) if hasattr(encoder, "scene_head_of") else None
     crops = fish_crops(args.data) if args.holdout and scene_head is not None else []

@@ -83,6 +83,8 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
     if out_dir.exists() and not force:
         raise MerlionError(f"{out_dir}: already exists; use --force to replace it")
     parent = out_dir.parent
+    if parent.exists() and not parent.is_dir():
+        raise MerlionError(f"{out_dir}: {parent} is a file, not a folder")
     if not parent.is_dir():
         raise MerlionError(f"{out_dir}: parent directory {parent} does not exist")
 

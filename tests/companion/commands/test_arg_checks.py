@@ -87,3 +87,20 @@ def test_eval_labels_refuses_an_oracle_larger_than_the_labelled_frames(k) -> Non
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
         f"merlion: error: --k {k}: must be from 1 to the 93 labelled frames of {labels}"]
+
+
+def test_options_that_would_be_ignored_or_found_late_are_refused_at_once(tmp_path) -> None:
+    (tmp_path / "afile").write_text("kept\n")
+    cases = [
+        (("eval", "auroc", "video.mp4", "--labels", "l.csv", "--marks", "-2"),
+         "merlion: error: --stress, --sweep, --holdout and --marks go with --data"),  # was silently ignored
+        (("eval", "auroc", "--data", str(tmp_path / "nowhere"), "--marks", "0"),
+         "merlion: error: --marks 0: must be 1 or more"),  # before loading the data, not after
+        (("summarize", str(tmp_path), "--out", str(tmp_path / "afile" / "x")),
+         f"merlion: error: {tmp_path / 'afile' / 'x'}: {tmp_path / 'afile'} is a file, not a folder"),
+    ]
+    for args, message in cases:
+        done = run_merlion(*args, timeout=60)
+        assert done.returncode != 0
+        assert done.stderr.strip().splitlines() == [message], done.stderr
+    assert (tmp_path / "afile").read_text() == "kept\n"
