@@ -39,6 +39,8 @@ def test_percentage_threshold_is_read_as_fraction(tmp_path):
         ("mavlink:\n  system_id: 255\n", "mavlink.system_id"),
         ("[1, 2]\n", "top level must be a mapping"),
         ("sampler: {k: [\n", "line"),
+        ("sampler:\n  k: 3\nsampler:\n  k: 4\n", "line 3: key 'sampler' is given twice"),  # the last one won
+        ("sampler:\n  k: 3\n  k: 4\n", "line 3: key 'k' is given twice"),
         ("queries:\n  positive: ''\n", "queries.positive: String should have at least 1 character"),
         ("queries:\n  topics: [{name: a, positive: fish, negatives: ['']}]\n", "queries.topics.0.negatives.0"),
     ],
