@@ -57,11 +57,14 @@ def read_item_labels(path: str | Path) -> dict[str, bool]:
         if not fields or column is None:
             raise MerlionError(f"{p}: needs a header with an image column and a *_present (or label) column")
         out: dict[str, bool] = {}
-        for row in reader:
+        for line, row in enumerate(reader, start=2):
+            item = (row[fields[0]] or "").strip()
+            if item in out:  # a second row would silently overrule the first
+                raise MerlionError(f"{p}: line {line}: {fields[0]} {item!r} is listed twice")
             try:
-                out[row[fields[0]].strip()] = float(row[column] or 0) != 0
-            except ValueError:
-                raise MerlionError(f"{p}: {column}={row[column]!r} is not a number") from None
+                out[item] = float(row[column] or 0) != 0
+            except (TypeError, ValueError):
+                raise MerlionError(f"{p}: line {line}: {column}={row[column]!r} is not a number") from None
     return out
 
 

@@ -25,6 +25,12 @@ def test_label_csv_reads_the_present_column(tmp_path):
     f.write_text("image,other\na.jpg,1\n")
     with pytest.raises(MerlionError, match="present"):
         read_item_labels(f)
+    f.write_text("image,fish_present\na.jpg,1\nb.jpg,0\na.jpg,0\n")  # the last row used to overrule the first
+    with pytest.raises(MerlionError, match=r"line 4: image 'a.jpg' is listed twice"):
+        read_item_labels(f)
+    f.write_text("image,fish_present\na.jpg,maybe\n")
+    with pytest.raises(MerlionError, match=r"line 2: fish_present='maybe' is not a number"):
+        read_item_labels(f)
 
 
 def test_eval_feedback_on_suim():
