@@ -57,7 +57,7 @@ def parse_queries(data: bytes | str, default_name: str) -> list[QueryTopic]:
             raise ValueError("queries file is not UTF-8 text") from None
     control = next((c for c in data if unicodedata.category(c) == "Cc" and c not in "\n\r\t"), None)
     if control is not None:  # a NUL would reach the encoder and the store while the surface shows the text before it
-        raise ValueError(f"queries file holds a control character (U+{ord(control):04X})")
+        raise ValueError(f"control character U+{ord(control):04X}")  # short: a STATUSTEXT holds 50
     lines = [ln.strip() for ln in data.replace("\r", "").split("\n")]
     lines = [ln for ln in lines if ln and not ln.startswith("#")]
     groups: list[tuple[str, list[str]]] = []

@@ -36,8 +36,8 @@ def test_several_topics_round_trip():
     (b"a\n" * (MAX_BYTES // 2 + 1), f"more than {MAX_BYTES}"),
     ("".join(f"[t{i}]\npos\nneg\n" for i in range(MAX_TOPICS + 1)).encode(), f"more than {MAX_TOPICS}"),
     (b"pos\n" + b"neg\n" * 17, "more than 16"),
-    (b"fish\x00\x00\nsand\n", r"control character \(U\+0000\)"),  # the surface would show "fish", the store a NUL
-    (b"fish\nsand\x1b[2J\n", r"control character \(U\+001B\)"),
+    (b"fish\x00\x00\nsand\n", "^control character U\\+0000$"),  # the surface would show "fish", the store a NUL
+    (b"fish\nsand\x1b[2J\n", "^control character U\\+001B$"),
 ])
 def test_bad_files_are_refused_with_a_reason(data, words):
     with pytest.raises(ValueError, match=words):
