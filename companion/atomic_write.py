@@ -11,8 +11,6 @@ import os
 import threading
 from pathlib import Path
 
-from companion.errors import MerlionError
-
 TMP_PREFIX = ".tmp-"
 
 
@@ -34,20 +32,6 @@ def atomic_write(path: Path, data: bytes | str) -> None:
             pass
         raise
     fsync_dir(path.parent)
-
-
-def check_target(path: str | Path) -> Path:
-    """``path`` if a file can be written there later, else a one-line MerlionError naming why: called before long
-    work (training, encoding), so that a mistyped output path fails at once instead of after it."""
-    p = Path(path)
-    if p.is_dir():
-        raise MerlionError(f"{p}: is a folder (give the file's name)")
-    existing = next((a for a in (p.parent, *p.parent.parents) if a.exists()), Path("."))
-    if not existing.is_dir():
-        raise MerlionError(f"{p}: {existing} is a file, not a folder")
-    if not os.access(existing, os.W_OK):
-        raise MerlionError(f"{p}: {existing} is not writable")
-    return p
 
 
 def fsync_dir(directory: Path) -> None:

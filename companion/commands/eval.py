@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.atomic_write import check_target
 from companion.errors import MerlionError, UsageError
+from companion.output_path import check_target
 
 if TYPE_CHECKING:
     from companion.evaluation.pasted_fish import PastedFish

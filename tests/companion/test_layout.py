@@ -17,7 +17,7 @@ LAYERS: dict[str, int] = {
     "vehicle.protocol": 1, "vehicle.link": 2, "vehicle.autopilot": 3, "vehicle.camera": 4, "vehicle.sim": 5,
     # companion: the app, above the whole of vehicle
     "companion": 10, "companion.errors": 11, "companion.packaged": 11, "companion.atomic_write": 11,
-    "companion.config": 12,
+    "companion.config": 12, "companion.output_path": 12,
     "companion.sources": 20,
     "companion.vision": 30,
     "companion.storage": 40,

@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.atomic_write import atomic_write, check_target
+from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
+from companion.output_path import check_target
 
 HEADS_DIR = Path(__file__).with_name("heads")
 SURE = 0.998
