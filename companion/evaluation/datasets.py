@@ -131,16 +131,22 @@ _PRESENT = ("1", "1.0")
 """What a ``<name>_present`` cell may hold (empty: absent)."""
 
 
+def csv_rows(path: Path, *, missing: str = "no such file") -> list[dict[str, str]]:
+    """A CSV file's rows under its header, or a one-line MerlionError naming the file (``missing`` says what an
+    absent file means to the caller)."""
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+    except FileNotFoundError:
+        raise MerlionError(f"{path}: {missing}") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise MerlionError(f"{path}: cannot read as CSV ({err})") from None
+
+
 def load_label_csv(path: str | Path, fps: float | None = None) -> LabelTable:
     """A per-frame label CSV in one of the two documented layouts (module docstring)."""
     p = Path(path)
-    try:
-        with p.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
-    except FileNotFoundError:
-        raise MerlionError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as err:
-        raise MerlionError(f"{p}: cannot read as CSV ({err})") from None
+    rows = csv_rows(p)
     if not rows:
         raise MerlionError(f"{p}: no rows (a header and one row per frame are needed)")
     cols = [c.strip() for c in rows[0]]

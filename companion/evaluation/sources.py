@@ -13,7 +13,6 @@ they are reported.
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ import cv2
 import numpy as np
 
 from companion.errors import MerlionError
+from companion.evaluation.datasets import csv_rows
 
 AQUARIUM_VIDEO_STEP = 20
 ROV_STEP = 6
@@ -68,13 +68,7 @@ def _read(path: Path) -> np.ndarray:
 
 def _rows(path: Path, columns: tuple[str, ...]) -> list[dict[str, str]]:
     """A label file's rows, or a one-line MerlionError naming the file (missing, unreadable, or lacking a column)."""
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
-    except FileNotFoundError:
-        raise MerlionError(f"{path}: missing from the shared data folder") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as err:
-        raise MerlionError(f"{path}: cannot read as CSV ({err})") from None
+    rows = csv_rows(path, missing="missing from the shared data folder")
     missing = [c for c in columns if not rows or c not in rows[0]]
     if missing:
         raise MerlionError(f"{path}: needs a header with {', '.join(columns)} and one row per frame "
