@@ -18,6 +18,8 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from vehicle.link.warning_bucket import WarningBucket
+
 log = logging.getLogger(__name__)
 
 DROP_LOG_S = 10.0
@@ -38,7 +40,7 @@ class RequestWorker:
         self.served = 0
         self.longest_s = 0.0
         """The longest single job so far (what the receive loop would have stalled for without this worker)."""
-        self._logged_at = float("-inf")
+        self._drop_log = WarningBucket(burst=1, refill_s=DROP_LOG_S)
 
     def start(self) -> None:
         if self._thread is None:
@@ -67,9 +69,7 @@ class RequestWorker:
             jobs = self._queues[bool(signed)]
             if len(jobs) >= self._limit:
                 self.dropped += 1
-                now = time.monotonic()
-                if now - self._logged_at >= DROP_LOG_S:
-                    self._logged_at = now
+                if self._drop_log.take():
                     log.warning("%s: request queue full, %d requests dropped so far", self.name, self.dropped)
                 return False
             jobs.append(job)

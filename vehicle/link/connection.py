@@ -27,6 +27,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from vehicle.errors import UsageError
 from vehicle.link.signing import LinkSigning
+from vehicle.link.warning_bucket import WarningBucket
 from vehicle.settings import MavlinkConfig
 
 log = logging.getLogger(__name__)
@@ -136,7 +137,7 @@ class MavLink:
         self.rx_bytes = 0
         self.rx_messages = 0
         self.rx_bad = 0
-        self._bad_logged_at = float("-inf")
+        self._bad_log = WarningBucket(burst=1, refill_s=BAD_LOG_S)
         self.rx_unknown = 0
         self.tx_messages = 0
         self.reconnects = 0
@@ -450,9 +451,7 @@ class MavLink:
     def _count_bad(self, reason: str) -> None:
         """Count bad input and say so, without flooding the log when a link spews garbage."""
         self.rx_bad += 1
-        now = time.monotonic()
-        if now - self._bad_logged_at >= BAD_LOG_S:  # by time, not by count: a flood's rate must not set the log's
-            self._bad_logged_at = now
+        if self._bad_log.take():  # by time, not by count: a flood's rate must not set the log's
             log.warning("%s: bad MAVLink input on %s (%s); %d bad so far", self.name, self.endpoint, reason,
                         self.rx_bad)
 

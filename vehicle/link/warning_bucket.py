@@ -1,4 +1,5 @@
-"""How many warnings about strangers reach the surface: a small bucket, so many sources cannot flood the downlink.
+"""How many warnings about strangers reach the surface (or a flood's lines the log): a small bucket, so that many
+sources, or a fast one, cannot flood the downlink or the disk.
 
 Every STATUSTEXT about a refused or flooding stranger costs the same downlink budget as a capture and is one more
 line in QGroundControl. Made-up sender ids are free, so a warning per source would let one device on the tether send
