@@ -437,10 +437,10 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             from companion.evaluation.dive_centring import held_out_centred
 
             result["dive_centred"] = held_out_centred(features, frames)
-            if hasattr(encoder, "view_features"):  # the scene head's input: the region views
+            if hasattr(encoder, "scene_of"):  # the scene head's input: the region views and small frames
                 from companion.evaluation.scene_holdout import held_out_scene
 
-                result["scene"] = held_out_scene(encoder.view_features(embeddings), frames, pasted=pasted)
+                result["scene"] = held_out_scene(encoder.scene_of(embeddings), frames, pasted=pasted)
     if args.marks:
         from companion.evaluation.dive_centring import ORDER_SEEDS
         from companion.evaluation.group_feedback import marks_by_group
@@ -523,7 +523,7 @@ def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: li
 
 def _cmd_train_head(args: argparse.Namespace) -> int:
     from companion.config import EncoderConfig
-    from companion.evaluation.head_training import frame_views, nested_holdout, train_head
+    from companion.evaluation.head_training import frame_scenes, nested_holdout, train_head
     from companion.evaluation.holdout import per_group, spread
     from companion.evaluation.pasted_fish import fish_crops
     from companion.evaluation.scene_holdout import train_scene_head
@@ -537,12 +537,12 @@ def _cmd_train_head(args: argparse.Namespace) -> int:
     crops = fish_crops(args.data) if args.scene_out else []  # before the long encoding: no boxes, no wait
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
     classes = np.flatnonzero(encoder.encode_texts(["fish"])[0, :1000] > 0)
-    views = frame_views(encoder, frames)
-    features = np.ascontiguousarray(views[:, 0])
+    scene = frame_scenes(encoder, frames)
+    features = np.ascontiguousarray(scene.views[:, 0])
     head, figures = train_head(frames, features, concept="fish", classes=classes)
     if args.scene_out:
         pasted = _pasted(encoder, frames, crops)
-        scene_head, scene_figures = train_scene_head(frames, views, concept="fish", classes=classes, pasted=pasted)
+        scene_head, scene_figures = train_scene_head(frames, scene, concept="fish", classes=classes, pasted=pasted)
         figures["scene"] = {**scene_figures, "deepfish_habitats": spread(scene_figures["groups"], DEEPFISH),
                             "file": str(scene_head.save(args.scene_out))}
     figures["deepfish_habitats"] = spread(figures["groups"], DEEPFISH)

@@ -85,9 +85,9 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     features = encoder.sampler_features(embeddings).astype(np.float64)
     shipped = list(getattr(encoder, "heads", []))
     scene_head = encoder.scene_head_of(presampler.text_embeddings) if hasattr(encoder, "scene_head_of") else None
-    views = encoder.view_features(embeddings) if scene_head is not None else None
-    scene = {seed: scene_features(views, frames, seed) for seed in seeds} if views is not None else {}
-    extra = {seed: pasted_rows(views, frames, pasted, seed) for seed in seeds} if views is not None else {}
+    inputs = encoder.scene_of(embeddings) if scene_head is not None else None
+    scene = {seed: scene_features(inputs, frames, seed) for seed in seeds} if inputs is not None else {}
+    extra = {seed: pasted_rows(inputs, frames, pasted, seed) for seed in seeds} if inputs is not None else {}
     orders = {seed: np.concatenate(stream_order(frames, seed)) for seed in seeds}
     tried: dict[int, dict[float, dict]] = {seed: {w: {} for w in weights} for seed in seeds}
     skipped = []

@@ -24,6 +24,7 @@ from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.encoders.learned_head import LinearHead
 from companion.vision.presampler import PreSampler
+from companion.vision.scene_memory import SceneInput
 
 LAMBDAS = (1e3, 1e4, 1e5)
 """Ridge strengths tried (on standardised features, summed squared error), chosen by leave-one-group-out."""
@@ -159,16 +160,20 @@ def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Se
     return out, chosen
 
 
-def frame_views(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], batch: int = 8) -> np.ndarray:
-    """(N, V, 1280) view features of the frames (the whole frame's pooled features first, then the regions)."""
-    return image_views(encoder, [f.image for f in frames], batch)
+def frame_scenes(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], batch: int = 8) -> SceneInput:
+    """The frames' view features ((N, V, 1280): the whole frame's pooled features first, then the regions) and
+    small frames, what the heads are trained on."""
+    return image_scenes(encoder, [f.image for f in frames], batch)
 
 
-def image_views(encoder: ImageNetEncoder, images: Sequence[np.ndarray], batch: int = 8) -> np.ndarray:
-    """(N, V, 1280) view features of BGR images, encoded ``batch`` at a time."""
-    parts = [encoder.view_features(encoder.encode_images(list(images[i:i + batch])))
+def image_scenes(encoder: ImageNetEncoder, images: Sequence[np.ndarray], batch: int = 8) -> SceneInput:
+    """The view features and small frames of BGR images, encoded ``batch`` at a time."""
+    parts = [encoder.scene_of(encoder.encode_images(list(images[i:i + batch])))
              for i in range(0, len(images), batch)]
-    return np.concatenate(parts).astype(np.float64) if parts else np.zeros((0, encoder.views, 1280))
+    if not parts:
+        return encoder.scene_of(encoder.encode_images([]))
+    return SceneInput(np.concatenate([p.views for p in parts]).astype(np.float64),
+                      np.concatenate([p.pixels for p in parts]))
 
 
 def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept: str, classes: Sequence[int],

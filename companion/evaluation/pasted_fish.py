@@ -20,9 +20,10 @@ import cv2
 import numpy as np
 
 from companion.errors import MerlionError
-from companion.evaluation.head_training import image_views
+from companion.evaluation.head_training import image_scenes
 from companion.evaluation.sources import DEEPFISH, GROUPS, LabelledFrame
 from companion.vision.encoders.imagenet import ImageNetEncoder
+from companion.vision.scene_memory import SceneInput
 
 CROPS_FOLDER = "aquarium_fish/frames"
 CROPS_GROUP = GROUPS["aquarium_frames"]
@@ -40,11 +41,11 @@ MIN_BOX = (30, 15)
 @dataclass(frozen=True)
 class PastedFish:
     """Pasted frames: the empty frame each was made from (an index into the labelled frames), its groups, and
-    the encoder's view features of the pasted image."""
+    the encoder's view features and small frame of the pasted image."""
 
     base: np.ndarray
     groups: np.ndarray
-    views: np.ndarray
+    scene: SceneInput
 
 
 def fish_crops(root: str | Path) -> list[np.ndarray]:
@@ -111,9 +112,8 @@ def pasted_images(frames: Sequence[LabelledFrame], crops: Sequence[np.ndarray], 
 
 def pasted_fish(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: Sequence[np.ndarray]
                 ) -> PastedFish:
-    """The pasted frames of ``frames`` and their view features from the packaged ``encoder``; ``crops`` from
+    """The pasted frames of ``frames`` and their scene input from the packaged ``encoder``; ``crops`` from
     ``fish_crops``, read before any long work so that a data folder without boxes fails at once."""
     base, images = pasted_images(frames, crops)
-    views = image_views(encoder, images)
     groups = np.array([f"{frames[i].group}+{CROPS_GROUP}" for i in base])
-    return PastedFish(base=base, groups=groups, views=views)
+    return PastedFish(base=base, groups=groups, scene=image_scenes(encoder, images))

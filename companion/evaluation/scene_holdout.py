@@ -23,26 +23,26 @@ from companion.evaluation.pasted_fish import PastedFish
 from companion.evaluation.roc import auroc
 from companion.evaluation.sources import DEEPFISH, LabelledFrame
 from companion.vision.encoders.learned_head import LinearHead
-from companion.vision.scene_memory import SceneMemory
+from companion.vision.scene_memory import SceneInput, SceneMemory
 
 SCENE_LAMBDAS = (1e4, 3e4, 1e5)
 """Ridge strengths tried for the scene head (its features are smaller and sparser than the pooled ones)."""
 
 
-def scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], seed: int = ORDER_SEED) -> np.ndarray:
+def scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], seed: int = ORDER_SEED) -> np.ndarray:
     """(N, D) each frame's scene residual within its own source's stream (NaN for a stream's first frame)."""
-    out = np.full((len(frames), views.shape[2]), np.nan)
+    out = np.full((len(frames), scene.width), np.nan)
     for idx in stream_order(frames, seed):
-        out[idx] = SceneMemory().residuals(views[idx])
+        out[idx] = SceneMemory().residuals(scene[idx])
     return out
 
 
-def pasted_scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], pasted: PastedFish,
+def pasted_scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], pasted: PastedFish,
                           seed: int = ORDER_SEED) -> np.ndarray:
     """(M, D) each pasted frame's scene residual, as if it had come in place of its empty original: against a
     copy of the dive's memory as it stood before the original, the pasted frame joining it the way a real frame
     joins (NaN where the original was the dive's first frame)."""
-    out = np.full((len(pasted.base), pasted.views.shape[2]), np.nan)
+    out = np.full((len(pasted.base), pasted.scene.width), np.nan)
     copies: dict[int, list[int]] = {}
     for k, i in enumerate(pasted.base):
         copies.setdefault(int(i), []).append(k)
@@ -51,29 +51,31 @@ def pasted_scene_features(views: np.ndarray, frames: Sequence[LabelledFrame], pa
         for i in idx:
             if memory.seen:
                 for k in copies.get(int(i), []):
-                    out[k] = copy.deepcopy(memory).residuals(pasted.views[k][None])[0]
-            memory.residuals(views[i][None])
+                    out[k] = copy.deepcopy(memory).residuals(pasted.scene[k])[0]
+            memory.residuals(scene[i])
     return out
 
 
-def pasted_rows(views: np.ndarray, frames: Sequence[LabelledFrame], pasted: PastedFish | None,
+def pasted_rows(scene: SceneInput, frames: Sequence[LabelledFrame], pasted: PastedFish | None,
                 seed: int = ORDER_SEED) -> Extra | None:
     """The pasted frames as training-only rows for the scene head (all fish), or None."""
     if pasted is None or not len(pasted.base):
         return None
-    x = pasted_scene_features(views, frames, pasted, seed)
+    x = pasted_scene_features(scene, frames, pasted, seed)
     ok = np.isfinite(x).all(axis=1)
     return x[ok], np.ones(int(ok.sum()), bool), pasted.groups[ok]
 
 
-def held_out_scene(views: np.ndarray, frames: Sequence[LabelledFrame],
-                   seeds: Sequence[int] = ORDER_SEEDS, pasted: PastedFish | None = None) -> dict:
+def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
+                   seeds: Sequence[int] = ORDER_SEEDS, pasted: PastedFish | None = None, *,
+                   pixels: bool = True) -> dict:
     """Per order: per-group AUROC of the scene head (pooled head on each dive's first frame), every choice made
-    without the reported group; and the same for the pooled head alone, for comparison."""
+    without the reported group; and the same for the pooled head alone, for comparison. Without ``pixels`` the
+    head reads the view features' residual only (what the pixel changes add, measured)."""
     y = np.array([f.fish for f in frames])
     groups = np.array([f.group for f in frames])
     deepfish = np.array([f.source.startswith(DEEPFISH) for f in frames])
-    pooled, _ = nested_holdout(np.asarray(views[:, 0], np.float64), y, groups)
+    pooled, _ = nested_holdout(np.asarray(scene.views[:, 0], np.float64), y, groups)
 
     def figures(scores: np.ndarray) -> dict:
         by_group = per_group(scores, frames)
@@ -84,11 +86,13 @@ def held_out_scene(views: np.ndarray, frames: Sequence[LabelledFrame],
 
     orders = {}
     for seed in seeds:
-        x = scene_features(views, frames, seed)
+        x = scene_features(scene, frames, seed)[:, :None if pixels else scene.views.shape[2]]
         ok = np.isfinite(x).all(axis=1)
         scores = pooled.copy()
-        scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS,
-                                            pasted_rows(views, frames, pasted, seed))
+        extra = pasted_rows(scene, frames, pasted, seed)
+        if extra is not None and not pixels:
+            extra = (extra[0][:, :x.shape[1]], *extra[1:])
+        scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS, extra)
         orders[str(seed)] = {**figures(scores), "lambda": chosen}
     method = ("fish head on the scene residual (each dive's first frame: the pooled head), trained and tuned "
               "without each group, per frame order")
@@ -99,16 +103,16 @@ def held_out_scene(views: np.ndarray, frames: Sequence[LabelledFrame],
             "pooled_head": figures(pooled), "orders": orders}
 
 
-def train_scene_head(frames: Sequence[LabelledFrame], views: np.ndarray, *, concept: str,
+def train_scene_head(frames: Sequence[LabelledFrame], scene: SceneInput, *, concept: str,
                      classes: Sequence[int], seed: int = ORDER_SEED,
                      pasted: PastedFish | None = None) -> tuple[LinearHead, dict]:
     """The shipped scene head: trained on every frame's scene residual (order ``seed``) but the dives' first,
     and on the pasted frames'."""
-    x = scene_features(views, frames, seed)
+    x = scene_features(scene, frames, seed)
     ok = np.isfinite(x).all(axis=1)
     kept = [f for f, k in zip(frames, ok, strict=True) if k]
     head, figures = train_head(kept, x[ok], concept=concept, classes=classes, lambdas=SCENE_LAMBDAS, reads="scene",
-                               extra=pasted_rows(views, frames, pasted, seed))
+                               extra=pasted_rows(scene, frames, pasted, seed))
     head.trained_on.update(command="merlion eval train-head --data ../shared/data --out <file> --scene-out <file>",
                            order_seed=seed)
     return head, figures

@@ -59,7 +59,7 @@ class RawGate:
 
     def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]]]:
         """Each frame's best ss_t over the topics, and the names of the topics it passed for (empty: none)."""
-        frames = self.dive.take(self.encoder.sampler_features(embeddings), views=self.encoder.scene_views(embeddings))
+        frames = self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings))
         scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names
         return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed]

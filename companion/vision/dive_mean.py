@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.vision.running_mean import TAU, RunningMean
-from companion.vision.scene_memory import SceneMemory
+from companion.vision.scene_memory import SceneInput, SceneMemory
 
 
 def logit(scores: np.ndarray) -> np.ndarray:
@@ -42,7 +42,7 @@ class DiveFrames:
     """The frames joined the dive (False: a frame scored again, e.g. its enhanced copy)."""
     scene: np.ndarray | None = None
     """(N, D) each frame's scene residual (``scene_memory``; NaN rows: no scene before the frame), when the owner
-    gave the views; None: the frames are not judged against the dive's scene."""
+    gave the scene input; None: the frames are not judged against the dive's scene."""
 
 
 class DiveWindow:
@@ -84,11 +84,11 @@ class DiveWindow:
         f = np.asarray(features, dtype=np.float64)
         return np.zeros_like(f) if self._mean is None else f - self._mean.mean
 
-    def take(self, pooled: np.ndarray, join: bool = True, views: np.ndarray | None = None) -> DiveFrames:
+    def take(self, pooled: np.ndarray, join: bool = True, scene: SceneInput | None = None) -> DiveFrames:
         """A batch's pooled features for every topic: taken into the dive (``join``), or only centred by it; with
-        ``views`` (``Encoder.scene_views``) also each frame's scene residual."""
-        scene = None if views is None else self.scene.residuals(views, join=join)
-        return DiveFrames(pooled, self.add(pooled) if join else self.offsets(pooled), join, scene)
+        ``scene`` (``Encoder.scene_input``) also each frame's scene residual."""
+        residuals = None if scene is None else self.scene.residuals(scene, join=join)
+        return DiveFrames(pooled, self.add(pooled) if join else self.offsets(pooled), join, residuals)
 
     def recent_features(self) -> np.ndarray:
         """(frames, features) centred features of the last ``tau`` frames ((0, 0) before the first)."""

@@ -394,7 +394,7 @@ class Pipeline:
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
             pooled = self.encoder.sampler_features(emb)  # the dive's and the sampler's features, asked for once
-            frames_in_dive = self.dive.take(pooled, views=self.encoder.scene_views(emb))
+            frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb))
             scores, passed = score_matrix([t.presampler for t in self.topics], emb, frames_in_dive)
             if only is not None:
                 passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
@@ -484,7 +484,7 @@ class Pipeline:
         emb_e = self._encode(small, "reencode")
         pooled_e = self.encoder.sampler_features(emb_e)
         ss_e, ok = score_matrix([t.presampler for t in self.topics], emb_e,
-                                self.dive.take(pooled_e, join=False, views=self.encoder.scene_views(emb_e)),
+                                self.dive.take(pooled_e, join=False, scene=self.encoder.scene_input(emb_e)),
                                 self._tau_ses)  # not new frames
         ok &= passed[go]
         self.counts["enhanced"] += len(go)

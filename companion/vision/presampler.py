@@ -106,7 +106,7 @@ class PreSampler:
         if pooled is None:
             pooled = self.encoder.sampler_features(image_embeddings)
         return self.scores_in_dive(image_embeddings,
-                                   self.dive.take(pooled, join, self.encoder.scene_views(image_embeddings)))
+                                   self.dive.take(pooled, join, self.encoder.scene_input(image_embeddings)))
 
     def scores_in_dive(self, image_embeddings: np.ndarray, frames: DiveFrames) -> np.ndarray:
         """(N,) float32 ss_t of a batch that ``dive`` has already seen (``frames``: what ``dive.take`` gave); with

@@ -70,8 +70,8 @@ def score_images(cfg: Config, paths: Sequence[str | Path], encoder: Encoder | No
                 images.append(img)
                 readable.append(f)
         emb = encoder.encode_images(images) if images else None  # one pass serves every topic
-        views = encoder.scene_views(emb) if images and dive else None
-        scores = (score_matrix(presamplers, emb, window.take(encoder.sampler_features(emb), views=views))[0]
+        scene = encoder.scene_input(emb) if images and dive else None
+        scores = (score_matrix(presamplers, emb, window.take(encoder.sampler_features(emb), scene=scene))[0]
                   if images else np.zeros((0, len(topics))))
         by_file = dict(zip(readable, scores, strict=True))
         for f in chunk:

@@ -12,6 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from companion.vision.scene_memory import SceneInput
+
 
 class Encoder(ABC):
     name: str
@@ -46,13 +48,13 @@ class Encoder(ABC):
         (the object, not the scene); encoders without regions give their sampler features."""
         return self.sampler_features(image_embeddings)
 
-    def scene_views(self, image_embeddings: np.ndarray) -> np.ndarray | None:
-        """(N, V, D) view features for the dive's scene memory (``companion.vision.scene_memory``); None for an
-        encoder whose scores do not use it."""
+    def scene_input(self, image_embeddings: np.ndarray) -> SceneInput | None:
+        """What the dive's scene memory compares (``companion.vision.scene_memory``: view features and small
+        frames); None for an encoder whose scores do not use it."""
         return None
 
     def with_scene(self, image_embeddings: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-        """The embeddings with each frame's scene residual (from ``scene_views``) in place, for
+        """The embeddings with each frame's scene residual (from ``scene_input``) in place, for
         ``semantic_scores``; unchanged for an encoder that does not use it."""
         return image_embeddings
 

@@ -8,8 +8,9 @@ whole and by regions (crops, taken from one pass's feature map), and a concept's
 where the positive concept is largest.
 
 Embedding layout, one row per frame: ``[1280 pooled features | V x 1000 class probabilities | (V - 1) x 1280
-region features | 1280 scene residual]`` (V views: the whole frame, then the regions); the sampler sees only the
-pooled features. The scene residual is NaN until the pre-sampler that scores the frame as part of a dive fills it
+region features | 112 x 64 x 3 small frame | 1292 scene residual]`` (V views: the whole frame, then the regions;
+the small frame is what ``pixel_scene`` compares with the dive's background); the sampler sees only the pooled
+features. The scene residual is NaN until the pre-sampler that scores the frame as part of a dive fills it
 (``with_scene``, ``companion.vision.scene_memory``); a head reading it answers only when it is there, else the
 head on the pooled features does.
 
@@ -35,12 +36,17 @@ from companion.vision.encoders.learned_head import LinearHead, head_for, shipped
 from companion.vision.encoders.query_cache import QueryCache, query_cache
 from companion.vision.encoders.query_words import ResolvedQuery
 from companion.vision.encoders.torch_runtime import configure_threads, padded_to, pick_device
+from companion.vision.pixel_scene import FEATURES as PIXEL_FEATURES
+from companion.vision.pixel_scene import PIXELS, SIZE, small_frame
+from companion.vision.scene_memory import SceneInput
 
 log = logging.getLogger(__name__)
 
 SIDE = 224
 FEATURES = 1280
 CLASSES = 1000
+SCENE = FEATURES + PIXEL_FEATURES
+"""Length of a scene residual row (``scene_memory``): the view features' residual, then the pixel changes."""
 # EfficientNet-Lite was trained on inputs scaled as (x - 127) / 128 (TF-Lite's quantisation-friendly range).
 _MEAN = 127.0
 _STD = 128.0
@@ -121,7 +127,8 @@ class ImageNetEncoder(Encoder):
         self._regions = regions
         self._reduce = reduce
         self._batch = cfg.batch if self._device.type != "cpu" else min(cfg.batch, CPU_FORWARD_FRAMES)
-        self.heads: list[LinearHead] = shipped_heads(backbone, FEATURES, colour) if heads else []
+        self.heads: list[LinearHead] = shipped_heads(backbone, {"pooled": FEATURES, "scene": SCENE},
+                                                     colour) if heads else []
         self._queries: QueryCache = query_cache(cfg.cache_dir)  # a query asked before needs no WordNet
 
     @property
@@ -153,9 +160,11 @@ class ImageNetEncoder(Encoder):
 
     @torch.inference_mode()
     def encode_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        out = np.zeros((len(images), self._scene_at + FEATURES), dtype=np.float32)
+        out = np.zeros((len(images), self._scene_at + SCENE), dtype=np.float32)
         out[:, self._scene_at:] = np.nan  # filled by with_scene, as part of a dive
         resized = [self._resized(img) for img in images]
+        for i, img in enumerate(resized):
+            out[i, self._pixels_at:self._scene_at] = small_frame(img).ravel()
         by_shape: dict[tuple[int, int], list[int]] = {}
         for i, img in enumerate(resized):
             by_shape.setdefault(img.shape[:2], []).append(i)
@@ -163,14 +172,19 @@ class ImageNetEncoder(Encoder):
             for start in range(0, len(idx), self._batch):
                 part = idx[start:start + self._batch]
                 pooled, probs, regions = self._run(np.stack([resized[i] for i in part]))
-                out[part, :self._scene_at] = torch.cat([pooled, probs.flatten(1), regions.flatten(1)],
+                out[part, :self._pixels_at] = torch.cat([pooled, probs.flatten(1), regions.flatten(1)],
                                                        dim=1).cpu().numpy()
         return out
 
     @property
+    def _pixels_at(self) -> int:
+        """Where the small frame starts in a row (after the regions' features)."""
+        return FEATURES + self.views * (CLASSES + FEATURES) - FEATURES
+
+    @property
     def _scene_at(self) -> int:
         """Where the scene residual starts in a row."""
-        return FEATURES + self.views * (CLASSES + FEATURES) - FEATURES
+        return self._pixels_at + PIXELS
 
     @property
     def views(self) -> int:
@@ -222,7 +236,7 @@ class ImageNetEncoder(Encoder):
     def view_features(self, image_embeddings: np.ndarray) -> np.ndarray:
         """(N, V, 1280): the whole frame's pooled features, then each region's."""
         n = image_embeddings.shape[0]
-        regions = image_embeddings[:, FEATURES + self.views * CLASSES:self._scene_at].reshape(n, -1, FEATURES)
+        regions = image_embeddings[:, FEATURES + self.views * CLASSES:self._pixels_at].reshape(n, -1, FEATURES)
         return np.concatenate([image_embeddings[:, None, :FEATURES], regions], axis=1)
 
     def head_of(self, text_embeddings: np.ndarray) -> LinearHead | None:
@@ -241,7 +255,7 @@ class ImageNetEncoder(Encoder):
         """(N, M) masses with each query a learned head answers replaced by the head's probability."""
         out = np.array(mass, dtype=np.float64, copy=True)
         pooled = image_embeddings[:, :FEATURES]
-        scene = image_embeddings[:, self._scene_at:self._scene_at + FEATURES]
+        scene = image_embeddings[:, self._scene_at:self._scene_at + SCENE]
         in_dive = np.isfinite(scene).all(axis=1)
         for m in range(text_embeddings.shape[0]):
             head = head_for(self.heads, text_embeddings[m, :CLASSES])
@@ -254,14 +268,20 @@ class ImageNetEncoder(Encoder):
             out[:, m] = 1.0 - p if text_embeddings[m, CLASSES] > 0.5 else p
         return out
 
-    def scene_views(self, image_embeddings: np.ndarray) -> np.ndarray | None:
-        """The views the dive's scene memory compares, when a head reads the scene residual."""
+    def scene_input(self, image_embeddings: np.ndarray) -> SceneInput | None:
+        """What the dive's scene memory compares (the views and the small frames), when a head reads the scene
+        residual."""
         wanted = self._regions and any(h.input == "scene" for h in self.heads)  # trained on the 9 views
-        return self.view_features(image_embeddings) if wanted else None
+        return self.scene_of(image_embeddings) if wanted else None
+
+    def scene_of(self, image_embeddings: np.ndarray) -> SceneInput:
+        """The views and small frames of a batch, whatever heads are loaded (for training them)."""
+        pixels = image_embeddings[:, self._pixels_at:self._scene_at].reshape(-1, SIZE[1], SIZE[0], 3)
+        return SceneInput(self.view_features(image_embeddings), pixels)
 
     def with_scene(self, image_embeddings: np.ndarray, residuals: np.ndarray) -> np.ndarray:
         out = np.array(image_embeddings, copy=True)
-        out[:, self._scene_at:self._scene_at + FEATURES] = residuals
+        out[:, self._scene_at:self._scene_at + SCENE] = residuals
         return out
 
     def object_features(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:

@@ -100,10 +100,12 @@ def _input(value: object) -> str:
     return str(value)
 
 
-def shipped_heads(backbone: str, features: int, colour: str) -> list[LinearHead]:
-    """The heads shipped with the package that fit an encoder with this backbone, feature size and colour."""
+def shipped_heads(backbone: str, widths: dict[str, int], colour: str) -> list[LinearHead]:
+    """The heads shipped with the package that fit an encoder with this backbone and colour, and whose input has
+    the length the encoder gives (``widths``: per input; a head trained on an older layout is left out)."""
     heads = sorted((load_head(p) for p in sorted(HEADS_DIR.glob("*.json"))), key=lambda h: h.input != "pooled")
-    return [h for h in heads if h.backbone == backbone and h.w.shape == (features,) and h.colour == colour]
+    return [h for h in heads if h.backbone == backbone and h.colour == colour
+            and h.w.shape == (widths.get(h.input, -1),)]
 
 
 def head_for(heads: list[LinearHead], class_weights: np.ndarray, reads: str = "pooled") -> LinearHead | None:

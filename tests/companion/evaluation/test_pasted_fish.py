@@ -19,7 +19,7 @@ from companion.evaluation.pasted_fish import MIN_BOX, PastedFish, fish_crops, pa
 from companion.evaluation.scene_holdout import pasted_scene_features
 from companion.evaluation.sources import DEEPFISH, LabelledFrame, load_sources
 from companion.vision.encoders.learned_head import load_head
-from companion.vision.scene_memory import SceneMemory
+from companion.vision.scene_memory import SceneInput, SceneMemory
 from tests.conftest import SHARED_DATA, run_merlion, shared_file
 
 
@@ -83,24 +83,27 @@ def test_boxes_outside_the_frame_are_cut_as_far_as_the_frame_goes_and_bad_files_
 
 def test_pasted_copies_are_judged_as_if_they_came_in_place_of_their_original():
     rng = np.random.default_rng(3)
-    views = rng.normal(size=(8, 3, 4))
+    pixels = np.clip(0.4 + rng.normal(0, 0.05, size=(8, 64, 112, 3)), 0, 1)
+    views = SceneInput(rng.normal(size=(8, 3, 4)), pixels)
     # one DeepFish habitat: streamed in a seeded shuffled order, not in file order
     frames = [LabelledFrame(f"{DEEPFISH}1", f"f{i}", False, np.zeros((2, 2, 3), np.uint8)) for i in range(8)]
     base = np.arange(8)
-    copies = views + rng.normal(0, 2, size=views.shape)
-    pasted = PastedFish(base=base, groups=np.array([f"{DEEPFISH}1+aquarium"] * 8), views=copies)
+    copies = SceneInput(views.views + rng.normal(0, 2, size=views.views.shape), np.clip(pixels + 0.1, 0, 1))
+    pasted = PastedFish(base=base, groups=np.array([f"{DEEPFISH}1+aquarium"] * 8), scene=copies)
     got = pasted_scene_features(views, frames, pasted, seed=1)
+    assert got.shape == (8, 4 + 12)
     [order] = stream_order(frames, 1)
     assert order.tolist() != list(range(8))
     assert np.isnan(got[order[0]]).all() and np.isfinite(np.delete(got, order[0], axis=0)).all()
     for t in range(1, 8):
         memory = SceneMemory()
         memory.residuals(views[order[:t]])  # the dive as it stood before frame order[t]
-        want = memory.residuals(copies[order[t]][None])[0]  # the copy joins as a real frame would
+        want = memory.residuals(copies[order[t]])[0]  # the copy joins as a real frame would
         np.testing.assert_allclose(got[order[t]], want, rtol=1e-12, atol=1e-12)
     # what comes after a frame never reaches its copy
-    later = views.copy()
-    later[order[5:]] += 100.0
+    later = SceneInput(views.views.copy(), pixels.copy())
+    later.views[order[5:]] += 100.0
+    later.pixels[order[5:]] = 1.0 - later.pixels[order[5:]]
     np.testing.assert_allclose(pasted_scene_features(later, frames, pasted, seed=1)[order[:6]], got[order[:6]])
 
 

@@ -11,12 +11,16 @@ import pytest
 from companion.config import EncoderConfig
 from companion.errors import MerlionError
 from companion.evaluation.roc import auroc
-from companion.vision.encoders.imagenet import CLASSES, CPU_FORWARD_FRAMES, FEATURES, ImageNetEncoder
+from companion.vision.encoders.imagenet import CLASSES, CPU_FORWARD_FRAMES, FEATURES, SCENE, ImageNetEncoder
 from companion.vision.encoders.query_words import class_name, resolve_query
+from companion.vision.pixel_scene import PIXELS, small_frame
 from tests.conftest import shared_file
 
 FISH = "underwater image with fish"
 NO_FISH = "underwater image without fish"
+
+WIDTH = FEATURES + 9 * (CLASSES + FEATURES) - FEATURES + PIXELS + SCENE
+"""A row: pooled, 9 views' classes, 8 regions' features, the small frame, the scene slot."""
 
 
 @pytest.fixture(scope="module")
@@ -35,9 +39,13 @@ def suim() -> tuple[list[np.ndarray], np.ndarray]:
 def test_fish_images_outscore_no_fish_images_on_suim(encoder, suim):
     images, fish = suim
     emb = encoder.encode_images(images)
-    # pooled, V class distributions, V - 1 regions, and the scene residual (NaN: not part of a dive yet)
-    assert emb.shape == (len(images), FEATURES + encoder.views * (CLASSES + FEATURES)) and emb.dtype == np.float32
-    assert np.isnan(emb[:, -FEATURES:]).all() and np.isfinite(emb[:, :-FEATURES]).all()
+    # pooled, V class distributions, V - 1 regions, the small frame, and the scene residual (NaN: not part of a
+    # dive yet)
+    assert emb.shape == (len(images), WIDTH) and emb.dtype == np.float32
+    assert np.isnan(emb[:, -SCENE:]).all() and np.isfinite(emb[:, :-SCENE]).all()
+    scene = encoder.scene_of(emb)  # the small frames are the frames, resized
+    np.testing.assert_allclose(scene.pixels[0], small_frame(cv2.resize(images[0], (448, 256),
+                                                                      interpolation=cv2.INTER_AREA)), atol=1e-6)
     scores = encoder.semantic_scores(emb, encoder.encode_texts([FISH, NO_FISH]))
     assert np.all((scores > 0) & (scores < 1))
     assert scores[fish == 1].mean() > scores[fish == 0].mean() + 0.1  # "fish": the learned head (learned_head.py)
@@ -129,7 +137,7 @@ def test_sampler_features_are_the_pooled_1280(encoder, suim):
     feats = encoder.sampler_features(emb)
     assert feats.shape == (2, FEATURES)
     assert not np.allclose(feats[0], feats[1])
-    assert encoder.encode_images([]).shape == (0, FEATURES + encoder.views * (CLASSES + FEATURES))  # + scene slot
+    assert encoder.encode_images([]).shape == (0, WIDTH)
 
 
 def test_mixed_portrait_and_landscape_batches_keep_frame_order(suim):

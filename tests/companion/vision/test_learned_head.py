@@ -7,7 +7,7 @@ import pytest
 
 from companion.config import EncoderConfig
 from companion.errors import MerlionError
-from companion.vision.encoders.imagenet import FEATURES, ImageNetEncoder
+from companion.vision.encoders.imagenet import FEATURES, SCENE, ImageNetEncoder
 from companion.vision.encoders.learned_head import HEADS_DIR, SURE, LinearHead, head_for, load_head
 
 
@@ -74,7 +74,8 @@ def test_fish_query_is_scored_by_the_head_and_marks_use_the_most_fish_like_regio
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 255, (202, 360, 3), dtype=np.uint8) for _ in range(2)]
     emb = encoder.encode_images(frames)
-    assert emb.shape == (2, FEATURES + encoder.views * 1000 + encoder.views * FEATURES)  # + the scene slot
+    # pooled, classes of each view, the regions' features, the small frame (112 x 64 x 3), the scene slot
+    assert emb.shape == (2, FEATURES + encoder.views * 1000 + (encoder.views - 1) * FEATURES + 112 * 64 * 3 + SCENE)
     text = encoder.encode_texts(["fish"])
     head = encoder.heads[0]  # outside a dive (scene slot NaN) the pooled head answers
     assert np.allclose(encoder.semantic_scores(emb, text), head.probabilities(emb[:, :FEATURES]), atol=1e-6)

@@ -11,8 +11,9 @@ import pytest
 from companion.config import EncoderConfig
 from companion.vision.dive_mean import TAU
 from companion.vision.encoders.imagenet import FEATURES, ImageNetEncoder
+from companion.vision.pixel_scene import PixelScene
 from companion.vision.presampler import PreSampler
-from companion.vision.scene_memory import SceneMemory
+from companion.vision.scene_memory import SceneInput, SceneMemory
 from tests.conftest import run_merlion
 
 
@@ -28,31 +29,50 @@ def _reference(views: np.ndarray, tau: float = TAU) -> np.ndarray:
     return out
 
 
-def test_residuals_are_the_causal_positive_difference_from_the_dive_mean():
+def _inputs(views: np.ndarray, seed: int) -> SceneInput:
+    """Views with small frames of a still scene beside them."""
+    rng = np.random.default_rng(seed)
+    pixels = np.clip(0.4 + rng.normal(0, 0.05, size=(len(views), 64, 112, 3)), 0, 1)
+    return SceneInput(views, pixels)
+
+
+def test_residuals_are_the_causal_positive_difference_from_the_dive_mean_then_the_pixel_changes():
     rng = np.random.default_rng(0)
     views = rng.normal(size=(40, 3, 16))
-    got = SceneMemory(tau=10).residuals(views)
-    want = _reference(views, tau=10)
+    scene = _inputs(views, 0)
+    got = SceneMemory(tau=10).residuals(scene)
+    want = np.concatenate([_reference(views, tau=10), PixelScene(tau=10).features(scene.pixels)], axis=1)
+    assert got.shape == (40, 16 + 12) and scene.width == 28
     assert np.isnan(got[0]).all() and np.isfinite(got[1:]).all()
     np.testing.assert_allclose(got[1:], want[1:], rtol=1e-12, atol=1e-12)
-    assert (got[1:] >= 0).all()
+    assert (got[1:, :16] >= 0).all()
     memory = SceneMemory(tau=10)  # batches of any size give the same residuals
-    parts = [memory.residuals(views[i:i + k]) for i, k in ((0, 1), (1, 7), (8, 32))]
+    parts = [memory.residuals(scene[i:i + k]) for i, k in ((0, 1), (1, 7), (8, 32))]
     np.testing.assert_allclose(np.concatenate(parts)[1:], want[1:], rtol=1e-12, atol=1e-12)
 
 
 def test_a_frame_scored_again_does_not_join_the_scene():
     rng = np.random.default_rng(1)
     views = rng.normal(size=(6, 2, 8))
+    scene = _inputs(views, 1)
     memory = SceneMemory()
-    assert np.isnan(memory.residuals(views[:1], join=False)).all() and not memory.seen  # no dive yet
-    memory.residuals(views[:3])
-    again = memory.residuals(views[3:5] * 2.0, join=False)  # e.g. enhanced copies
+    assert np.isnan(memory.residuals(scene[:1], join=False)).all() and not memory.seen  # no dive yet
+    memory.residuals(scene[:3])
+    again = memory.residuals(SceneInput(views[3:5] * 2.0, scene.pixels[3:5]), join=False)  # e.g. enhanced copies
     mean = views[:3].mean(axis=0)
-    np.testing.assert_allclose(again, np.clip(views[3:5] * 2.0 - mean, 0, None).mean(axis=1), atol=1e-12)
-    np.testing.assert_allclose(memory.residuals(views[3:]), _reference(views)[3:], atol=1e-12)
+    np.testing.assert_allclose(again[:, :8], np.clip(views[3:5] * 2.0 - mean, 0, None).mean(axis=1), atol=1e-12)
+    np.testing.assert_allclose(memory.residuals(scene[3:])[:, :8], _reference(views)[3:], atol=1e-12)
     with pytest.raises(ValueError, match="views must be"):
-        memory.residuals(views[0])
+        SceneInput(views[0], scene.pixels[0])
+    with pytest.raises(ValueError, match="6 frames of views but 5 of pixels"):
+        SceneInput(views, scene.pixels[:5])
+    assert scene[-1].views.shape == (1, 2, 8) and np.array_equal(scene[-1].pixels[0], scene.pixels[5])
+
+
+def _scene_reference(encoder: ImageNetEncoder, emb: np.ndarray) -> np.ndarray:
+    """The views' residual (written out above) and the pixel changes (``test_pixel_scene``) of one dive."""
+    scene = encoder.scene_of(emb)
+    return np.concatenate([_reference(scene.views.astype(np.float64)), PixelScene().features(scene.pixels)], axis=1)
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +97,7 @@ def test_presampler_scores_a_dive_by_the_scene_head_after_its_first_frame(dive):
     scene_head = next(h for h in encoder.heads if h.input == "scene")
     presampler = PreSampler(encoder, "fish")
     scores = np.concatenate([presampler.scores(emb[:3]), presampler.scores(emb[3:])])
-    residual = _reference(encoder.view_features(emb).astype(np.float64))
+    residual = _scene_reference(encoder, emb)
     # the first frame has no scene before it: the pooled head answers; then the scene head on the residual
     assert scores[0] == pytest.approx(pooled_head.probabilities(emb[:1, :FEATURES])[0], abs=1e-6)
     np.testing.assert_allclose(scores[1:], scene_head.probabilities(residual[1:]), atol=1e-6)
@@ -92,7 +112,7 @@ def test_presampler_scores_a_dive_by_the_scene_head_after_its_first_frame(dive):
 def test_an_encoder_without_a_scene_head_scores_as_before(dive):
     encoder, emb, _ = dive
     plain = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
-    assert plain.scene_views(emb) is None
+    assert plain.scene_input(emb) is None
     presampler = PreSampler(plain, "fish")
     np.testing.assert_allclose(presampler.scores(emb), plain.semantic_scores(emb, presampler.text_embeddings))
     assert not presampler.dive.scene.seen
@@ -111,4 +131,4 @@ def test_score_judges_images_on_their_own_unless_they_are_one_dive(dive, tmp_pat
     scene = next(h for h in encoder.heads if h.input == "scene")
     np.testing.assert_allclose(a, pooled, atol=2e-3)  # PNG round trip: same pixels
     assert d[0] == pytest.approx(a[0], abs=1e-6)
-    np.testing.assert_allclose(d[1:], scene.probabilities(_reference(encoder.view_features(emb[:5]))[1:]), atol=2e-3)
+    np.testing.assert_allclose(d[1:], scene.probabilities(_scene_reference(encoder, emb[:5])[1:]), atol=2e-3)
