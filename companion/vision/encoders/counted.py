@@ -15,10 +15,15 @@ from typing import Any
 import numpy as np
 
 from companion.vision.encoders.base import Encoder
+from companion.vision.scene_memory import SceneInput
 
 
 class CountedEncoder(Encoder):
-    """Delegates everything to ``inner``; ``images`` and ``calls`` count what ``encode_images`` was given."""
+    """Delegates everything to ``inner``; ``images`` and ``calls`` count what ``encode_images`` was given.
+
+    Every method of ``Encoder`` is written out here: ``__getattr__`` only sees names the base class lacks, so a
+    method left out would silently answer with the base class's default (as ``scene_input`` once did, which
+    kept the live companion off the scene head)."""
 
     def __init__(self, inner: Encoder) -> None:
         self.inner = inner
@@ -53,6 +58,12 @@ class CountedEncoder(Encoder):
 
     def object_features(self, image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
         return self.inner.object_features(image_embeddings, text_embeddings)
+
+    def scene_input(self, image_embeddings: np.ndarray) -> SceneInput | None:
+        return self.inner.scene_input(image_embeddings)
+
+    def with_scene(self, image_embeddings: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+        return self.inner.with_scene(image_embeddings, residuals)
 
     def describe(self) -> dict:
         return self.inner.describe()
