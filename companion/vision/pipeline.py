@@ -33,7 +33,7 @@ from __future__ import annotations
 import time
 from collections.abc import Collection, Iterable, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -409,7 +409,7 @@ class Pipeline:
         final_images = list(images)
         final_scores = scores.astype(np.float64)
         if self.enhance_mode == "selective" and passed.any():
-            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, pooled, results,
+            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, emb, pooled, results,
                                                                                 final_images, final_scores)
         events: list[SummaryEvent] = []
         go = np.flatnonzero(passed.any(axis=1))
@@ -474,18 +474,24 @@ class Pipeline:
                 events.extend(self._show_stand_ins(topic))
         return events
 
-    def _enhance_selected(self, frames, passed, pooled, results, images, scores):
+    def _enhance_selected(self, frames, passed, emb, pooled, results, images, scores):
         """MERLION-E: enhance the frames that passed (for any topic), re-encode them once, and keep, per topic,
-        those whose ss_e passes tau_ses."""
+        those whose ss_e passes tau_ses.
+
+        A copy is judged against the dive as it stands (it does not join it); its pixel changes are its raw
+        frame's, since the enhancer changes every pixel and the dive's background is of raw frames (judged
+        against it, every copy would look new)."""
         go = np.flatnonzero(passed.any(axis=1))
         with self.clock.stage("enhance", len(go)):
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
         pooled_e = self.encoder.sampler_features(emb_e)
+        scene_e = self.encoder.scene_input(emb_e)
+        if scene_e is not None:
+            scene_e = replace(scene_e, pixels=self.encoder.scene_input(emb[go]).pixels)
         ss_e, ok = score_matrix([t.presampler for t in self.topics], emb_e,
-                                self.dive.take(pooled_e, join=False, scene=self.encoder.scene_input(emb_e)),
-                                self._tau_ses)  # not new frames
+                                self.dive.take(pooled_e, join=False, scene=scene_e), self._tau_ses)  # not new frames
         ok &= passed[go]
         self.counts["enhanced"] += len(go)
         self.counts["enhanced_passed"] += int(ok.any(axis=1).sum())

@@ -11,6 +11,7 @@ from companion.sources.video import VideoSource
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.pipeline import Pipeline, downscale_for
+from companion.vision.scene_memory import SceneInput, SceneMemory
 from tests.companion.vision.helpers import replay_events, run
 from tests.conftest import shared_file
 
@@ -172,3 +173,33 @@ def test_gating_in_the_decode_thread_fills_batches_and_gives_the_same_summary(en
     assert [r.added for r in got] == [r.added for r in expected]
     assert max(sizes) == 4 and fed.counts == inline.counts
     assert [f.frame_index for f in fed.summary] == [f.frame_index for f in inline.summary]
+
+
+def test_an_enhanced_copy_is_judged_by_its_raw_frames_pixels_and_does_not_join_the_dive(frames):
+    """With the scene head (region views), selective enhancement re-scores each passing frame's copy against the
+    dive's scene; the copy's pixel changes are its raw frame's: the enhancer changes every pixel, and judged
+    against a background of raw frames every copy would look new."""
+    calls: list[tuple[SceneInput, bool]] = []
+
+    class Recording(SceneMemory):
+        def residuals(self, scene, *, join=True):
+            calls.append((scene, join))
+            return super().residuals(scene, join=join)
+
+    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))  # regions: the scene head loads
+    pipe = make(encoder, mode="selective", tau_ses=0.3, tau=0.05)
+    pipe.dive.scene = Recording()
+    results, _ = run(pipe, frames[4:12])
+    raw, raw_views = {}, {}  # each frame's small frame and views, as it joined the dive
+    for scene, join in calls:
+        if join:
+            raw_views.update({len(raw) + i: scene.views[i] for i in range(len(scene))})
+            raw.update({len(raw) + i: scene.pixels[i] for i in range(len(scene))})
+    copies = [(scene, join) for scene, join in calls if not join]
+    enhanced = [i for i, r in enumerate(results) if r.enhanced]
+    assert len(raw) == len(results) and enhanced and sum(len(s) for s, _ in copies) == len(enhanced)
+    pixels = np.concatenate([s.pixels for s, _ in copies])
+    np.testing.assert_array_equal(pixels, np.stack([raw[i] for i in enhanced]))
+    views = np.concatenate([s.views for s, _ in copies])  # the views are the copies' own
+    assert all(not np.allclose(v, raw_views[i]) for v, i in zip(views, enhanced, strict=True))
+    assert pipe.dive.frames == len(results)  # the copies did not join
