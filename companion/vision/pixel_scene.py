@@ -8,9 +8,13 @@ running mean and spread of the same small image (``running_mean``: this frame in
 and exponential after), and gives 12 numbers: the largest, 99th-percentile and mean absolute change, and the
 largest "blob" contrast (a box mean of the change minus that of a box five times wider, so a swaying root or a
 whole-frame shift counts less than a compact spot) at three sizes; then the same six on the change divided by
-the dive's running spread (a spot where the scene is usually still counts more). They are appended to the scene
+the dive's running spread (the square root of the running mean squared change plus its mean over the frame:
+a spot where the scene is usually still counts more). They are appended to the scene
 residual and read by the same scene head, which learns from the data how far to trust them (a moving ROV
 changes every pixel, a fixed camera few). Measured held out on the shared data: docs/encoders.md.
+
+A portrait frame in a landscape dive is compared turned, against a background of landscape frames: its changes
+say little (as its view features do), which a dive of one camera does not meet.
 """
 
 from __future__ import annotations

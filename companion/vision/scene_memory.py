@@ -1,7 +1,7 @@
 """What sets a frame apart from its dive's scene, region by region: the scene-residual features.
 
 A fixed camera or a slow ROV sees the same water, light and sea bed for minutes; what a fish adds is local and
-comes and goes. Each frame's view features (the whole frame and its regions, ``Encoder.view_features``) minus the
+comes and goes. Each frame's view features (the whole frame and its regions, ``ImageNetEncoder.view_features``) minus the
 dive's causal running mean of the same views, kept where positive (something there that this part of the scene
 usually lacks) and averaged over the views, give one vector per frame. A learned head on it (a head with input
 "scene", ``learned_head``) ranks fish frames against empty ones far better across dives than a head on the plain
@@ -30,7 +30,7 @@ from companion.vision.pixel_scene import PixelScene
 from companion.vision.running_mean import TAU, RunningMean
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SceneInput:
     """What the scene memory compares, for a batch of frames: their view features and their small frames."""
 
@@ -49,9 +49,11 @@ class SceneInput:
         return len(self.views)
 
     def __getitem__(self, index: object) -> SceneInput:
-        """The frames at ``index`` (an int keeps its frame axis, as ``x[i][None]`` would)."""
-        if isinstance(index, (int, np.integer)):
-            index = slice(int(index), int(index) + 1 or None)
+        """The frames at ``index`` (a slice, indices or a mask; one int keeps its frame axis, as ``x[i][None]``
+        would, and raises IndexError out of range)."""
+        if isinstance(index, (int, np.integer)) and not isinstance(index, bool):
+            i = range(len(self))[index]
+            index = slice(i, i + 1)
         return SceneInput(self.views[index], self.pixels[index])
 
     @property

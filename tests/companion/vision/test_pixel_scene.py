@@ -71,8 +71,21 @@ def test_a_frame_scored_again_does_not_join_the_background():
     memory = PixelScene()
     assert np.isnan(memory.features(pixels[:1], join=False)).all() and not memory.seen  # no dive yet
     memory.features(pixels[:6])
-    again = memory.features(np.clip(pixels[6:8] * 1.5, 0, 1), join=False)  # e.g. enhanced copies
-    assert np.isfinite(again).all()
+    bright = np.clip(pixels[6:8] * 1.5, 0, 1)
+    again = memory.features(bright, join=False)  # e.g. enhanced copies
+    # each copy against the mean and spread of frames 0..5, as they stood (written out: _reference's last step)
+    blurred = [cv2.GaussianBlur(p.astype(np.float64), (0, 0), 0.7) for p in pixels[:6]]
+    mean, square = blurred[0], np.zeros_like(blurred[0])
+    for t in range(1, 6):
+        mean = mean + (blurred[t] - mean) / (t + 1)
+        square = square + ((blurred[t] - mean) ** 2 - square) / (t + 1)
+    for row, copy in zip(again, bright, strict=True):
+        change = np.abs(cv2.GaussianBlur(copy.astype(np.float64), (0, 0), 0.7) - mean).sum(axis=2)
+        spread = square.sum(axis=2)
+        scaled = change / np.sqrt(spread + max(spread.mean(), 1e-4))  # the floor: a still scene
+        assert row[0] == pytest.approx(np.log1p(10 * change.max()), rel=1e-5)
+        assert row[2] == pytest.approx(np.log1p(10 * change.mean()), rel=1e-5)
+        assert row[8] == pytest.approx(np.log1p(10 * scaled.mean()), rel=1e-5)
     np.testing.assert_allclose(memory.features(pixels[6:]), _reference(pixels, 100.0)[6:], rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match=r"pixels must be \(frames, 64, 112, 3\)"):
         memory.features(pixels[0])

@@ -58,15 +58,24 @@ def test_a_frame_scored_again_does_not_join_the_scene():
     memory = SceneMemory()
     assert np.isnan(memory.residuals(scene[:1], join=False)).all() and not memory.seen  # no dive yet
     memory.residuals(scene[:3])
-    again = memory.residuals(SceneInput(views[3:5] * 2.0, scene.pixels[3:5]), join=False)  # e.g. enhanced copies
+    bright = np.clip(scene.pixels[3:5] * 1.5, 0, 1)
+    again = memory.residuals(SceneInput(views[3:5] * 2.0, bright), join=False)  # e.g. enhanced copies
     mean = views[:3].mean(axis=0)
     np.testing.assert_allclose(again[:, :8], np.clip(views[3:5] * 2.0 - mean, 0, None).mean(axis=1), atol=1e-12)
-    np.testing.assert_allclose(memory.residuals(scene[3:])[:, :8], _reference(views)[3:], atol=1e-12)
+    pixels = PixelScene()  # the pixel part: the same copies, against the same three frames, not joined
+    pixels.features(scene.pixels[:3])
+    np.testing.assert_allclose(again[:, 8:], pixels.features(bright, join=False), atol=1e-12)
+    # neither part took the copies in: the dive goes on as if they had never been scored
+    want = np.concatenate([_reference(views), PixelScene().features(scene.pixels)], axis=1)
+    np.testing.assert_allclose(memory.residuals(scene[3:]), want[3:], atol=1e-12)
     with pytest.raises(ValueError, match="views must be"):
         SceneInput(views[0], scene.pixels[0])
     with pytest.raises(ValueError, match="6 frames of views but 5 of pixels"):
         SceneInput(views, scene.pixels[:5])
     assert scene[-1].views.shape == (1, 2, 8) and np.array_equal(scene[-1].pixels[0], scene.pixels[5])
+    assert len(scene[np.array([True, False] * 3)]) == 3 and len(scene[[0, 2]]) == 2 and len(scene[2:]) == 4
+    with pytest.raises(IndexError):
+        scene[6]
 
 
 def _scene_reference(encoder: ImageNetEncoder, emb: np.ndarray) -> np.ndarray:
