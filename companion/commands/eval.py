@@ -440,7 +440,10 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             if hasattr(encoder, "scene_of"):  # the scene head's input: the region views and small frames
                 from companion.evaluation.scene_holdout import held_out_scene
 
-                result["scene"] = held_out_scene(encoder.scene_of(embeddings), frames, pasted=pasted)
+                scene = encoder.scene_of(embeddings)
+                result["scene"] = held_out_scene(scene, frames, pasted=pasted)
+                if any(f.clip for f in frames):  # the same, with no change of clip inside a dive
+                    result["scene_by_clip"] = held_out_scene(scene, frames, pasted=pasted, by_clip=True)
     if args.marks:
         from companion.evaluation.dive_centring import ORDER_SEEDS
         from companion.evaluation.group_feedback import marks_by_group
@@ -484,17 +487,9 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
         if d:
             print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
                   f"spread {d['spread']:.3f}; DeepFish pooled {c['deepfish_pooled']:.3f}")
-    if "scene" in result:
-        c = result["scene"]
-        print(f"held out, scene residual ({c['method']}):")
-        for name, o in [("pooled head", c["pooled_head"])] + [(f"order seed {k}", o) for k, o in c["orders"].items()]:
-            d = o["deepfish_habitats"]
-            print(f"  {name:16s} group mean {o['group_mean']:.3f}  pooled {o['pooled']:.3f}  DeepFish habitats mean "
-                  f"{d['mean']:.3f} min {d['min']:.3f}  DeepFish pooled {o['deepfish_pooled']:.3f}")
-        first = next(iter(c["orders"].values()), None)
-        if first:
-            print("  per group (pooled head -> scene head, first order): " + ", ".join(
-                f"{g} {c['pooled_head']['by_group'][g]:.2f} -> {v:.2f}" for g, v in first["by_group"].items()))
+    for key in ("scene", "scene_by_clip"):
+        if key in result:
+            _print_scene(result[key])
     if "marks" in result:
         m = result["marks"]
         print(f"{m['marks']} + {m['marks']} marks from each group's first frames in its dive's order (seed "
@@ -511,6 +506,18 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
     return 0
+
+
+def _print_scene(c: dict) -> None:
+    print(f"held out, scene residual ({c['method']}):")
+    for name, o in [("pooled head", c["pooled_head"])] + [(f"order seed {k}", o) for k, o in c["orders"].items()]:
+        d = o["deepfish_habitats"]
+        print(f"  {name:16s} group mean {o['group_mean']:.3f}  pooled {o['pooled']:.3f}  DeepFish habitats mean "
+              f"{d['mean']:.3f} min {d['min']:.3f}  DeepFish pooled {o['deepfish_pooled']:.3f}")
+    first = next(iter(c["orders"].values()), None)
+    if first:
+        print("  per group (pooled head -> scene head, first order): " + ", ".join(
+            f"{g} {c['pooled_head']['by_group'][g]:.2f} -> {v:.2f}" for g, v in first["by_group"].items()))
 
 
 def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: list[np.ndarray]) -> PastedFish:

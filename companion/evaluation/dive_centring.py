@@ -42,9 +42,15 @@ ORDER_SEEDS = (0, 1, 2)
 """The frame orders the evaluations that depend on the order report (seed 0 first)."""
 
 
-def stream_order(frames: Sequence[LabelledFrame], seed: int = ORDER_SEED) -> list[np.ndarray]:
-    """Frame indices per source (one stream each), in video order; DeepFish habitats in a seeded random order."""
-    names = np.array([f.source for f in frames])
+def stream_order(frames: Sequence[LabelledFrame], seed: int = ORDER_SEED, *,
+                 by_clip: bool = False) -> list[np.ndarray]:
+    """Frame indices per source (one stream each), in video order; DeepFish habitats in a seeded random order.
+
+    ``by_clip``: each clip its own stream (for the frames that name one). A DeepFish habitat's fish and empty
+    frames come from different clips, so in one shuffled stream a frame's change from the dive so far is partly
+    "another clip"; streamed clip by clip, no dive holds a change of clip (nor, in a fish clip, a frame without
+    fish to set a fish apart from)."""
+    names = np.array([f"{f.source}/{f.clip}" if by_clip and f.clip else f.source for f in frames])
     rng = np.random.default_rng(seed)
     streams = []
     for source in dict.fromkeys(names):

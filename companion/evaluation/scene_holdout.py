@@ -29,16 +29,17 @@ SCENE_LAMBDAS = (1e4, 3e4, 1e5)
 """Ridge strengths tried for the scene head (its features are smaller and sparser than the pooled ones)."""
 
 
-def scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], seed: int = ORDER_SEED) -> np.ndarray:
+def scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], seed: int = ORDER_SEED, *,
+                   by_clip: bool = False) -> np.ndarray:
     """(N, D) each frame's scene residual within its own source's stream (NaN for a stream's first frame)."""
     out = np.full((len(frames), scene.width), np.nan)
-    for idx in stream_order(frames, seed):
+    for idx in stream_order(frames, seed, by_clip=by_clip):
         out[idx] = SceneMemory().residuals(scene[idx])
     return out
 
 
 def pasted_scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], pasted: PastedFish,
-                          seed: int = ORDER_SEED) -> np.ndarray:
+                          seed: int = ORDER_SEED, *, by_clip: bool = False) -> np.ndarray:
     """(M, D) each pasted frame's scene residual, as if it had come in place of its empty original: against a
     copy of the dive's memory as it stood before the original, the pasted frame joining it the way a real frame
     joins (NaN where the original was the dive's first frame)."""
@@ -46,7 +47,7 @@ def pasted_scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], pa
     copies: dict[int, list[int]] = {}
     for k, i in enumerate(pasted.base):
         copies.setdefault(int(i), []).append(k)
-    for idx in stream_order(frames, seed):
+    for idx in stream_order(frames, seed, by_clip=by_clip):
         memory = SceneMemory()
         for i in idx:
             if memory.seen:
@@ -57,21 +58,22 @@ def pasted_scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], pa
 
 
 def pasted_rows(scene: SceneInput, frames: Sequence[LabelledFrame], pasted: PastedFish | None,
-                seed: int = ORDER_SEED) -> Extra | None:
+                seed: int = ORDER_SEED, *, by_clip: bool = False) -> Extra | None:
     """The pasted frames as training-only rows for the scene head (all fish), or None."""
     if pasted is None or not len(pasted.base):
         return None
-    x = pasted_scene_features(scene, frames, pasted, seed)
+    x = pasted_scene_features(scene, frames, pasted, seed, by_clip=by_clip)
     ok = np.isfinite(x).all(axis=1)
     return x[ok], np.ones(int(ok.sum()), bool), pasted.groups[ok]
 
 
 def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
                    seeds: Sequence[int] = ORDER_SEEDS, pasted: PastedFish | None = None, *,
-                   pixels: bool = True) -> dict:
+                   pixels: bool = True, by_clip: bool = False) -> dict:
     """Per order: per-group AUROC of the scene head (pooled head on each dive's first frame), every choice made
     without the reported group; and the same for the pooled head alone, for comparison. Without ``pixels`` the
-    head reads the view features' residual only (what the pixel changes add, measured)."""
+    head reads the view features' residual only (what the pixel changes add, measured); ``by_clip``: each clip
+    its own dive (``stream_order``), the head trained and tested so."""
     y = np.array([f.fish for f in frames])
     groups = np.array([f.group for f in frames])
     deepfish = np.array([f.source.startswith(DEEPFISH) for f in frames])
@@ -86,10 +88,10 @@ def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
 
     orders = {}
     for seed in seeds:
-        x = scene_features(scene, frames, seed)[:, :None if pixels else scene.views.shape[2]]
+        x = scene_features(scene, frames, seed, by_clip=by_clip)[:, :None if pixels else scene.views.shape[2]]
         ok = np.isfinite(x).all(axis=1)
         scores = pooled.copy()
-        extra = pasted_rows(scene, frames, pasted, seed)
+        extra = pasted_rows(scene, frames, pasted, seed, by_clip=by_clip)
         if extra is not None and not pixels:
             extra = (extra[0][:, :x.shape[1]], *extra[1:])
         scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS, extra)
@@ -99,6 +101,8 @@ def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
     if pasted is not None:
         method += (f"; also trained on {len(pasted.base)} pasted-fish copies of {len(set(pasted.base.tolist()))} "
                    "empty frames (less the copies of a dive's first frame)")
+    if by_clip:
+        method += "; each DeepFish clip its own dive (no change of clip inside a dive), trained and tested so"
     return {"method": method,
             "pooled_head": figures(pooled), "orders": orders}
 

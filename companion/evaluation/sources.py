@@ -37,6 +37,9 @@ class LabelledFrame:
     name: str
     fish: bool
     image: np.ndarray
+    clip: str = ""
+    """The video clip the frame was cut from, where the data says (DeepFish: each habitat's fish and empty frames
+    come from different clips of its camera), else empty."""
 
     @property
     def group(self) -> str:
@@ -100,7 +103,7 @@ def load_deepfish(root: Path) -> list[LabelledFrame]:
         return []
     rows = _rows(labels, ("file", "habitat_id", "fish_present"))
     return [LabelledFrame(f"{DEEPFISH}{r['habitat_id']}", r["file"], r["fish_present"] == "1",
-                          _read(root / "deepfish" / r["file"])) for r in rows]
+                          _read(root / "deepfish" / r["file"]), r.get("video_clip") or "") for r in rows]
 
 
 def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False,

@@ -60,6 +60,17 @@ def test_stream_order_shuffles_deepfish_habitats_only_and_keeps_each_stream_whol
     assert stream_order(frames, seed=0)[0].tolist() == streams[0].tolist()
 
 
+def test_stream_order_by_clip_makes_each_clip_its_own_shuffled_dive():
+    frames = ([LabelledFrame("deepfish:1", f"d{i}", i < 6, PIXEL, "F1" if i < 6 else "NF2") for i in range(14)]
+              + [LabelledFrame("deepfish:2", f"e{i}", False, PIXEL, "NF1") for i in range(3)]
+              + [LabelledFrame("rov_clips", f"r{i}", False, PIXEL) for i in range(4)])
+    streams = stream_order(frames, seed=3, by_clip=True)
+    assert [sorted(s.tolist()) for s in streams] == [list(range(6)), list(range(6, 14)), [14, 15, 16],
+                                                     [17, 18, 19, 20]]
+    assert streams[1].tolist() != list(range(6, 14)) and streams[3].tolist() == [17, 18, 19, 20]
+    assert len(stream_order(frames, seed=3)) == 3  # by habitat: the two clips of habitat 1 are one dive
+
+
 def _scenes(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """Six groups whose scene shifts every feature (and so the score) by a large group offset."""
     rng = np.random.default_rng(seed)

@@ -236,6 +236,10 @@ def test_train_head_and_eval_auroc_learn_from_pasted_fish_end_to_end(tmp_path):
     assert "60 pasted-fish copies of 30 empty frames" in result["method"]
     assert set(result["orders"]) == {"0", "1", "2"}
     assert all(o["deepfish_habitats"]["groups"] == 1 for o in result["orders"].values())
+    by_clip = json.loads(done.stdout)["scene_by_clip"]  # the same with each DeepFish clip its own dive
+    assert "each DeepFish clip its own dive" in by_clip["method"] and set(by_clip["orders"]) == {"0", "1", "2"}
+    assert all(o["deepfish_habitats"]["groups"] == 1 for o in by_clip["orders"].values())
+    assert by_clip["orders"]["0"]["by_group"] != result["orders"]["0"]["by_group"]
 
 
 def test_train_head_without_the_fish_boxes_is_one_line_naming_the_folder(tmp_path):
