@@ -17,8 +17,7 @@ def register(add_command) -> None:
                    "instead of starting fresh")
     p.add_argument("--source", metavar="PATH", help="real video or a folder of frames instead of the generated dive "
                    "(played in a loop)")
-    p.add_argument("--tau-ss", type=float, metavar="T", help="semantic threshold (default 0.02 on the generated "
-                   "dive, the config's 0.5 on real video)")
+    p.add_argument("--tau-ss", type=float, metavar="T", help="semantic threshold (default: the config's, 0.5)")
     p.add_argument("--encoder", default="auto", choices=["auto", "clip", "imagenet", "visual"],
                    help="encoder (default auto: CLIP when its weights are here, else the packaged one)")
     p.add_argument("--web", type=int, default=0, metavar="PORT",
