@@ -37,6 +37,9 @@ class Candidate:
     pose: object | None
     topics: tuple[str, ...] = ()
     """The topics whose tau_ss it passed: the only summaries it may enter after enhancement."""
+    scene: np.ndarray | None = None
+    """Its scene residual as the raw gate's dive judged it (None: no head reads it): its enhanced copy is judged
+    by it too (``Pipeline.process``), since the copy is not a frame of the raw dive."""
 
 
 class SelectiveStage:
@@ -84,13 +87,13 @@ class SelectiveStage:
             return out
         with self.lock:
             emb = self.pipeline.encoder.encode_images([prepared[i] for i in go])
-            scores, passed = self.raw.score(emb)
+            scores, passed, scene = self.raw.score(emb)
             self.scored += len(go)
         for row, i in enumerate(go):
             frame = frames[i]
             if passed[row]:
                 self.queue.put(Candidate(frame, float(scores[row]), poses[i] if poses is not None else None,
-                                         passed[row]))
+                                         passed[row], None if scene is None else scene[row]))
             out[i] = (frame, float(scores[row]), bool(passed[row]), True)
         return out
 
@@ -132,9 +135,10 @@ class EnhanceWorker(threading.Thread):
             self.health.beat("enhance")
         poses = [item.pose for item in items]
         only = [item.topics for item in items]
+        scene = None if any(item.scene is None for item in items) else np.stack([item.scene for item in items])
 
         def sample():
-            outcome = stage.pipeline.process(frames, poses=poses, only=only)
+            outcome = stage.pipeline.process(frames, poses=poses, only=only, scene=scene)
             for event in outcome.events:  # the frame as captured goes to the store beside the enhanced one
                 raw = raws.get(event.frame.frame_index)
                 if event.kind == "added" and raw is not None and event.frame.raw_image is None:

@@ -57,9 +57,10 @@ class RawGate:
     def tau_of(self, name: str) -> float:
         return self.presamplers[name].tau_ss if name in self.presamplers else self.default_tau
 
-    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]]]:
-        """Each frame's best ss_t over the topics, and the names of the topics it passed for (empty: none)."""
+    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]], np.ndarray | None]:
+        """Each frame's best ss_t over the topics, the names of the topics it passed for (empty: none), and each
+        frame's scene residual against the dive (None: no head reads it), which its enhanced copy is judged by."""
         frames = self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings))
         scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names
-        return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed]
+        return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed], frames.scene

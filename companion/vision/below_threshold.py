@@ -12,12 +12,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from companion.sources.frame import Frame
 from companion.vision.events import SummaryFrame
+from vehicle.autopilot.pose import Pose
 
 KEEP = 3
 """Stand-in frames per topic (at most the summary's K)."""
 MIN_GAP_S = 2.0
 """Stand-ins closer in time than this are one moment: the better one is kept."""
+
+
+def stand_in(frame: Frame, image: np.ndarray, score: float, feature: np.ndarray, pose: Pose | None,
+             topic: str) -> SummaryFrame:
+    """A frame below the threshold as a summary frame (numbered when shown); ``image`` is what the summary
+    shows (its enhanced copy, when it is not the frame as captured)."""
+    enhanced = image is not frame.image
+    return SummaryFrame(image_index=-1, frame_index=frame.index, time_s=frame.time_s,
+                        capture_time=frame.capture_time, score=score, image=image, feature=feature, pose=pose,
+                        raw_image=frame.image if enhanced else None, enhanced=enhanced, topic=topic,
+                        below_threshold=True)
 
 
 @dataclass

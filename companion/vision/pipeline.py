@@ -42,7 +42,7 @@ from companion.config import Config, as_fraction
 from companion.errors import UsageError
 from companion.sources.frame import Frame
 from companion.vision import distances as dist
-from companion.vision.below_threshold import KEEP
+from companion.vision.below_threshold import KEEP, stand_in
 from companion.vision.dive_mean import DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
@@ -337,7 +337,7 @@ class Pipeline:
 
     def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray | None] | None = None,
                 poses: Sequence[Pose | None] | None = None, *, gated: bool = False,
-                only: Sequence[Collection[str]] | None = None) -> BatchOutcome:
+                only: Sequence[Collection[str]] | None = None, scene: np.ndarray | None = None) -> BatchOutcome:
         """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
 
         The gate goes first: only the frames it admits are encoded; the others get ``encoded=False`` results.
@@ -345,6 +345,8 @@ class Pipeline:
         the live selective stage's) and ``prepared[i] is None`` marks the frames it skipped.
         ``only``: per frame, the names of the topics it may enter (a gate the caller ran before, e.g. the live
         companion's tau_ss gate ahead of its enhancer); None: every topic.
+        ``scene``: (N, D) each frame's scene residual as that gate's dive judged it (the enhanced copies of the
+        live selective stage are judged by their raw frames'; NaN rows: none); None: this pipeline's dive judges.
         """
         n = len(frames)
         if n == 0:
@@ -357,7 +359,7 @@ class Pipeline:
         elif not self.gate.on:
             self.gate.seen += n
             self.gate.encoded += n
-            return self._process_encoded(frames, prepared, poses, only)
+            return self._process_encoded(frames, prepared, poses, only, scene)
         else:
             with self.clock.stage("gate", n):
                 views = prepared if prepared is not None else [f.image for f in frames]
@@ -365,21 +367,23 @@ class Pipeline:
         go = np.flatnonzero(keep)
         self.counts["skipped"] += n - len(go)
         if len(go) == n:
-            return self._process_encoded(frames, prepared, poses, only)
+            return self._process_encoded(frames, prepared, poses, only, scene)
         results = [FrameResult(f.index, f.time_s, float("nan"), False, encoded=False) for f in frames]
         if len(go) == 0:
             return BatchOutcome(results, [])
         outcome = self._process_encoded([frames[i] for i in go],
                                         None if prepared is None else [prepared[i] for i in go],
                                         None if poses is None else [poses[i] for i in go],
-                                        None if only is None else [only[i] for i in go])
+                                        None if only is None else [only[i] for i in go],
+                                        None if scene is None else scene[go])
         for i, result in zip(go, outcome.results, strict=True):
             results[i] = result
         return BatchOutcome(results, outcome.events)
 
     def _process_encoded(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None,
                          poses: Sequence[Pose | None] | None,
-                         only: Sequence[Collection[str]] | None = None) -> BatchOutcome:
+                         only: Sequence[Collection[str]] | None = None,
+                         scene: np.ndarray | None = None) -> BatchOutcome:
         """Every stage after the gate, for the frames it let through."""
         n = len(frames)
         images = [f.image for f in frames]
@@ -394,7 +398,9 @@ class Pipeline:
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
             pooled = self.encoder.sampler_features(emb)  # the dive's and the sampler's features, asked for once
-            frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb))
+            frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb) if scene is None else None)
+            if scene is not None:  # judged by the caller's dive
+                frames_in_dive = replace(frames_in_dive, scene=np.asarray(scene, dtype=np.float64))
             scores, passed = score_matrix([t.presampler for t in self.topics], emb, frames_in_dive)
             if only is not None:
                 passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
@@ -409,8 +415,9 @@ class Pipeline:
         final_images = list(images)
         final_scores = scores.astype(np.float64)
         if self.enhance_mode == "selective" and passed.any():
-            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, emb, pooled, results,
-                                                                                final_images, final_scores)
+            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, frames_in_dive.scene,
+                                                                                pooled, results, final_images,
+                                                                                final_scores)
         events: list[SummaryEvent] = []
         go = np.flatnonzero(passed.any(axis=1))
         if len(go):
@@ -443,14 +450,9 @@ class Pipeline:
                 continue
             below.keep = min(KEEP, topic.sampler.k)
             i = int(np.argmax(scores[:, t]))
-            feature = dist.prepare_features(pooled[i:i + 1])[0]
-            frame = frames[i]
-            enhanced = images[i] is not frame.image
-            below.consider(SummaryFrame(
-                image_index=-1, frame_index=frame.index, time_s=frame.time_s, capture_time=frame.capture_time,
-                score=float(scores[i, t]), image=images[i], feature=feature,
-                pose=poses[i] if poses is not None else None, raw_image=frame.image if enhanced else None,
-                enhanced=enhanced, topic=topic.name, below_threshold=True))
+            below.consider(stand_in(frames[i], images[i], float(scores[i, t]),
+                                    dist.prepare_features(pooled[i:i + 1])[0],
+                                    poses[i] if poses is not None else None, topic.name))
             if below.due(frames[-1].time_s, self.quiet_s):
                 events.extend(self._show_stand_ins(topic))
         return events
@@ -474,24 +476,23 @@ class Pipeline:
                 events.extend(self._show_stand_ins(topic))
         return events
 
-    def _enhance_selected(self, frames, passed, emb, pooled, results, images, scores):
+    def _enhance_selected(self, frames, passed, scene, pooled, results, images, scores):
         """MERLION-E: enhance the frames that passed (for any topic), re-encode them once, and keep, per topic,
         those whose ss_e passes tau_ses.
 
-        A copy is judged against the dive as it stands (it does not join it); its pixel changes are its raw
-        frame's, since the enhancer changes every pixel and the dive's background is of raw frames (judged
-        against it, every copy would look new)."""
+        A copy does not join the dive, and is judged by its raw frame's scene residual (``scene``): the scene
+        head learned raw frames against dives of raw frames, and the enhancer changes every pixel, so against
+        the dive every copy would look new. Queries without a scene head score the copy itself."""
         go = np.flatnonzero(passed.any(axis=1))
         with self.clock.stage("enhance", len(go)):
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
         pooled_e = self.encoder.sampler_features(emb_e)
-        scene_e = self.encoder.scene_input(emb_e)
-        if scene_e is not None:
-            scene_e = replace(scene_e, pixels=self.encoder.scene_input(emb[go]).pixels)
-        ss_e, ok = score_matrix([t.presampler for t in self.topics], emb_e,
-                                self.dive.take(pooled_e, join=False, scene=scene_e), self._tau_ses)  # not new frames
+        copies = self.dive.take(pooled_e, join=False)  # not new frames
+        if scene is not None:
+            copies = replace(copies, scene=scene[go])
+        ss_e, ok = score_matrix([t.presampler for t in self.topics], emb_e, copies, self._tau_ses)
         ok &= passed[go]
         self.counts["enhanced"] += len(go)
         self.counts["enhanced_passed"] += int(ok.any(axis=1).sum())

@@ -11,13 +11,18 @@ import threading
 import numpy as np
 import pytest
 
-from companion.config import Config, EncoderConfig
-from companion.live.enhance_worker import SelectiveStage
+from companion.config import Config, EncoderConfig, StoreConfig
+from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
+from companion.live.health import Health
+from companion.live.loops import LiveCounters
 from companion.live.raw_gate import RawGate
+from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.video import VideoSource
+from companion.storage.store import Store
 from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.encoders.visual import VisualEncoder
+from companion.vision.enhancers.classic import ClassicEnhancer
 from companion.vision.pipeline import Pipeline
 from companion.vision.presampler import PreSampler
 from companion.vision.topics import TopicSpec
@@ -84,3 +89,31 @@ def test_after_enhancement_a_frame_enters_only_the_topics_it_passed_for(frames) 
     assert [r.added_to for r in outcome.results] == [["fish"], ["coral"], [], ["fish", "coral"]]
     assert [r.passed for r in outcome.results] == [True, True, False, True]
     assert {e.frame.topic for e in outcome.events if e.frame.frame_index == frames[0].index} == {"fish"}
+
+
+def test_an_enhanced_candidate_is_judged_by_the_raw_dives_scene_residual(frames, tmp_path) -> None:
+    """Live, the enhanced copies go through a pipeline of their own whose dive holds only candidates; each
+    carries the scene residual the raw gate's dive gave its frame and is scored by it (the scene head's "fish"),
+    as the offline pipeline does, instead of against a dive of other candidates."""
+    encoder = CountedEncoder(ImageNetEncoder(EncoderConfig(name="imagenet", batch=8)))  # regions: scene head
+    cfg = Config.model_validate({"sampler": {"k": 50}, "gate": {"mode": "none"}, "queries": {"tau_ss": 0.0, "topics": [
+        {"name": "fish", "positive": FISH.positive, "negatives": list(FISH.negatives)}]}})
+    pipeline = Pipeline.from_config(cfg, encoder)  # behind the enhancer, its gate (tau_ses here) 0: all go on
+    raw = RawGate(encoder, [FISH], tau_ss=0.05)
+    events: list = []
+    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=lambda frame: {},
+                           publish=events.append)
+    stage = SelectiveStage(pipeline, raw, enhancer=ClassicEnhancer(), queue_size=len(frames), lock=keeper.lock)
+    stage.score(frames, None)
+    candidates = stage.queue.get_batch(len(frames), timeout=0.1)
+    assert len(candidates) >= 4 and all(c.scene is not None for c in candidates)
+    first = candidates[0].frame.index == frames[0].index  # the raw dive's first frame has no scene
+    assert np.isnan(candidates[0].scene).all() == first
+    worker = EnhanceWorker(stage, Health(10.0), LiveCounters(), threading.Event(), batch=8, keeper=keeper)
+    worker.step(candidates)
+    raw_score = {c.frame.index: c.score for c in candidates[1 if first else 0:]}
+    added = {e.frame.frame_index: e.frame.score for e in events if e.kind == "added"}
+    judged = {i: v for i, v in added.items() if i in raw_score}
+    assert len(judged) >= 2, (added, raw_score)
+    assert all(v == pytest.approx(raw_score[i], abs=1e-6) for i, v in judged.items()), (judged, raw_score)
+    assert all(e.frame.enhanced for e in events if e.kind == "added")
