@@ -10,7 +10,7 @@ The demo uses the configured tau_ss (0.5 by default) on the generated dive as on
 encoder answers "fish" after a dive's first frame with its scene head (``encoders/heads/fish-scene.json``: what
 a frame adds to the dive so far), which sets the drawn fish apart as it does filmed ones. Measured on every frame
 of two cycles of the 8 s dive scored as one dive: at 0.5, none of the 240 descent, sand and sea-grass frames pass,
-against all 80 reef-fish frames (scores 0.99-1.00) and 61 of 80 large-fish frames. (Until the live companion
+against all 80 reef-fish frames (median 0.998) and 61 of 80 large-fish frames. (Until the live companion
 used the scene head, the drawn fish scored 0.01-0.34 on the pooled head and the demo lowered tau_ss to 0.02.)
 """
 

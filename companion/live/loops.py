@@ -122,8 +122,9 @@ class InferenceLoop(threading.Thread):
             return
         if self.selective is not None:  # enhancer off: straight to the pipeline, behind the stage's frame gate
             prepared = self.selective.admit(frames)
-            outcome = self.keeper.change(lambda: self.pipeline.process(frames, prepared, poses, gated=True),
-                                         lambda o: o.events)
+            judge = self.selective.raw.scene_of  # the raw frames' own dive judges them, enhancer on or off
+            outcome = self.keeper.change(
+                lambda: self.pipeline.process(frames, prepared, poses, gated=True, judge=judge), lambda o: o.events)
         else:
             outcome = self.keeper.change(lambda: self.pipeline.process(frames, poses=poses), lambda o: o.events)
         now = time.monotonic()

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion.vision.dive_mean import DiveWindow
+from companion.vision.dive_mean import DiveFrames, DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.presampler import PreSampler
 from companion.vision.topics import TopicSpec, check_names, follow, score_matrix
@@ -57,10 +57,20 @@ class RawGate:
     def tau_of(self, name: str) -> float:
         return self.presamplers[name].tau_ss if name in self.presamplers else self.default_tau
 
+    def take(self, embeddings: np.ndarray) -> DiveFrames:
+        """A batch of frames as captured, taken into the dive of raw frames (also while the enhancer is off and
+        the frames go straight to the pipeline: ``scene_of``), so that dive never misses a frame."""
+        return self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings))
+
+    def scene_of(self, embeddings: np.ndarray) -> np.ndarray | None:
+        """Each frame's scene residual against the dive of raw frames, the frames taken into it (None: no head
+        reads it); the judge ``Pipeline.process`` asks while the enhancer is off."""
+        return self.take(embeddings).scene
+
     def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]], np.ndarray | None]:
         """Each frame's best ss_t over the topics, the names of the topics it passed for (empty: none), and each
         frame's scene residual against the dive (None: no head reads it), which its enhanced copy is judged by."""
-        frames = self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings))
+        frames = self.take(embeddings)
         scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names
         return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed], frames.scene

@@ -31,7 +31,7 @@ sampler).
 from __future__ import annotations
 
 import time
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
@@ -337,18 +337,18 @@ class Pipeline:
 
     def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray | None] | None = None,
                 poses: Sequence[Pose | None] | None = None, *, gated: bool = False,
-                only: Sequence[Collection[str]] | None = None, scene: np.ndarray | None = None) -> BatchOutcome:
+                only: Sequence[Collection[str]] | None = None, scene: np.ndarray | None = None,
+                judge: Callable[[np.ndarray], np.ndarray | None] | None = None) -> BatchOutcome:
         """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
-
-        The gate goes first: only the frames it admits are encoded; the others get ``encoded=False`` results.
-        ``gated``: the caller already ran a frame gate (``FrameFeed(gate=pipeline.gate)`` in its decode thread, or
-        the live selective stage's) and ``prepared[i] is None`` marks the frames it skipped.
-        ``only``: per frame, the names of the topics it may enter (a gate the caller ran before, e.g. the live
-        companion's tau_ss gate ahead of its enhancer); None: every topic.
-        ``scene``: (N, D) each frame's scene residual as that gate's dive judged it (the enhanced copies of the
-        live selective stage are judged by their raw frames'; NaN rows: none); None: this pipeline's dive judges.
-        """
+        The gate goes first; frames it skips get ``encoded=False`` results. ``gated``: the caller ran a frame gate
+        (a decode thread's, the live selective stage's) and ``prepared[i] is None`` marks what it skipped.
+        ``only``: per frame, the topics it may enter (the live tau_ss gate ahead of the enhancer); None: all.
+        ``scene``: (N, D) each frame's scene residual from the caller's dive (the live enhanced copies: their raw
+        frames'; NaN: none); ``judge``: the same asked with the encoded batch (the live raw gate's dive while the
+        enhancer is off); neither: this pipeline's dive judges."""
         n = len(frames)
+        if scene is not None and len(scene) != n:
+            raise ValueError(f"scene has {len(scene)} rows for {n} frames")
         if n == 0:
             return BatchOutcome([], [])
         self.counts["frames"] += n
@@ -359,7 +359,7 @@ class Pipeline:
         elif not self.gate.on:
             self.gate.seen += n
             self.gate.encoded += n
-            return self._process_encoded(frames, prepared, poses, only, scene)
+            return self._process_encoded(frames, prepared, poses, only, scene, judge)
         else:
             with self.clock.stage("gate", n):
                 views = prepared if prepared is not None else [f.image for f in frames]
@@ -367,7 +367,7 @@ class Pipeline:
         go = np.flatnonzero(keep)
         self.counts["skipped"] += n - len(go)
         if len(go) == n:
-            return self._process_encoded(frames, prepared, poses, only, scene)
+            return self._process_encoded(frames, prepared, poses, only, scene, judge)
         results = [FrameResult(f.index, f.time_s, float("nan"), False, encoded=False) for f in frames]
         if len(go) == 0:
             return BatchOutcome(results, [])
@@ -375,7 +375,7 @@ class Pipeline:
                                         None if prepared is None else [prepared[i] for i in go],
                                         None if poses is None else [poses[i] for i in go],
                                         None if only is None else [only[i] for i in go],
-                                        None if scene is None else scene[go])
+                                        None if scene is None else scene[go], judge)
         for i, result in zip(go, outcome.results, strict=True):
             results[i] = result
         return BatchOutcome(results, outcome.events)
@@ -383,7 +383,8 @@ class Pipeline:
     def _process_encoded(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None,
                          poses: Sequence[Pose | None] | None,
                          only: Sequence[Collection[str]] | None = None,
-                         scene: np.ndarray | None = None) -> BatchOutcome:
+                         scene: np.ndarray | None = None,
+                         judge: Callable[[np.ndarray], np.ndarray | None] | None = None) -> BatchOutcome:
         """Every stage after the gate, for the frames it let through."""
         n = len(frames)
         images = [f.image for f in frames]
@@ -398,6 +399,7 @@ class Pipeline:
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
             pooled = self.encoder.sampler_features(emb)  # the dive's and the sampler's features, asked for once
+            scene = judge(emb) if scene is None and judge is not None else scene
             frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb) if scene is None else None)
             if scene is not None:  # judged by the caller's dive
                 frames_in_dive = replace(frames_in_dive, scene=np.asarray(scene, dtype=np.float64))
@@ -477,12 +479,9 @@ class Pipeline:
         return events
 
     def _enhance_selected(self, frames, passed, scene, pooled, results, images, scores):
-        """MERLION-E: enhance the frames that passed (for any topic), re-encode them once, and keep, per topic,
-        those whose ss_e passes tau_ses.
-
-        A copy does not join the dive, and is judged by its raw frame's scene residual (``scene``): the scene
-        head learned raw frames against dives of raw frames, and the enhancer changes every pixel, so against
-        the dive every copy would look new. Queries without a scene head score the copy itself."""
+        """MERLION-E: enhance the frames that passed (any topic), re-encode them once, keep per topic those whose
+        ss_e passes tau_ses. A copy is not a frame of the dive: it is judged by its raw frame's scene residual
+        (the enhancer changes every pixel: against the dive every copy would look new)."""
         go = np.flatnonzero(passed.any(axis=1))
         with self.clock.stage("enhance", len(go)):
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]

@@ -107,6 +107,28 @@ def test_pasted_copies_are_judged_as_if_they_came_in_place_of_their_original():
     np.testing.assert_allclose(pasted_scene_features(later, frames, pasted, seed=1)[order[:6]], got[order[:6]])
 
 
+def test_with_each_clip_a_dive_a_copy_is_judged_against_its_own_clip_only():
+    rng = np.random.default_rng(4)
+    pixels = np.clip(0.4 + rng.normal(0, 0.05, size=(10, 64, 112, 3)), 0, 1)
+    views = SceneInput(rng.normal(size=(10, 3, 4)), pixels)
+    clips = ["F1"] * 4 + ["NF2"] * 6
+    frames = [LabelledFrame(f"{DEEPFISH}1", f"f{i}", i < 4, np.zeros((2, 2, 3), np.uint8), clips[i])
+              for i in range(10)]
+    base = np.arange(4, 10)  # copies of the empty frames (clip NF2)
+    copies = SceneInput(views.views[base] + 1.0, np.clip(pixels[base] + 0.1, 0, 1))
+    pasted = PastedFish(base=base, groups=np.array([f"{DEEPFISH}1+aquarium"] * 6), scene=copies)
+    got = pasted_scene_features(views, frames, pasted, seed=2, by_clip=True)
+    [fish, empty] = stream_order(frames, 2, by_clip=True)
+    assert sorted(fish.tolist()) == [0, 1, 2, 3] and sorted(empty.tolist()) == list(range(4, 10))
+    for t in range(1, 6):  # against the empty clip's frames before the original, never the fish clip's
+        memory = SceneMemory()
+        memory.residuals(views[empty[:t]])
+        k = int(np.flatnonzero(base == empty[t])[0])
+        np.testing.assert_allclose(got[k], memory.residuals(copies[k])[0], rtol=1e-12, atol=1e-12)
+    assert np.isnan(got[int(np.flatnonzero(base == empty[0])[0])]).all()  # its clip's first frame: no scene
+    assert not np.allclose(np.nan_to_num(got), np.nan_to_num(pasted_scene_features(views, frames, pasted, seed=2)))
+
+
 def _groups_data(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(120, 10))

@@ -14,7 +14,8 @@ import pytest
 from companion.config import Config, EncoderConfig, StoreConfig
 from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
-from companion.live.loops import LiveCounters
+from companion.live.loops import InferenceLoop, LiveCounters
+from companion.live.queues import DropOldestQueue
 from companion.live.raw_gate import RawGate
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.video import VideoSource
@@ -117,3 +118,31 @@ def test_an_enhanced_candidate_is_judged_by_the_raw_dives_scene_residual(frames,
     assert len(judged) >= 2, (added, raw_score)
     assert all(v == pytest.approx(raw_score[i], abs=1e-6) for i, v in judged.items()), (judged, raw_score)
     assert all(e.frame.enhanced for e in events if e.kind == "added")
+
+
+def test_with_the_enhancer_off_the_frames_are_judged_by_the_same_dive_of_raw_frames(frames, tmp_path) -> None:
+    """MERL_ENHANCE 0 sends frames straight to the enhancer's pipeline: they are still judged by, and taken
+    into, the raw gate's dive, so switching the enhancer off and on never restarts or freezes the dive."""
+    encoder = CountedEncoder(ImageNetEncoder(EncoderConfig(name="imagenet", batch=8)))  # regions: scene head
+    cfg = Config.model_validate({"sampler": {"k": 50}, "gate": {"mode": "none"}, "queries": {"tau_ss": 0.05, "topics": [
+        {"name": "fish", "positive": FISH.positive, "negatives": list(FISH.negatives)}]}})
+    pipeline = Pipeline.from_config(cfg, encoder)
+    raw = RawGate(encoder, [FISH], tau_ss=0.05)
+    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=lambda frame: {})
+    stage = SelectiveStage(pipeline, raw, enhancer=ClassicEnhancer(), queue_size=len(frames), lock=keeper.lock)
+    counters = LiveCounters()
+    loop = InferenceLoop(pipeline, DropOldestQueue(8), Health(10.0), counters, threading.Event(), batch=8,
+                         pose_at=None, keeper=keeper, selective=stage)
+    loop.step(frames[:8])  # enhancer on: the raw gate scores
+    stage.on = False  # MERL_ENHANCE 0
+    loop.step(frames[8:14])
+    off = counters.last_score  # frame 13's, from the pipeline
+    stage.on = True
+    loop.step(frames[14:18])
+    assert raw.dive.frames == 18 and counters.frames_scored == 18
+    # one continuous dive of the same frames, scored alone: both phases match it
+    alone = PreSampler(encoder, FISH.positive, FISH.negatives).scores(
+        encoder.encode_images([pipeline.prepare(f.image) for f in frames[:18]]))
+    assert off == pytest.approx(float(alone[13]), abs=1e-5)
+    assert counters.last_score == pytest.approx(float(alone[17]), abs=1e-5)
+    assert len({round(float(v), 3) for v in alone[8:18]}) > 2  # the scores differ from frame to frame

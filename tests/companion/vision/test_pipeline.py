@@ -179,11 +179,11 @@ def test_an_enhanced_copy_is_judged_by_its_raw_frames_scene_residual_and_does_no
     """With the scene head (region views), selective enhancement scores each passing frame's copy by the frame's
     own scene residual: the head learned raw frames against dives of raw frames, and the enhancer changes every
     pixel, so judged against the dive every copy would look new."""
-    calls: list[bool] = []
+    calls: list[tuple[int, bool]] = []
 
     class Recording(SceneMemory):
         def residuals(self, scene, *, join=True):
-            calls.append(join)
+            calls.append((len(scene), join))
             return super().residuals(scene, join=join)
 
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))  # regions: the scene head loads
@@ -192,9 +192,33 @@ def test_an_enhanced_copy_is_judged_by_its_raw_frames_scene_residual_and_does_no
     results, _ = run(pipe, frames[4:12])
     enhanced = [r for r in results[1:] if r.enhanced]  # the dive's first frame has no scene: the pooled head
     assert enhanced and all(r.enhanced_score == pytest.approx(r.score, abs=1e-6) for r in enhanced)
-    assert calls and all(calls)  # the copies never reached the dive's scene memory
+    if results[0].enhanced:  # no scene before it: the pooled head scores the copy itself
+        assert results[0].enhanced_score != results[0].score
+    # the copies never reached the dive's scene memory: every frame joined it once, nothing else was asked
+    assert all(join for _n, join in calls) and sum(n for n, _join in calls) == len(results)
     assert pipe.dive.frames == len(results)  # nor its mean
     plain = make(ImageNetEncoder(EncoderConfig(name="imagenet", batch=8), regions=False), mode="selective",
                  tau_ses=0.3, tau=0.05)  # no scene head: the copy is scored itself
     results, _ = run(plain, frames[4:12])
     assert any(r.enhanced and abs(r.enhanced_score - r.score) > 1e-5 for r in results)
+
+
+def test_scene_rows_given_by_the_caller_follow_the_frames_a_gate_lets_through(frames):
+    """``process(scene=...)``: each frame is scored by the row given for it, also when a caller's gate skipped
+    some frames (the rows of the frames it let through, in order)."""
+    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))
+    pipe = make(encoder, tau=0.0)
+    batch = frames[4:10]
+    views = SceneMemory().residuals(encoder.scene_input(encoder.encode_images([pipe.prepare(f.image) for f in batch])))
+    rows = views[::-1].copy()  # any finite rows: reversed, so a row used for the wrong frame shows
+    rows[-1] = rows[0]  # the last row (the first frame's, NaN) replaced by a finite one
+    prepared = [pipe.prepare(f.image) if i % 3 else None for i, f in enumerate(batch)]  # the gate skips 0 and 3
+    outcome = pipe.process(batch, prepared, gated=True, scene=rows)
+    head = next(h for h in encoder.heads if h.input == "scene")
+    for i, result in enumerate(outcome.results):
+        if i % 3 == 0:
+            assert not result.encoded
+        else:
+            assert result.score == pytest.approx(float(head.probabilities(rows[i:i + 1])[0]), abs=1e-6)
+    with pytest.raises(ValueError, match="scene has 2 rows for 6 frames"):
+        pipe.process(batch, prepared, gated=True, scene=rows[:2])
