@@ -50,10 +50,19 @@ def test_nothing_passing_shows_the_best_frames_and_tells_the_surface(tmp_path):
                 except (OSError, ValueError):  # a better stand-in just replaced one: read again
                     return []
 
-            # a better frame may still replace a stand-in, so the store and the page are compared as they are now
-            wait_until(lambda: sidecars() and flagged_on_page() >= {s["image_index"] for s in sidecars()}, 90,
-                       "the store's stand-ins on the surface's summary, marked below the threshold")
-            now = sidecars()
+            # a better frame may still replace a stand-in, so the store and the page are compared as they are now,
+            # and the snapshot that agreed is the one checked (a second read may meet a replacement mid-way)
+            agreed: list[dict] = []
+
+            def store_on_page() -> bool:
+                held = sidecars()
+                if held and flagged_on_page() >= {s["image_index"] for s in held}:
+                    agreed[:] = held
+                    return True
+                return False
+
+            wait_until(store_on_page, 90, "the store's stand-ins on the surface's summary, marked below the threshold")
+            now = agreed
             assert 1 <= len(now) <= 3 and all(s["below_threshold"] is True for s in now), now
             assert all(s["score"] <= 0.5 for s in now)
             assert warnings().count("main: none passed in 2s; best shown") == 1  # said once, not per frame
