@@ -76,7 +76,6 @@ def check_source(opts: DemoOptions) -> None:
 def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
     check_source(opts)
     source = opts.source or DEMO_SOURCE
-    tau = opts.tau_ss
     data: dict[str, Any] = {
         "source": {"uri": source, "fps": opts.fps, "realtime": opts.realtime, "loop": bool(opts.source)},
         "encoder": {"name": opts.encoder},
@@ -85,8 +84,8 @@ def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
         "store": {"dir": str(opts.out / "store")},
         "health": {"stall_after_s": 60.0},
     }
-    if tau is not None:
-        data["queries"] = {"tau_ss": tau}
+    if opts.tau_ss is not None:
+        data["queries"] = {"tau_ss": opts.tau_ss}
     return build_config(data, origin="demo")
 
 
