@@ -18,27 +18,36 @@ def _still_scene(frames: int, seed: int = 0) -> np.ndarray:
     return np.clip(scene + rng.normal(0, 0.01, size=(frames, H, W, 3)), 0, 1)
 
 
-def _reference(pixels: np.ndarray, tau: float) -> np.ndarray:
+def _reference(pixels: np.ndarray, tau: float, copies: np.ndarray | None = None) -> np.ndarray:
     """Written out independently: blurred frames; mean of frames 0..t and mean of the squared change (rate 1/(t+1),
-    then 1/tau); the six measures on |change| summed over colours and on it over the spread."""
+    then 1/tau); the six measures on |change| summed over colours and on it over the spread. With ``copies``:
+    their rows instead, each against the mean and spread after the last frame, neither taken in."""
     def six(c: np.ndarray) -> list[float]:
         def blob(k: int) -> float:
             return float((cv2.blur(c, (k, k)) - cv2.blur(c, (5 * k, 5 * k))).max())
         return [float(c.max()), float(np.quantile(c, 0.99)), float(c.mean()), blob(3), blob(5), blob(9)]
 
+    def row(diff: np.ndarray, square: np.ndarray) -> np.ndarray:
+        change = np.abs(diff).sum(axis=2).astype(np.float32)
+        spread = square.sum(axis=2)
+        scaled = (change / np.sqrt(spread + max(spread.mean(), 1e-4))).astype(np.float32)  # the floor: still scene
+        return np.log1p(10.0 * np.array(six(change) + six(scaled)))
+
+    def blurred(p: np.ndarray) -> np.ndarray:
+        return cv2.GaussianBlur(p.astype(np.float64), (0, 0), 0.7)
+
     out = np.full((len(pixels), 12), np.nan)
-    x = [cv2.GaussianBlur(p.astype(np.float64), (0, 0), 0.7) for p in pixels]
+    x = [blurred(p) for p in pixels]
     mean, square = x[0], np.zeros_like(x[0])
     for t in range(1, len(x)):
         rate = max(1.0 / (t + 1), 1.0 / tau)
         mean = mean + rate * (x[t] - mean)
         diff = x[t] - mean
         square = square + rate * (diff ** 2 - square)
-        change = np.abs(diff).sum(axis=2).astype(np.float32)
-        spread = square.sum(axis=2)
-        scaled = (change / np.sqrt(spread + max(spread.mean(), 1e-4))).astype(np.float32)
-        out[t] = np.log1p(10.0 * np.array(six(change) + six(scaled)))
-    return out
+        out[t] = row(diff, square)
+    if copies is None:
+        return out
+    return np.array([row(blurred(c) - mean, square) for c in copies])
 
 
 def test_features_are_the_change_against_the_causal_background_in_any_batches():
@@ -73,19 +82,8 @@ def test_a_frame_scored_again_does_not_join_the_background():
     memory.features(pixels[:6])
     bright = np.clip(pixels[6:8] * 1.5, 0, 1)
     again = memory.features(bright, join=False)  # e.g. enhanced copies
-    # each copy against the mean and spread of frames 0..5, as they stood (written out: _reference's last step)
-    blurred = [cv2.GaussianBlur(p.astype(np.float64), (0, 0), 0.7) for p in pixels[:6]]
-    mean, square = blurred[0], np.zeros_like(blurred[0])
-    for t in range(1, 6):
-        mean = mean + (blurred[t] - mean) / (t + 1)
-        square = square + ((blurred[t] - mean) ** 2 - square) / (t + 1)
-    for row, copy in zip(again, bright, strict=True):
-        change = np.abs(cv2.GaussianBlur(copy.astype(np.float64), (0, 0), 0.7) - mean).sum(axis=2)
-        spread = square.sum(axis=2)
-        scaled = change / np.sqrt(spread + max(spread.mean(), 1e-4))  # the floor: a still scene
-        assert row[0] == pytest.approx(np.log1p(10 * change.max()), rel=1e-5)
-        assert row[2] == pytest.approx(np.log1p(10 * change.mean()), rel=1e-5)
-        assert row[8] == pytest.approx(np.log1p(10 * scaled.mean()), rel=1e-5)
+    # each copy against the mean and spread of frames 0..5, as they stood
+    np.testing.assert_allclose(again, _reference(pixels[:6], 100.0, copies=bright), rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(memory.features(pixels[6:]), _reference(pixels, 100.0)[6:], rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match=r"pixels must be \(frames, 64, 112, 3\)"):
         memory.features(pixels[0])
