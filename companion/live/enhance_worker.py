@@ -4,7 +4,8 @@ The inference thread scores every frame (ss_t) and hands only the frames that pa
 a bounded drop-oldest queue (``enhance.queue``; drops are counted). The worker enhances each one, and the
 pipeline, whose pre-sampler gate here is tau_ses, re-encodes the enhanced frame, scores it (ss_e), and offers
 those above tau_ses to the sampler with the enhanced embedding: REFERENCE.md step 8, with a slow enhancer never
-holding up the scoring of new frames. The encoder is shared, so its calls are serialised by one lock; the
+holding up the scoring of new frames. The copy is no frame of the dive: it is scored by the raw gate's
+pre-samplers (the marks live there), from the row its frame had in the dive of raw frames (``Candidate.seen``). The encoder is shared, so its calls are serialised by one lock; the
 enhancement itself runs outside it. With several topics, the raw gate (``RawGate``) scores every topic on the
 one embedding; a candidate carries the topics it passed for and may enter only their summaries.
 """
@@ -23,6 +24,7 @@ from companion.live.queues import DropOldestQueue
 from companion.live.raw_gate import RawGate
 from companion.live.summary_keeper import SummaryKeeper
 from companion.sources.frame import Frame
+from companion.vision.dive_mean import DiveFrames
 from companion.vision.gate import FrameGate
 
 log = logging.getLogger(__name__)
@@ -37,9 +39,9 @@ class Candidate:
     pose: object | None
     topics: tuple[str, ...] = ()
     """The topics whose tau_ss it passed: the only summaries it may enter after enhancement."""
-    scene: np.ndarray | None = None
-    """Its scene residual as the raw gate's dive judged it (None: no head reads it): its enhanced copy is judged
-    by it too (``Pipeline.process``), since the copy is not a frame of the raw dive."""
+    seen: DiveFrames | None = None
+    """Its row as the raw gate's dive saw it (centred features, scene residual): its enhanced copy is judged by it
+    (``Pipeline.process(seen=...)``), since the copy is not a frame of the raw dive."""
 
 
 class SelectiveStage:
@@ -87,13 +89,13 @@ class SelectiveStage:
             return out
         with self.lock:
             emb = self.pipeline.encoder.encode_images([prepared[i] for i in go])
-            scores, passed, scene = self.raw.score(emb)
+            scores, passed, seen = self.raw.score(emb)
             self.scored += len(go)
         for row, i in enumerate(go):
             frame = frames[i]
             if passed[row]:
                 self.queue.put(Candidate(frame, float(scores[row]), poses[i] if poses is not None else None,
-                                         passed[row], None if scene is None else scene[row]))
+                                         passed[row], seen.rows([row])))
             out[i] = (frame, float(scores[row]), bool(passed[row]), True)
         return out
 
@@ -135,10 +137,12 @@ class EnhanceWorker(threading.Thread):
             self.health.beat("enhance")
         poses = [item.pose for item in items]
         only = [item.topics for item in items]
-        scene = None if any(item.scene is None for item in items) else np.stack([item.scene for item in items])
+        if any(item.seen is None for item in items):
+            raise ValueError("a candidate without its row in the raw dive cannot be judged")
+        seen = DiveFrames.stack([item.seen for item in items])
 
         def sample():
-            outcome = stage.pipeline.process(frames, poses=poses, only=only, scene=scene)
+            outcome = stage.pipeline.process(frames, poses=poses, only=only, seen=seen, judge=stage.raw)
             for event in outcome.events:  # the frame as captured goes to the store beside the enhanced one
                 raw = raws.get(event.frame.frame_index)
                 if event.kind == "added" and raw is not None and event.frame.raw_image is None:

@@ -122,7 +122,7 @@ class InferenceLoop(threading.Thread):
             return
         if self.selective is not None:  # enhancer off: straight to the pipeline, behind the stage's frame gate
             prepared = self.selective.admit(frames)
-            judge = self.selective.raw.scene_of  # the raw frames' own dive judges them, enhancer on or off
+            judge = self.selective.raw  # the raw frames' own dive (and its topics' marks) judges them, on or off
             outcome = self.keeper.change(
                 lambda: self.pipeline.process(frames, prepared, poses, gated=True, judge=judge), lambda o: o.events)
         else:

@@ -59,18 +59,19 @@ class RawGate:
 
     def take(self, embeddings: np.ndarray) -> DiveFrames:
         """A batch of frames as captured, taken into the dive of raw frames (also while the enhancer is off and
-        the frames go straight to the pipeline: ``scene_of``), so that dive never misses a frame."""
+        the frames go straight to the pipeline, which this gate then judges: ``OuterDive``), so that dive never
+        misses a frame."""
         return self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings))
 
-    def scene_of(self, embeddings: np.ndarray) -> np.ndarray | None:
-        """Each frame's scene residual against the dive of raw frames, the frames taken into it (None: no head
-        reads it); the judge ``Pipeline.process`` asks while the enhancer is off."""
-        return self.take(embeddings).scene
+    def scorer(self, topic: str) -> PreSampler:
+        """The topic's pre-sampler in the dive of raw frames, with its marks: it scores the enhanced copies and,
+        while the enhancer is off, the frames the pipeline gets (``OuterDive``)."""
+        return self.presamplers[topic]
 
-    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]], np.ndarray | None]:
-        """Each frame's best ss_t over the topics, the names of the topics it passed for (empty: none), and each
-        frame's scene residual against the dive (None: no head reads it), which its enhanced copy is judged by."""
+    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]], DiveFrames]:
+        """Each frame's best ss_t over the topics, the names of the topics it passed for (empty: none), and the
+        frames as the dive saw them, by which their enhanced copies are judged (``DiveFrames.as_seen_by``)."""
         frames = self.take(embeddings)
         scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names
-        return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed], frames.scene
+        return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed], frames

@@ -15,6 +15,7 @@ pre-sampler used alone owns a window of its own. A new run of the companion is a
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +44,27 @@ class DiveFrames:
     scene: np.ndarray | None = None
     """(N, D) each frame's scene residual (``scene_memory``; NaN rows: no scene before the frame), when the owner
     gave the scene input; None: the frames are not judged against the dive's scene."""
+
+    def rows(self, index: Sequence[int] | np.ndarray) -> DiveFrames:
+        """These frames only, in this order (a gate's subset; one candidate's row)."""
+        index = np.asarray(index, dtype=int)
+        return DiveFrames(self.pooled[index], self.centred[index], self.joined,
+                          None if self.scene is None else self.scene[index])
+
+    @staticmethod
+    def stack(parts: Sequence[DiveFrames]) -> DiveFrames:
+        """Rows taken at different times (the candidates of one enhancer batch) as one batch; the scene rows only
+        when every part has them."""
+        scene = None if any(p.scene is None for p in parts) else np.concatenate([p.scene for p in parts])
+        return DiveFrames(np.concatenate([p.pooled for p in parts]), np.concatenate([p.centred for p in parts]),
+                          all(p.joined for p in parts), scene)
+
+    def as_seen_by(self, pooled: np.ndarray) -> DiveFrames:
+        """Copies of these frames (their enhanced versions, with features ``pooled``) judged by the frames' own
+        place in the dive: their centred features and scene residuals, never joining it."""
+        if len(pooled) != len(self.centred):
+            raise ValueError(f"{len(pooled)} copies for {len(self.centred)} frames")
+        return DiveFrames(pooled, self.centred, False, self.scene)
 
 
 class DiveWindow:

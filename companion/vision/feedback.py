@@ -282,7 +282,8 @@ class MarkedPreSampler(PreSampler):
         if self.weight > 0.0:
             feats = (self.encoder.object_features(image_embeddings, self.text_embeddings) if self.objects
                      else frames.pooled)
-            self.examples.observe(feats)
+            if frames.joined:  # a copy (an enhanced frame) is no new frame of the dive
+                self.examples.observe(feats)
             out = (1.0 - self.weight) * out + self.weight * self.examples.scores(feats)
         if self.centred_trust > 0.0:
             lift = self.centred.lift(frames.centred, self.dive, self.recent_queries, self.centred_weight)

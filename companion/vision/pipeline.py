@@ -31,9 +31,9 @@ sampler).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Collection, Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -43,7 +43,7 @@ from companion.errors import UsageError
 from companion.sources.frame import Frame
 from companion.vision import distances as dist
 from companion.vision.below_threshold import KEEP, stand_in
-from companion.vision.dive_mean import DiveWindow
+from companion.vision.dive_mean import DiveFrames, DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.enhancers.factory import make_enhancer
@@ -51,7 +51,15 @@ from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.gate import FrameGate
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
-from companion.vision.topics import Topic, TopicSpec, check_names, follow, score_matrix
+from companion.vision.topics import (
+    OuterDive,
+    Topic,
+    TopicSpec,
+    by_topic_name,
+    check_names,
+    follow,
+    score_matrix,
+)
 from vehicle.autopilot.pose import Pose
 
 ENHANCE_MODES = ("none", "always", "selective")
@@ -292,17 +300,7 @@ class Pipeline:
         topic no longer followed is reported removed.
         """
         frames = sorted(frames, key=lambda f: f.image_index)
-        names = {t.name for t in self.topics}
-        untagged = self.untagged_topic()
-        dropped = []
-        by_topic: dict[str, list[SummaryFrame]] = {t.name: [] for t in self.topics}
-        for frame in frames:
-            name = frame.topic or untagged
-            if name in names:
-                frame.topic = name
-                by_topic[name].append(frame)
-            else:
-                dropped.append(frame)
+        by_topic, dropped = by_topic_name(frames, [t.name for t in self.topics], self.untagged_topic())
         removed = []
         for topic in self.topics:
             mine = [f for f in by_topic[topic.name] if not f.below_threshold]
@@ -337,18 +335,18 @@ class Pipeline:
 
     def process(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray | None] | None = None,
                 poses: Sequence[Pose | None] | None = None, *, gated: bool = False,
-                only: Sequence[Collection[str]] | None = None, scene: np.ndarray | None = None,
-                judge: Callable[[np.ndarray], np.ndarray | None] | None = None) -> BatchOutcome:
+                only: Sequence[Collection[str]] | None = None, seen: DiveFrames | None = None,
+                judge: OuterDive | None = None) -> BatchOutcome:
         """Run one batch through every stage; returns per-frame results and the summary events, in frame order.
         The gate goes first; frames it skips get ``encoded=False`` results. ``gated``: the caller ran a frame gate
         (a decode thread's, the live selective stage's) and ``prepared[i] is None`` marks what it skipped.
         ``only``: per frame, the topics it may enter (the live tau_ss gate ahead of the enhancer); None: all.
-        ``scene``: (N, D) each frame's scene residual from the caller's dive (the live enhanced copies: their raw
-        frames'; NaN: none); ``judge``: the same asked with the encoded batch (the live raw gate's dive while the
-        enhancer is off); neither: this pipeline's dive judges."""
+        ``judge``: the dive outside the pipeline whose pre-samplers score (the live raw gate's); it takes the frames
+        in unless ``seen`` gives their rows: the frames are copies of frames a dive already saw (the live enhanced
+        copies: their raw frames' rows), judged by those frames' place in it. Neither: this pipeline's dive."""
         n = len(frames)
-        if scene is not None and len(scene) != n:
-            raise ValueError(f"scene has {len(scene)} rows for {n} frames")
+        if seen is not None and len(seen.centred) != n:
+            raise ValueError(f"seen has {len(seen.centred)} rows for {n} frames")
         if n == 0:
             return BatchOutcome([], [])
         self.counts["frames"] += n
@@ -359,7 +357,7 @@ class Pipeline:
         elif not self.gate.on:
             self.gate.seen += n
             self.gate.encoded += n
-            return self._process_encoded(frames, prepared, poses, only, scene, judge)
+            return self._process_encoded(frames, prepared, poses, only, seen, judge)
         else:
             with self.clock.stage("gate", n):
                 views = prepared if prepared is not None else [f.image for f in frames]
@@ -367,7 +365,7 @@ class Pipeline:
         go = np.flatnonzero(keep)
         self.counts["skipped"] += n - len(go)
         if len(go) == n:
-            return self._process_encoded(frames, prepared, poses, only, scene, judge)
+            return self._process_encoded(frames, prepared, poses, only, seen, judge)
         results = [FrameResult(f.index, f.time_s, float("nan"), False, encoded=False) for f in frames]
         if len(go) == 0:
             return BatchOutcome(results, [])
@@ -375,16 +373,15 @@ class Pipeline:
                                         None if prepared is None else [prepared[i] for i in go],
                                         None if poses is None else [poses[i] for i in go],
                                         None if only is None else [only[i] for i in go],
-                                        None if scene is None else scene[go], judge)
+                                        None if seen is None else seen.rows(go), judge)
         for i, result in zip(go, outcome.results, strict=True):
             results[i] = result
         return BatchOutcome(results, outcome.events)
 
     def _process_encoded(self, frames: Sequence[Frame], prepared: Sequence[np.ndarray] | None,
                          poses: Sequence[Pose | None] | None,
-                         only: Sequence[Collection[str]] | None = None,
-                         scene: np.ndarray | None = None,
-                         judge: Callable[[np.ndarray], np.ndarray | None] | None = None) -> BatchOutcome:
+                         only: Sequence[Collection[str]] | None = None, seen: DiveFrames | None = None,
+                         judge: OuterDive | None = None) -> BatchOutcome:
         """Every stage after the gate, for the frames it let through."""
         n = len(frames)
         images = [f.image for f in frames]
@@ -399,11 +396,13 @@ class Pipeline:
         names = [t.name for t in self.topics]
         with self.clock.stage("score", n):
             pooled = self.encoder.sampler_features(emb)  # the dive's and the sampler's features, asked for once
-            scene = judge(emb) if scene is None and judge is not None else scene
-            frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb) if scene is None else None)
-            if scene is not None:  # judged by the caller's dive
-                frames_in_dive = replace(frames_in_dive, scene=np.asarray(scene, dtype=np.float64))
-            scores, passed = score_matrix([t.presampler for t in self.topics], emb, frames_in_dive)
+            if seen is not None:  # copies: judged by their frames' place in the dive that saw them
+                frames_in_dive = seen.as_seen_by(pooled)
+            elif judge is not None:
+                frames_in_dive = judge.take(emb)
+            else:
+                frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb))
+            scores, passed = self._score(emb, frames_in_dive, judge)
             if only is not None:
                 passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
                                    dtype=bool).reshape(passed.shape)
@@ -417,7 +416,7 @@ class Pipeline:
         final_images = list(images)
         final_scores = scores.astype(np.float64)
         if self.enhance_mode == "selective" and passed.any():
-            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, frames_in_dive.scene,
+            passed, pooled, final_images, final_scores = self._enhance_selected(frames, passed, frames_in_dive, judge,
                                                                                 pooled, results, final_images,
                                                                                 final_scores)
         events: list[SummaryEvent] = []
@@ -478,20 +477,24 @@ class Pipeline:
                 events.extend(self._show_stand_ins(topic))
         return events
 
-    def _enhance_selected(self, frames, passed, scene, pooled, results, images, scores):
+    def _score(self, emb: np.ndarray, frames: DiveFrames, judge: OuterDive | None,
+               tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Every topic's scores (by the judging dive's pre-samplers, if any) and passes (by this pipeline's)."""
+        scorers = None if judge is None else [judge.scorer(t.name) for t in self.topics]
+        return score_matrix([t.presampler for t in self.topics], emb, frames, tau, scorers)
+
+    def _enhance_selected(self, frames, passed, in_dive, judge, pooled, results, images, scores):
         """MERLION-E: enhance the frames that passed (any topic), re-encode them once, keep per topic those whose
-        ss_e passes tau_ses. A copy is not a frame of the dive: it is judged by its raw frame's scene residual
-        (the enhancer changes every pixel: against the dive every copy would look new)."""
+        ss_e passes tau_ses. A copy is not a frame of the dive: it is judged by its raw frame's place in it, the
+        scene residual and the centred features the marks read (the enhancer changes every pixel: against the
+        dive every copy would look new)."""
         go = np.flatnonzero(passed.any(axis=1))
         with self.clock.stage("enhance", len(go)):
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
         pooled_e = self.encoder.sampler_features(emb_e)
-        copies = self.dive.take(pooled_e, join=False)  # not new frames
-        if scene is not None:
-            copies = replace(copies, scene=scene[go])
-        ss_e, ok = score_matrix([t.presampler for t in self.topics], emb_e, copies, self._tau_ses)
+        ss_e, ok = self._score(emb_e, in_dive.rows(go).as_seen_by(pooled_e), judge, self._tau_ses)
         ok &= passed[go]
         self.counts["enhanced"] += len(go)
         self.counts["enhanced_passed"] += int(ok.any(axis=1).sum())

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -72,15 +73,28 @@ def check_names(names: Sequence[str]) -> None:
         raise UsageError(f"queries: topic name {twice[0]!r} is used twice")
 
 
+class OuterDive(Protocol):
+    """A dive kept outside the pipeline that judges the frames handed to it: the live raw gate's dive of the frames
+    as captured, with its topics' pre-samplers (their marks and recent scores), while the enhancer's pipeline sees
+    only candidates, or the frames themselves while the enhancer is off."""
+
+    def take(self, embeddings: np.ndarray) -> DiveFrames:
+        """New frames, taken into the dive."""
+
+    def scorer(self, topic: str) -> PreSampler:
+        """The topic's pre-sampler in that dive (what scores; the pipeline's own keeps the threshold)."""
+
+
 def score_matrix(presamplers: Sequence[PreSampler], embeddings: np.ndarray, frames: DiveFrames,
-                 tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 tau: float | None = None, scorers: Sequence[PreSampler] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(N, T) scores and (N, T) pass masks (of each topic's tau_ss, or ``tau``) of every topic's pre-sampler on one
-    batch of embeddings; ``frames``: the batch as the topics' shared dive took it in (``DiveWindow.take``)."""
+    batch of embeddings; ``frames``: the batch as the topics' shared dive took it in (``DiveWindow.take``).
+    ``scorers``: per topic, another pre-sampler that scores (an ``OuterDive``'s), the threshold staying these'."""
     n = len(embeddings)
     scores = np.zeros((n, len(presamplers)), dtype=np.float32)
     passed = np.zeros((n, len(presamplers)), dtype=bool)
     for t, presampler in enumerate(presamplers):
-        scores[:, t] = presampler.scores_in_dive(embeddings, frames)
+        scores[:, t] = (presampler if scorers is None else scorers[t]).scores_in_dive(embeddings, frames)
         passed[:, t] = presampler.passes(scores[:, t], tau)
     return scores, passed
 
@@ -96,3 +110,19 @@ def follow(spec: TopicSpec, kept: PreSampler | None, encoder: Encoder, default_t
     if spec.tau_ss is not None:
         kept.tau_ss = spec.tau_ss
     return kept
+
+
+def by_topic_name(frames: Sequence[SummaryFrame], names: Sequence[str],
+                  untagged: str) -> tuple[dict[str, list[SummaryFrame]], list[SummaryFrame]]:
+    """Stored frames sorted to the topics followed (a frame naming none: ``untagged``, and it is tagged so), and
+    the frames of topics no longer followed."""
+    by_topic: dict[str, list[SummaryFrame]] = {name: [] for name in names}
+    dropped = []
+    for frame in frames:
+        name = frame.topic or untagged
+        if name in by_topic:
+            frame.topic = name
+            by_topic[name].append(frame)
+        else:
+            dropped.append(frame)
+    return by_topic, dropped

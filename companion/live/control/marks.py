@@ -88,7 +88,8 @@ class MarksHandler:
         return str(sidecar.get("topic") or self.ctx.pipeline.untagged_topic())
 
     def _apply(self, like: list[int], unlike: list[int]) -> None:
-        """Embed the marked frames' stored images and switch each topic's pre-sampler(s) to the combined score.
+        """Embed the marked frames' stored images (as captured, where kept) and switch each topic's pre-sampler(s)
+        to the combined score.
 
         A mark teaches the topic of the frame it names (marking a coral frame says nothing about fish), so each
         topic gets only its own marks, and a topic with none scores by its queries alone. Runs inside the
@@ -106,7 +107,9 @@ class MarksHandler:
                 topic = self._topic_of(index)
                 if topic not in found:
                     raise ValueError(f"image {index} is of topic {topic}, no longer followed")
-                found[topic].append(pipeline.prepare(frame.image))
+                # the frame as captured where the store kept it: the marks are compared with raw frames in the
+                # raw dive (an enhanced copy is judged by its raw frame's row, never by its own pixels)
+                found[topic].append(pipeline.prepare(frame.image if frame.raw_image is None else frame.raw_image))
             return found
 
         liked, unliked = images(like), images(unlike)  # all checked before any topic changes

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from companion.config import Config, EncoderConfig, StoreConfig
+from companion.live.control.marks import marked
 from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
 from companion.live.loops import InferenceLoop, LiveCounters
@@ -24,9 +25,11 @@ from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.encoders.visual import VisualEncoder
 from companion.vision.enhancers.classic import ClassicEnhancer
+from companion.vision.feedback import Marks
 from companion.vision.pipeline import Pipeline
 from companion.vision.presampler import PreSampler
 from companion.vision.topics import TopicSpec
+from tests.companion.vision.helpers import survey_marks
 from tests.conftest import shared_file
 
 FISH = TopicSpec("fish", "underwater image with fish", ("underwater image without fish",), 0.5)
@@ -107,9 +110,9 @@ def test_an_enhanced_candidate_is_judged_by_the_raw_dives_scene_residual(frames,
     stage = SelectiveStage(pipeline, raw, enhancer=ClassicEnhancer(), queue_size=len(frames), lock=keeper.lock)
     stage.score(frames, None)
     candidates = stage.queue.get_batch(len(frames), timeout=0.1)
-    assert len(candidates) >= 4 and all(c.scene is not None for c in candidates)
+    assert len(candidates) >= 4 and all(c.seen is not None and c.seen.scene is not None for c in candidates)
     first = candidates[0].frame.index == frames[0].index  # the raw dive's first frame has no scene
-    assert np.isnan(candidates[0].scene).all() == first
+    assert np.isnan(candidates[0].seen.scene).all() == first
     worker = EnhanceWorker(stage, Health(10.0), LiveCounters(), threading.Event(), batch=8, keeper=keeper)
     worker.step(candidates)
     raw_score = {c.frame.index: c.score for c in candidates[1 if first else 0:]}
@@ -118,6 +121,39 @@ def test_an_enhanced_candidate_is_judged_by_the_raw_dives_scene_residual(frames,
     assert len(judged) >= 2, (added, raw_score)
     assert all(v == pytest.approx(raw_score[i], abs=1e-6) for i, v in judged.items()), (judged, raw_score)
     assert all(e.frame.enhanced for e in events if e.kind == "added")
+
+
+def test_with_marks_an_enhanced_candidate_is_scored_by_the_raw_dives_marks(frames, tmp_path) -> None:
+    """The surface's marks wrap both the raw gate's pre-samplers and the pipeline's (``MarksHandler``). The copies
+    are scored by the raw gate's, in the dive of raw frames, from the row their frame had there: with the scene
+    head answering, ss_e is ss_t; the enhancer's pipeline keeps no dive of candidates."""
+    encoder = CountedEncoder(ImageNetEncoder(EncoderConfig(name="imagenet", batch=8)))  # regions: scene head
+    cfg = Config.model_validate({"sampler": {"k": 50}, "gate": {"mode": "none"}, "queries": {"tau_ss": 0.0, "topics": [
+        {"name": "fish", "positive": FISH.positive, "negatives": list(FISH.negatives)}]}})
+    pipeline = Pipeline.from_config(cfg, encoder)
+    raw = RawGate(encoder, [FISH], tau_ss=0.05)
+    events: list = []
+    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=lambda frame: {},
+                           publish=events.append)
+    stage = SelectiveStage(pipeline, raw, enhancer=ClassicEnhancer(), queue_size=len(frames), lock=keeper.lock)
+    worker = EnhanceWorker(stage, Health(10.0), LiveCounters(), threading.Event(), batch=8, keeper=keeper)
+    stage.score(frames[:8], None)
+    worker.step(stage.queue.get_batch(len(frames), timeout=0.1))
+    like, unlike = survey_marks(frames)
+    marks = Marks.from_images(encoder, [pipeline.prepare(i) for i in like], [pipeline.prepare(i) for i in unlike],
+                              raw.presamplers["fish"].text_embeddings)
+    raw.presamplers["fish"] = marked(raw.presamplers["fish"], marks)  # as MarksHandler._apply does
+    pipeline.topics[0].presampler = marked(pipeline.topics[0].presampler, marks)
+    assert raw.presamplers["fish"].centred_trust > 0  # the marks are in force
+    events.clear()
+    stage.score(frames[8:], None)
+    candidates = stage.queue.get_batch(len(frames), timeout=0.1)
+    worker.step(candidates)
+    raw_score = {c.frame.index: c.score for c in candidates}
+    added = {e.frame.frame_index: e.frame.score for e in events if e.kind == "added"}
+    assert len(added) >= 3 and set(added) <= set(raw_score), (added, raw_score)
+    assert all(v == pytest.approx(raw_score[i], abs=1e-6) for i, v in added.items()), (added, raw_score)
+    assert raw.dive.frames == len(frames) and pipeline.dive.frames == 0
 
 
 def test_with_the_enhancer_off_the_frames_are_judged_by_the_same_dive_of_raw_frames(frames, tmp_path) -> None:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import os
+
+from tests.conftest import shared_file
 
 
 def run(pipe, frames, batch=8):
@@ -40,3 +43,13 @@ def resident_kb_of(path: str) -> int:
             elif inside and head[0] == "Rss:":
                 total += int(head[1])
     return total
+
+
+def survey_marks(frames, n=3):
+    """The first ``n`` fish and ``n`` empty frames of the survey (its labels), as marks' images."""
+    with open(shared_file("survey/survey_480x270_labels.csv"), newline="") as fh:
+        fish = {int(row["frame_index"]): int(row["fish_present"]) for row in csv.DictReader(fh)}
+    like = [f.image for f in frames if fish[f.index]][:n]
+    unlike = [f.image for f in frames if not fish[f.index]][:n]
+    assert len(like) == len(unlike) == n
+    return like, unlike

@@ -8,11 +8,13 @@ import pytest
 from companion.config import Config, EncoderConfig
 from companion.sources.frame_feed import FrameFeed
 from companion.sources.video import VideoSource
+from companion.vision.dive_mean import DiveFrames
 from companion.vision.encoders.imagenet import ImageNetEncoder
 from companion.vision.enhancers.base import Enhancer
+from companion.vision.feedback import MarkedPreSampler, Marks
 from companion.vision.pipeline import Pipeline, downscale_for
 from companion.vision.scene_memory import SceneMemory
-from tests.companion.vision.helpers import replay_events, run
+from tests.companion.vision.helpers import replay_events, run, survey_marks
 from tests.conftest import shared_file
 
 
@@ -203,22 +205,47 @@ def test_an_enhanced_copy_is_judged_by_its_raw_frames_scene_residual_and_does_no
     assert any(r.enhanced and abs(r.enhanced_score - r.score) > 1e-5 for r in results)
 
 
-def test_scene_rows_given_by_the_caller_follow_the_frames_a_gate_lets_through(frames):
-    """``process(scene=...)``: each frame is scored by the row given for it, also when a caller's gate skipped
-    some frames (the rows of the frames it let through, in order)."""
+def test_with_marks_an_enhanced_copy_is_judged_by_its_raw_frames_place_in_the_dive(frames):
+    """The dive-centred marks read a frame's features minus the dive's mean. A copy's own features carry the
+    enhancer's colours, which no raw frame of the dive has, so it is judged by its raw frame's centred row: with
+    trusted marks and the scene head answering, ss_e is ss_t exactly."""
+    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))  # regions: the scene head loads
+    pipe = make(encoder, mode="selective", tau_ses=0.3, tau=0.05)
+    run(pipe, frames[:8])
+    like, unlike = survey_marks(frames)
+    pipe.presampler = MarkedPreSampler(pipe.presampler,
+                                       Marks.from_images(encoder, [pipe.prepare(i) for i in like],
+                                                         [pipe.prepare(i) for i in unlike],
+                                                         pipe.presampler.text_embeddings))
+    assert pipe.presampler.centred_trust > 0  # the marks are in force
+    results, _ = run(pipe, frames[8:])
+    enhanced = [r for r in results if r.enhanced]
+    assert len(enhanced) >= 3, results
+    assert all(r.enhanced_score == pytest.approx(r.score, abs=1e-6) for r in enhanced), enhanced
+    assert pipe.dive.frames == len(frames)  # the copies did not join the dive
+
+
+def test_rows_given_by_the_caller_follow_the_frames_a_gate_lets_through(frames):
+    """``process(seen=...)``: each frame is judged by the row given for it (its scene residual here), also when a
+    caller's gate skipped some frames (the rows of the frames it let through, in order), and never joins the
+    pipeline's own dive."""
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))
     pipe = make(encoder, tau=0.0)
     batch = frames[4:10]
-    views = SceneMemory().residuals(encoder.scene_input(encoder.encode_images([pipe.prepare(f.image) for f in batch])))
+    emb = encoder.encode_images([pipe.prepare(f.image) for f in batch])
+    views = SceneMemory().residuals(encoder.scene_input(emb))
     rows = views[::-1].copy()  # any finite rows: reversed, so a row used for the wrong frame shows
     rows[-1] = rows[0]  # the last row (the first frame's, NaN) replaced by a finite one
+    pooled = encoder.sampler_features(emb)
+    seen = DiveFrames(pooled, np.zeros(pooled.shape), True, rows)
     prepared = [pipe.prepare(f.image) if i % 3 else None for i, f in enumerate(batch)]  # the gate skips 0 and 3
-    outcome = pipe.process(batch, prepared, gated=True, scene=rows)
+    outcome = pipe.process(batch, prepared, gated=True, seen=seen)
     head = next(h for h in encoder.heads if h.input == "scene")
     for i, result in enumerate(outcome.results):
         if i % 3 == 0:
             assert not result.encoded
         else:
             assert result.score == pytest.approx(float(head.probabilities(rows[i:i + 1])[0]), abs=1e-6)
-    with pytest.raises(ValueError, match="scene has 2 rows for 6 frames"):
-        pipe.process(batch, prepared, gated=True, scene=rows[:2])
+    assert pipe.dive.frames == 0 and not pipe.dive.seen
+    with pytest.raises(ValueError, match="seen has 2 rows for 6 frames"):
+        pipe.process(batch, prepared, gated=True, seen=seen.rows([0, 1]))
