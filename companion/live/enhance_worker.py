@@ -5,9 +5,10 @@ a bounded drop-oldest queue (``enhance.queue``; drops are counted). The worker e
 pipeline, whose pre-sampler gate here is tau_ses, re-encodes the enhanced frame, scores it (ss_e), and offers
 those above tau_ses to the sampler with the enhanced embedding: REFERENCE.md step 8, with a slow enhancer never
 holding up the scoring of new frames. The copy is no frame of the dive: it is scored by the raw gate's
-pre-samplers (the marks live there), from the row its frame had in the dive of raw frames (``Candidate.seen``). The encoder is shared, so its calls are serialised by one lock; the
-enhancement itself runs outside it. With several topics, the raw gate (``RawGate``) scores every topic on the
-one embedding; a candidate carries the topics it passed for and may enter only their summaries.
+pre-samplers (the marks live there), from the row its frame had in the dive of raw frames (``Candidate.seen``).
+The encoder is shared, so its calls are serialised by one lock; the enhancement itself runs outside it. With
+several topics, the raw gate (``RawGate``) scores every topic on the one embedding; a candidate carries the topics
+it passed for and may enter only their summaries.
 """
 
 from __future__ import annotations

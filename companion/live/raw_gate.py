@@ -61,7 +61,8 @@ class RawGate:
         """A batch of frames as captured, taken into the dive of raw frames (also while the enhancer is off and
         the frames go straight to the pipeline, which this gate then judges: ``OuterDive``), so that dive never
         misses a frame."""
-        return self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings))
+        return self.dive.take(self.encoder.sampler_features(embeddings), scene=self.encoder.scene_input(embeddings),
+                              embeddings=embeddings)
 
     def scorer(self, topic: str) -> PreSampler:
         """The topic's pre-sampler in the dive of raw frames, with its marks: it scores the enhanced copies and,
@@ -70,7 +71,7 @@ class RawGate:
 
     def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]], DiveFrames]:
         """Each frame's best ss_t over the topics, the names of the topics it passed for (empty: none), and the
-        frames as the dive saw them, by which their enhanced copies are judged (``DiveFrames.as_seen_by``)."""
+        frames as the dive saw them, by which their enhanced copies are judged (``DiveFrames.copies``)."""
         frames = self.take(embeddings)
         scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,27 +44,32 @@ class DiveFrames:
     scene: np.ndarray | None = None
     """(N, D) each frame's scene residual (``scene_memory``; NaN rows: no scene before the frame), when the owner
     gave the scene input; None: the frames are not judged against the dive's scene."""
+    embeddings: np.ndarray | None = None
+    """(N, E) the frames' own embeddings, where the owner kept them: copies judged by these rows (``copies``) are
+    compared with the marks as their frames were (``Encoder.object_features``), not by the enhancer's colours."""
 
     def rows(self, index: Sequence[int] | np.ndarray) -> DiveFrames:
         """These frames only, in this order (a gate's subset; one candidate's row)."""
         index = np.asarray(index, dtype=int)
         return DiveFrames(self.pooled[index], self.centred[index], self.joined,
-                          None if self.scene is None else self.scene[index])
+                          None if self.scene is None else self.scene[index],
+                          None if self.embeddings is None else self.embeddings[index])
 
     @staticmethod
     def stack(parts: Sequence[DiveFrames]) -> DiveFrames:
-        """Rows taken at different times (the candidates of one enhancer batch) as one batch; the scene rows only
-        when every part has them."""
-        scene = None if any(p.scene is None for p in parts) else np.concatenate([p.scene for p in parts])
-        return DiveFrames(np.concatenate([p.pooled for p in parts]), np.concatenate([p.centred for p in parts]),
-                          all(p.joined for p in parts), scene)
+        """Rows taken at different times (the candidates of one enhancer batch) as one batch; scene rows and
+        embeddings only when every part has them."""
+        def joined(name: str) -> np.ndarray | None:
+            rows = [getattr(p, name) for p in parts]
+            return None if any(r is None for r in rows) else np.concatenate(rows)
 
-    def as_seen_by(self, pooled: np.ndarray) -> DiveFrames:
-        """Copies of these frames (their enhanced versions, with features ``pooled``) judged by the frames' own
-        place in the dive: their centred features and scene residuals, never joining it."""
-        if len(pooled) != len(self.centred):
-            raise ValueError(f"{len(pooled)} copies for {len(self.centred)} frames")
-        return DiveFrames(pooled, self.centred, False, self.scene)
+        return DiveFrames(joined("pooled"), joined("centred"), all(p.joined for p in parts), joined("scene"),
+                          joined("embeddings"))
+
+    def copies(self) -> DiveFrames:
+        """These frames' copies (their enhanced versions), judged by the frames' own place in the dive: their
+        pooled and centred features, scene residuals and embeddings, never joining it."""
+        return replace(self, joined=False)
 
 
 class DiveWindow:
@@ -106,11 +111,12 @@ class DiveWindow:
         f = np.asarray(features, dtype=np.float64)
         return np.zeros_like(f) if self._mean is None else f - self._mean.mean
 
-    def take(self, pooled: np.ndarray, join: bool = True, scene: SceneInput | None = None) -> DiveFrames:
+    def take(self, pooled: np.ndarray, join: bool = True, scene: SceneInput | None = None,
+             embeddings: np.ndarray | None = None) -> DiveFrames:
         """A batch's pooled features for every topic: taken into the dive (``join``), or only centred by it; with
-        ``scene`` (``Encoder.scene_input``) also each frame's scene residual."""
+        ``scene`` (``Encoder.scene_input``) also each frame's scene residual; ``embeddings`` are carried along."""
         residuals = None if scene is None else self.scene.residuals(scene, join=join)
-        return DiveFrames(pooled, self.add(pooled) if join else self.offsets(pooled), join, residuals)
+        return DiveFrames(pooled, self.add(pooled) if join else self.offsets(pooled), join, residuals, embeddings)
 
     def recent_features(self) -> np.ndarray:
         """(frames, features) centred features of the last ``tau`` frames ((0, 0) before the first)."""

@@ -280,8 +280,9 @@ class MarkedPreSampler(PreSampler):
             return text
         out = np.asarray(text, dtype=np.float64)
         if self.weight > 0.0:
-            feats = (self.encoder.object_features(image_embeddings, self.text_embeddings) if self.objects
-                     else frames.pooled)
+            # a copy (frames.joined False) is compared as its frame was: its frame's embedding and features
+            own = image_embeddings if frames.joined or frames.embeddings is None else frames.embeddings
+            feats = (self.encoder.object_features(own, self.text_embeddings) if self.objects else frames.pooled)
             if frames.joined:  # a copy (an enhanced frame) is no new frame of the dive
                 self.examples.observe(feats)
             out = (1.0 - self.weight) * out + self.weight * self.examples.scores(feats)

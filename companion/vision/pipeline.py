@@ -397,11 +397,11 @@ class Pipeline:
         with self.clock.stage("score", n):
             pooled = self.encoder.sampler_features(emb)  # the dive's and the sampler's features, asked for once
             if seen is not None:  # copies: judged by their frames' place in the dive that saw them
-                frames_in_dive = seen.as_seen_by(pooled)
+                frames_in_dive = seen.copies()
             elif judge is not None:
                 frames_in_dive = judge.take(emb)
             else:
-                frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb))
+                frames_in_dive = self.dive.take(pooled, scene=self.encoder.scene_input(emb), embeddings=emb)
             scores, passed = self._score(emb, frames_in_dive, judge)
             if only is not None:
                 passed &= np.array([[t.name in allowed for t in self.topics] for allowed in only],
@@ -486,15 +486,15 @@ class Pipeline:
     def _enhance_selected(self, frames, passed, in_dive, judge, pooled, results, images, scores):
         """MERLION-E: enhance the frames that passed (any topic), re-encode them once, keep per topic those whose
         ss_e passes tau_ses. A copy is not a frame of the dive: it is judged by its raw frame's place in it, the
-        scene residual and the centred features the marks read (the enhancer changes every pixel: against the
-        dive every copy would look new)."""
+        scene residual and the features the marks read (the enhancer changes every pixel: against the dive every
+        copy would look new); only the query is asked of the copy itself."""
         go = np.flatnonzero(passed.any(axis=1))
         with self.clock.stage("enhance", len(go)):
             enhanced = [self.enhancer.enhance(frames[i].image) for i in go]
         small = [self.prepare(img) for img in enhanced]
         emb_e = self._encode(small, "reencode")
         pooled_e = self.encoder.sampler_features(emb_e)
-        ss_e, ok = self._score(emb_e, in_dive.rows(go).as_seen_by(pooled_e), judge, self._tau_ses)
+        ss_e, ok = self._score(emb_e, in_dive.rows(go).copies(), judge, self._tau_ses)
         ok &= passed[go]
         self.counts["enhanced"] += len(go)
         self.counts["enhanced_passed"] += int(ok.any(axis=1).sum())

@@ -86,7 +86,8 @@ class OuterDive(Protocol):
 
 
 def score_matrix(presamplers: Sequence[PreSampler], embeddings: np.ndarray, frames: DiveFrames,
-                 tau: float | None = None, scorers: Sequence[PreSampler] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 tau: float | None = None,
+                 scorers: Sequence[PreSampler] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(N, T) scores and (N, T) pass masks (of each topic's tau_ss, or ``tau``) of every topic's pre-sampler on one
     batch of embeddings; ``frames``: the batch as the topics' shared dive took it in (``DiveWindow.take``).
     ``scorers``: per topic, another pre-sampler that scores (an ``OuterDive``'s), the threshold staying these'."""

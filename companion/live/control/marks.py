@@ -107,8 +107,8 @@ class MarksHandler:
                 topic = self._topic_of(index)
                 if topic not in found:
                     raise ValueError(f"image {index} is of topic {topic}, no longer followed")
-                # the frame as captured where the store kept it: the marks are compared with raw frames in the
-                # raw dive (an enhanced copy is judged by its raw frame's row, never by its own pixels)
+                # the frame as captured where the store has it (held frames; from disk with store.keep_raw): the
+                # marks are compared with raw frames in the raw dive (a copy is judged by its raw frame's row)
                 found[topic].append(pipeline.prepare(frame.image if frame.raw_image is None else frame.raw_image))
             return found
 

@@ -70,9 +70,12 @@ class QueriesHandler:
         self.say_resolved(specs)
 
         def set_topics() -> list[SummaryEvent]:
-            events = ctx.pipeline.set_topics(specs)
-            if ctx.selective is not None:  # the raw gate follows every topic, kept, new or dropped
+            # the raw gate first: its pre-samplers score the pipeline's topics (``OuterDive``), so it must follow
+            # every topic the pipeline does, also if the pipeline's change were refused
+            if ctx.selective is not None:
                 ctx.selective.raw.set_topics(specs)
+            events = ctx.pipeline.set_topics(specs)
+            if ctx.selective is not None:
                 ctx.selective.sync_gates()
             return events
 

@@ -123,10 +123,12 @@ def test_an_enhanced_candidate_is_judged_by_the_raw_dives_scene_residual(frames,
     assert all(e.frame.enhanced for e in events if e.kind == "added")
 
 
-def test_with_marks_an_enhanced_candidate_is_scored_by_the_raw_dives_marks(frames, tmp_path) -> None:
+@pytest.mark.parametrize("n", [3, 1], ids=["centred-marks", "nearest-centroid"])
+def test_with_marks_an_enhanced_candidate_is_scored_by_the_raw_dives_marks(frames, tmp_path, n) -> None:
     """The surface's marks wrap both the raw gate's pre-samplers and the pipeline's (``MarksHandler``). The copies
-    are scored by the raw gate's, in the dive of raw frames, from the row their frame had there: with the scene
-    head answering, ss_e is ss_t; the enhancer's pipeline keeps no dive of candidates."""
+    are scored by the raw gate's, in the dive of raw frames, from the row their frame had there (its features and
+    embedding): with the scene head answering, ss_e is ss_t by either rule; the enhancer's pipeline keeps no dive
+    of candidates."""
     encoder = CountedEncoder(ImageNetEncoder(EncoderConfig(name="imagenet", batch=8)))  # regions: scene head
     cfg = Config.model_validate({"sampler": {"k": 50}, "gate": {"mode": "none"}, "queries": {"tau_ss": 0.0, "topics": [
         {"name": "fish", "positive": FISH.positive, "negatives": list(FISH.negatives)}]}})
@@ -139,12 +141,13 @@ def test_with_marks_an_enhanced_candidate_is_scored_by_the_raw_dives_marks(frame
     worker = EnhanceWorker(stage, Health(10.0), LiveCounters(), threading.Event(), batch=8, keeper=keeper)
     stage.score(frames[:8], None)
     worker.step(stage.queue.get_batch(len(frames), timeout=0.1))
-    like, unlike = survey_marks(frames)
+    like, unlike = survey_marks(frames, n)
     marks = Marks.from_images(encoder, [pipeline.prepare(i) for i in like], [pipeline.prepare(i) for i in unlike],
                               raw.presamplers["fish"].text_embeddings)
     raw.presamplers["fish"] = marked(raw.presamplers["fish"], marks)  # as MarksHandler._apply does
     pipeline.topics[0].presampler = marked(pipeline.topics[0].presampler, marks)
-    assert raw.presamplers["fish"].centred_trust > 0  # the marks are in force
+    gate = raw.presamplers["fish"]
+    assert (gate.centred_trust if n > 1 else gate.weight) > 0  # the marks are in force, by the rule named
     events.clear()
     stage.score(frames[8:], None)
     candidates = stage.queue.get_batch(len(frames), timeout=0.1)

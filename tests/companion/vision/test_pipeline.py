@@ -205,19 +205,22 @@ def test_an_enhanced_copy_is_judged_by_its_raw_frames_scene_residual_and_does_no
     assert any(r.enhanced and abs(r.enhanced_score - r.score) > 1e-5 for r in results)
 
 
-def test_with_marks_an_enhanced_copy_is_judged_by_its_raw_frames_place_in_the_dive(frames):
-    """The dive-centred marks read a frame's features minus the dive's mean. A copy's own features carry the
-    enhancer's colours, which no raw frame of the dive has, so it is judged by its raw frame's centred row: with
-    trusted marks and the scene head answering, ss_e is ss_t exactly."""
+@pytest.mark.parametrize("n", [3, 1], ids=["centred-marks", "nearest-centroid"])
+def test_with_marks_an_enhanced_copy_is_judged_by_its_raw_frames_place_in_the_dive(frames, n):
+    """The dive-centred marks read a frame's features minus the dive's mean, the nearest-centroid rule (one mark
+    a side) its most query-like region. A copy's own features carry the enhancer's colours, which no raw frame of
+    the dive and no mark has, so it is judged by its raw frame's row: with the marks in force and the scene head
+    answering, ss_e is ss_t exactly."""
     encoder = ImageNetEncoder(EncoderConfig(name="imagenet", batch=8))  # regions: the scene head loads
     pipe = make(encoder, mode="selective", tau_ses=0.3, tau=0.05)
     run(pipe, frames[:8])
-    like, unlike = survey_marks(frames)
+    like, unlike = survey_marks(frames, n)
     pipe.presampler = MarkedPreSampler(pipe.presampler,
                                        Marks.from_images(encoder, [pipe.prepare(i) for i in like],
                                                          [pipe.prepare(i) for i in unlike],
                                                          pipe.presampler.text_embeddings))
-    assert pipe.presampler.centred_trust > 0  # the marks are in force
+    rule = pipe.presampler.centred_trust if n > 1 else pipe.presampler.weight
+    assert rule > 0  # the marks are in force, by the rule the test names
     results, _ = run(pipe, frames[8:])
     enhanced = [r for r in results if r.enhanced]
     assert len(enhanced) >= 3, results
