@@ -117,7 +117,7 @@ def test_a_signed_companion_takes_the_queries_only_when_signed(tmp_path):
     surface.on_queries_changed(changed.append)
     surface.start()
     try:
-        unsigned = _upload(port, "--query", "a crab", "--negative", "sand", "--timeout", "3")
+        unsigned = _upload(port, "--query", "a crab", "--negative", "sand", "--timeout", "20")  # the NAK ends it
         # an unsigned FTP write is refused, and answered (a NAK, not silence: issue 24 item 4)
         assert unsigned.returncode == 1 and "refused the queries" in unsigned.stderr
         assert "file protected" in unsigned.stderr and changed == []

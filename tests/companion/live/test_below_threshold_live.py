@@ -31,9 +31,10 @@ def test_nothing_passing_shows_the_best_frames_and_tells_the_surface(tmp_path):
                                     "below_threshold_after_s": 2},
                            source={"uri": str(shared_file(ROV_CLIP)), "fps": 5, "realtime": True, "loop": True},
                            surface={"ftp_writable": True, "budget_bytes_per_s": 40000})
-        companion = Companion("--config", str(cfg))
-        companion.wait_for("companion running", 120)
-        with surface_with_page(tmp_path / "gallery", web_port, duration=120) as tool:
+        # the tool first: the notice is one STATUSTEXT, sent once, about 2 s of footage after the start
+        with surface_with_page(tmp_path / "gallery", web_port, duration=300) as tool:
+            companion = Companion("--config", str(cfg))
+            companion.wait_for("companion running", 120)
             def warnings() -> list[str]:
                 return [s["text"] for s in page_state(tool.web)["companion"]["warnings"]]
 

@@ -1,6 +1,6 @@
 """The operator teaches the live companion (issue 13 item 3): marks from the surface change what it keeps.
 
-A real `merlion run` plays the survey video (three rounds, each a little brighter) in a loop (fish and no-fish segments alternate) with the visual
+A real `merlion run` plays the survey video (eight rounds, each a little brighter) in a loop (fish and no-fish segments alternate) with the visual
 encoder, whose text score is 1.0 for every frame (it has no text tower), behind tau_ss 0.85: before any mark every
 frame passes, fish or not. `merlion surface-mark` then marks one stored fish frame "like" and one no-fish frame
 "unlike" over MAVLink FTP; the companion acknowledges with a STATUSTEXT and from then on scores by the query and
@@ -24,11 +24,13 @@ from tests.companion.live_harness import Companion, Listener, ground_ftp, wait_u
 from tests.conftest import run_merlion
 
 TAU = 0.85
+ROUNDS = 8
+"""Rounds of new footage (74 s): the marks and a whole loop after them fit however slow the machine."""
 
 
 @pytest.fixture
 def survey(shared_data: Path, tmp_path: Path) -> tuple[Path, dict[int, int]]:
-    """The survey video, played three times over in one file, each round a little brighter (as a new pass over a
+    """The survey video, played eight times over in one file, each round a little brighter (as a new pass over a
     site would differ): a summary never holds the same picture twice, so an exact loop would add nothing after
     its first round. Labels: fish_present per frame index of one round."""
     video = shared_data / "survey" / "survey_480x270.mp4"
@@ -47,7 +49,7 @@ def survey(shared_data: Path, tmp_path: Path) -> tuple[Path, dict[int, int]]:
     cap.release()
     rounds = tmp_path / "survey_rounds.mp4"
     writer = cv2.VideoWriter(str(rounds), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (480, 270))
-    for r in range(3):
+    for r in range(ROUNDS):
         for image in frames:
             writer.write(cv2.add(image, (4 * r, 4 * r, 4 * r, 0)))
     writer.release()

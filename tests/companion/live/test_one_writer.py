@@ -34,11 +34,11 @@ KEEPER = "/store/summary.json"
 def check_in_step(store: Path, keeper: dict) -> None:
     """The store's change log agrees with the keeper change by change; its index names only whole frames."""
     assert keeper["mismatches"] == 0
+    index = store_summary(store)  # first: the store logs a change, then rewrites the index; frames keep coming
     lines = [json.loads(line) for line in (store / "changes.jsonl").read_text().splitlines()]
     assert keeper["history"], "no change was recorded"
     for applied, summary in keeper["history"]:
         assert lines[applied - 1]["summary"] == summary, f"store and summary differ after event {applied}"
-    index = store_summary(store)
     assert index["summary"] in [line["summary"] for line in lines]
     for i in index["summary"]:
         base = store / "frames" / f"{i:06d}"

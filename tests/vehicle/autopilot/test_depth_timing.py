@@ -29,8 +29,7 @@ def test_depth_tags_within_5_cm_during_a_half_metre_per_second_descent_at_firmwa
         assert sim.interval("GLOBAL_POSITION_INT") == 1 / 3.2 and sim.interval("SCALED_PRESSURE2") == 1.0
         captures: list[float] = []
         errors: list[tuple[float, float, str]] = []
-        deadline = time.time() + 5.0
-        while time.time() < deadline:
+        while len(captures) < 60:  # about 4 s of frames, however slow the loop runs
             t = time.time()  # a frame is captured now ...
             captures.append(t)
             pose = tel.pose_at(t)  # ... and tagged at once (the newest depth sample is up to 0.31 s old)
@@ -42,7 +41,6 @@ def test_depth_tags_within_5_cm_during_a_half_metre_per_second_descent_at_firmwa
             assert pose.depth_source == "global_position_int"
         worst = max(errors)
         assert worst[0] <= 0.05, f"depth off by {worst[0]:.3f} m ({worst[2]})"
-        assert len(captures) > 40
     finally:
         sim.stop()
         tel.stop()

@@ -35,9 +35,11 @@ def test_missing_local_position_backs_off_exponentially_and_is_announced_once():
     try:
         assert wait_until(lambda: len(asked) >= 6, 10), asked
         gaps = [b - a for a, b in zip(asked, asked[1:], strict=False)]
-        # grace 0.25 s, then doubling: 0.25, 0.5, 1.0 (the cap), 1.0, ...
-        assert 0.2 <= gaps[0] <= 0.45 and 1.6 * gaps[0] <= gaps[1] <= 0.75, gaps
-        assert 1.6 * gaps[1] <= gaps[2] <= 1.3 and all(0.9 <= g <= 1.3 for g in gaps[3:5]), gaps
+        # grace 0.25 s, then doubling: 0.25, 0.5, 1.0 (the cap), 1.0, ... A loaded machine delays an ask (the
+        # next is timed from it) and never brings one much early, so each gap is held to its own nominal value:
+        # no doubling would give 0.25 for the second, no cap 2.0 for the fourth
+        for gap, nominal in zip(gaps, (0.25, 0.5, 1.0, 1.0, 1.0), strict=False):
+            assert 0.8 * nominal <= gap <= nominal + 0.5, gaps
         assert tel.rates.missing == {"LOCAL_POSITION_NED"} and tel.latest.position_source is False
         assert notices == [("No position source (no DVL/USBL): depth only", mav2.MAV_SEVERITY_INFO)]
         # every other message the companion wants does arrive when asked for: nothing else is declared missing

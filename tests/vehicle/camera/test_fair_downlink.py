@@ -4,8 +4,6 @@ signed station's reads are answered, and the flood is reported once."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
@@ -78,7 +76,9 @@ def test_signed_answers_go_before_a_strangers(downlink):
     surface, gcs, stranger, floods = downlink
     for i in range(15):  # fifteen distinct unsigned reads queue ahead...
         stranger.send(mav2.MAVLink_param_request_read_message(*COMPANION, b"", i % 6))
-    time.sleep(0.2)  # let them reach the queue first (ordering, not speed, is what is checked)
+    # they reach the queue first (ordering, not speed, is what is checked): wait until answers to them are
+    # waiting, not a fixed time (10 go at once on the budget's burst, the rest at about 10/s)
+    assert wait_until(lambda: surface.replies.pending() >= 3, 10)
     gcs.send(mav2.MAVLink_param_set_message(*COMPANION, b"MERL_P1", 77.0, mav2.MAV_PARAM_TYPE_REAL32))
     assert wait_until(lambda: len(gcs.got("PARAM_VALUE", COMPANION)) >= 16, 20)
     order = [m.param_value for m in gcs.got("PARAM_VALUE", COMPANION)]

@@ -137,7 +137,8 @@ class _StalledRatesClock:
 
 def test_the_autopilot_found_again_during_a_request_gets_every_rate_asked_again() -> None:
     port = free_udp_port()
-    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(heartbeat_timeout_s=0.5), heartbeat=False)
+    # 2 s without a heartbeat is a loss: a loaded machine's stall of a 10 Hz beat must not fake one
+    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(heartbeat_timeout_s=2.0), heartbeat=False)
     autopilot = _Autopilot(port)
     beating = threading.Event()
     beating.set()

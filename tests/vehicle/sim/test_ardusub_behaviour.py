@@ -87,13 +87,20 @@ def test_default_streams_without_any_request_and_no_position_before_the_ekf_orig
         for name in ("SYS_STATUS", "SCALED_PRESSURE", "SCALED_PRESSURE2"):
             assert 1 <= counts[name] <= 3, name
         assert counts["LOCAL_POSITION_NED"] == 0 and counts["ATTITUDE_QUATERNION"] == 0
-        # before the EKF origin: relative_alt valid, position and MSL altitudes 0, no LOCAL_POSITION_NED
-        early = peer.of_type("GLOBAL_POSITION_INT")
-        assert all((m.lat, m.lon, m.alt) == (0, 0, 0) for m in early)
-        assert all(m.alt == 0 for m in peer.of_type("VFR_HUD"))
-        assert wait_until(lambda: sim.time_boot_ms() > 2600, 3)
-        later = peer.of_type("GLOBAL_POSITION_INT", since=time.monotonic() - 0.4)
-        assert later and later[-1].lat == pytest.approx(1.25e7, abs=100)
+        # before the EKF origin (2 s after boot, when the descent also starts): relative_alt valid, position and
+        # MSL altitudes 0, no LOCAL_POSITION_NED; judged by when each message was sent, not by when the test looks
+        early = [m for m in peer.of_type("GLOBAL_POSITION_INT") if m.time_boot_ms < 2000]
+        assert early and all((m.lat, m.lon, m.alt) == (0, 0, 0) for m in early)
+        booted = time.monotonic() - sim.time_boot_ms() / 1000.0  # the boot on the peer's clock (to 1 ms)
+        hud = peer.of_type("VFR_HUD")
+        assert len(hud) >= 10 and all(m.alt == 0 for t, m in peer.messages
+                                      if m.get_type() == "VFR_HUD" and t < booted + 1.99)
+
+        def after_origin() -> list:
+            return [m for m in peer.of_type("GLOBAL_POSITION_INT") if m.time_boot_ms > 2600]
+
+        assert wait_until(after_origin, 3)
+        assert after_origin()[-1].lat == pytest.approx(1.25e7, abs=100)
         assert wait_until(lambda: peer.of_type("LOCAL_POSITION_NED"), 2)
         hb = peer.of_type("HEARTBEAT")[0]
         assert (hb.get_srcSystem(), hb.get_srcComponent(), hb.type) == (1, 1, mav2.MAV_TYPE_SUBMARINE)
@@ -183,12 +190,16 @@ def test_depth_hold_in_alt_hold_and_manual_control_z_below_500_descends():
         assert sim.state().vd == pytest.approx(0.5)
         peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))  # neutral: hold
         assert wait_until(lambda: sim.state().vd == 0.0, 2)
-        held = sim.state().depth
+        held, since = sim.state().depth, sim.time_boot_ms()
         time.sleep(0.3)
         peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
         assert sim.state().depth == pytest.approx(held, abs=1e-3) and sim.state().mode == "ALT_HOLD"
-        rel = peer.of_type("GLOBAL_POSITION_INT", since=time.monotonic() - 0.4)
-        assert rel and rel[-1].relative_alt == pytest.approx(-held * 1000, abs=5)
+
+        def reported() -> list:  # sent while holding, however late the test reads them
+            return [m for m in peer.of_type("GLOBAL_POSITION_INT") if m.time_boot_ms > since]
+
+        assert wait_until(reported, 2)
+        assert reported()[-1].relative_alt == pytest.approx(-held * 1000, abs=5)
 
 
 def test_origin_delay_is_read_from_the_profile_and_checked():
