@@ -38,11 +38,11 @@ class Candidate:
     frame: Frame
     score: float
     pose: object | None
+    seen: DiveFrames
+    """Its row as the raw gate's dive saw it (features, centred features, scene residual, embedding): its enhanced
+    copy is judged by it (``Pipeline.process(seen=...)``), since the copy is not a frame of the raw dive."""
     topics: tuple[str, ...] = ()
     """The topics whose tau_ss it passed: the only summaries it may enter after enhancement."""
-    seen: DiveFrames | None = None
-    """Its row as the raw gate's dive saw it (centred features, scene residual): its enhanced copy is judged by it
-    (``Pipeline.process(seen=...)``), since the copy is not a frame of the raw dive."""
 
 
 class SelectiveStage:
@@ -96,7 +96,7 @@ class SelectiveStage:
             frame = frames[i]
             if passed[row]:
                 self.queue.put(Candidate(frame, float(scores[row]), poses[i] if poses is not None else None,
-                                         passed[row], seen.rows([row])))
+                                         seen.rows([row]), passed[row]))
             out[i] = (frame, float(scores[row]), bool(passed[row]), True)
         return out
 
@@ -138,8 +138,6 @@ class EnhanceWorker(threading.Thread):
             self.health.beat("enhance")
         poses = [item.pose for item in items]
         only = [item.topics for item in items]
-        if any(item.seen is None for item in items):
-            raise ValueError("a candidate without its row in the raw dive cannot be judged")
         seen = DiveFrames.stack([item.seen for item in items])
 
         def sample():

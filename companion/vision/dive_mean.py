@@ -59,12 +59,12 @@ class DiveFrames:
     def stack(parts: Sequence[DiveFrames]) -> DiveFrames:
         """Rows taken at different times (the candidates of one enhancer batch) as one batch; scene rows and
         embeddings only when every part has them."""
-        def joined(name: str) -> np.ndarray | None:
+        def concatenated(name: str) -> np.ndarray | None:
             rows = [getattr(p, name) for p in parts]
             return None if any(r is None for r in rows) else np.concatenate(rows)
 
-        return DiveFrames(joined("pooled"), joined("centred"), all(p.joined for p in parts), joined("scene"),
-                          joined("embeddings"))
+        return DiveFrames(concatenated("pooled"), concatenated("centred"), all(p.joined for p in parts),
+                          concatenated("scene"), concatenated("embeddings"))
 
     def copies(self) -> DiveFrames:
         """These frames' copies (their enhanced versions), judged by the frames' own place in the dive: their

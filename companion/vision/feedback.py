@@ -280,8 +280,8 @@ class MarkedPreSampler(PreSampler):
             return text
         out = np.asarray(text, dtype=np.float64)
         if self.weight > 0.0:
-            # a copy (frames.joined False) is compared as its frame was: its frame's embedding and features
-            own = image_embeddings if frames.joined or frames.embeddings is None else frames.embeddings
+            # the frames' own embeddings where the dive kept them: a copy is compared as its frame was
+            own = image_embeddings if frames.embeddings is None else frames.embeddings
             feats = (self.encoder.object_features(own, self.text_embeddings) if self.objects else frames.pooled)
             if frames.joined:  # a copy (an enhanced frame) is no new frame of the dive
                 self.examples.observe(feats)
