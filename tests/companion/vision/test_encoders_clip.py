@@ -47,7 +47,8 @@ def small_ckpt(tmp_path_factory) -> str:
 
 @pytest.fixture(scope="module")
 def small_fp32(small_ckpt) -> ClipEncoder:
-    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32", batch=3))
+    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=small_ckpt, precision="fp32", batch=3,
+                                     device="cpu"))  # the references below run open_clip on the CPU
 
 
 @pytest.fixture(scope="module")
@@ -60,10 +61,12 @@ def _spread_queries(encoder: ClipEncoder, images: list[np.ndarray]) -> np.ndarra
     return encoder.encode_images(images[::-1])
 
 
-def test_score_cli_loads_the_checkpoint_given_with_weights(small_ckpt, small_fp32, images):
+def test_score_cli_loads_the_checkpoint_given_with_weights(small_ckpt, small_fp32, images, tmp_path):
     files = [shared_file("suim/images/f_r_1965_.jpg"), shared_file("suim/images/n_l_12_.jpg")]
+    cpu = tmp_path / "cpu.yaml"  # compared with the CPU encoder to 1e-5: a GPU host's cuDNN may round otherwise
+    cpu.write_text("encoder:\n  device: cpu\n")
     proc = run_merlion("score", *map(str, files), "--encoder", "clip", "--model", SMALL, "--weights", small_ckpt,
-                       "--precision", "fp32", "--json")
+                       "--precision", "fp32", "--config", str(cpu), "--json")
     assert proc.returncode == 0, proc.stderr
     rows = [json.loads(line) for line in proc.stdout.splitlines()]
     assert [r["file"] for r in rows] == list(map(str, files))
@@ -153,7 +156,7 @@ def test_checkpoint_wrappers_and_the_legacy_format_load(tmp_path, small_ckpt, sm
     torch.save(state, legacy, _use_new_zipfile_serialization=False)
     want = small_fp32.encode_images(images[:2])
     for path in (wrapped, legacy):
-        enc = ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=str(path), precision="fp32"))
+        enc = ClipEncoder(EncoderConfig(name="clip", device="cpu", model=SMALL, weights=str(path), precision="fp32"))
         np.testing.assert_allclose(enc.encode_images(images[:2]), want, atol=1e-5)
 
 

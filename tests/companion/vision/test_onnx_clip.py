@@ -58,7 +58,8 @@ def onnx_enc(ckpt, cache_dir) -> OnnxClipEncoder:
 
 @pytest.fixture(scope="module")
 def torch_enc(ckpt) -> ClipEncoder:
-    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt, precision="fp32", batch=3))
+    # the CPU fp32 tower the ONNX export is made from, and the references below run on the CPU
+    return ClipEncoder(EncoderConfig(name="clip", model=SMALL, weights=ckpt, precision="fp32", batch=3, device="cpu"))
 
 
 def open_clip_texts(ckpt: str, texts: list[str]) -> np.ndarray:
