@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,8 +41,9 @@ class Candidate:
     seen: DiveFrames
     """Its row as the raw gate's dive saw it (features, centred features, scene residual, embedding): its enhanced
     copy is judged by it (``Pipeline.process(seen=...)``), since the copy is not a frame of the raw dive."""
-    topics: tuple[str, ...] = ()
-    """The topics whose tau_ss it passed: the only summaries it may enter after enhancement."""
+    topics: dict[str, float] = field(default_factory=dict)
+    """The topics whose tau_ss it passed, with its ss_t for each: the only summaries it may enter after
+    enhancement, and the raw score its enhanced copy is stored beside (``SummaryFrame.raw_score``)."""
 
 
 class SelectiveStage:
@@ -129,11 +130,11 @@ class EnhanceWorker(threading.Thread):
 
     def step(self, items: list[Candidate]) -> None:
         stage = self.stage
-        raws: dict[int, np.ndarray] = {}
+        raws: dict[int, Candidate] = {}
         frames: list[Frame] = []
         for item in items:
             enhanced = stage.enhancer.enhance(item.frame.image)
-            raws[item.frame.index] = item.frame.image
+            raws[item.frame.index] = item
             frames.append(Frame(enhanced, item.frame.index, item.frame.time_s, item.frame.capture_time))
             self.health.beat("enhance")
         poses = [item.pose for item in items]
@@ -145,8 +146,9 @@ class EnhanceWorker(threading.Thread):
             for event in outcome.events:  # the frame as captured goes to the store beside the enhanced one
                 raw = raws.get(event.frame.frame_index)
                 if event.kind == "added" and raw is not None and event.frame.raw_image is None:
-                    event.frame.raw_image = raw
+                    event.frame.raw_image = raw.frame.image
                     event.frame.enhanced = True
+                    event.frame.raw_score = raw.topics.get(event.frame.topic)
             return outcome
 
         outcome = self.keeper.change(sample, lambda o: o.events)

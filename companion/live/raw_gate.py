@@ -69,10 +69,11 @@ class RawGate:
         while the enhancer is off, the frames the pipeline gets (``OuterDive``)."""
         return self.presamplers[topic]
 
-    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[tuple[str, ...]], DiveFrames]:
-        """Each frame's best ss_t over the topics, the names of the topics it passed for (empty: none), and the
-        frames as the dive saw them, by which their enhanced copies are judged (``DiveFrames.copies``)."""
+    def score(self, embeddings: np.ndarray) -> tuple[np.ndarray, list[dict[str, float]], DiveFrames]:
+        """Each frame's best ss_t over the topics, the topics it passed for with its ss_t for each (empty: none),
+        and the frames as the dive saw them, by which their enhanced copies are judged (``DiveFrames.copies``)."""
         frames = self.take(embeddings)
         scores, passed = score_matrix(list(self.presamplers.values()), embeddings, frames)
         names = self.names
-        return scores.max(axis=1), [tuple(names[t] for t in np.flatnonzero(row)) for row in passed], frames
+        return (scores.max(axis=1),
+                [{names[t]: float(scores[i, t]) for t in np.flatnonzero(row)} for i, row in enumerate(passed)], frames)

@@ -59,6 +59,7 @@ def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> d
         "capture_utc": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(frame.capture_time))
         + f".{int((frame.capture_time % 1) * 1000):03d}Z",
         "score": float(frame.score),
+        "raw_score": None if frame.raw_score is None else float(frame.raw_score),
         "enhanced": bool(frame.enhanced),
         "width": int(w),
         "height": int(h),
@@ -115,6 +116,7 @@ def _held_from(store_dir: Path, sidecar: dict[str, Any], image: np.ndarray, feat
         enhanced=bool(sidecar.get("enhanced", False)),
         topic=str(sidecar.get("topic") or ""),
         below_threshold=bool(sidecar.get("below_threshold", False)),
+        raw_score=None if sidecar.get("raw_score") is None else float(sidecar["raw_score"]),
     )
     return HeldFrame(frame=frame, sidecar=sidecar, on_disk=True)
 

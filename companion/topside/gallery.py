@@ -70,6 +70,8 @@ class Capture:
     lon: float | None = None
     alt_m: float | None = None
     score: float | None = None
+    raw_score: float | None = None
+    """The frame's score as captured when ``score`` is its enhanced copy's (index.json); else None."""
     topic: str | None = None
     """The name of the topic whose summary holds it (index.json, or the STATUSTEXT when several are followed);
     None until the companion said (and in a gallery written before topics)."""

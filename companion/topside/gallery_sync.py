@@ -83,7 +83,7 @@ class GallerySync:
                 if cap.thumbnail_crc32 is not None:
                     p.crc[cap.image_index] = cap.thumbnail_crc32
             tags = {k: getattr(cap, k) for k in ("time_utc", "depth_m", "heading_deg", "q", "lat", "lon", "alt_m",
-                                                 "score", "topic", "file_url", "thumbnail_crc32",
+                                                 "score", "raw_score", "topic", "file_url", "thumbnail_crc32",
                                                  "below_threshold")}
             ctx.gallery.update_tags(cap.image_index, **tags)
             known = ctx.gallery.get(cap.image_index)

@@ -208,6 +208,7 @@ def parse_index(data: bytes) -> list[Capture]:
             q=[float(v) for v in q] if isinstance(q, list) and len(q) == 4 else None,
             lat=_num(tags.get("lat")), lon=_num(tags.get("lon")), alt_m=_num(tags.get("alt_m")),
             score=_num(_first(tags, "score", "ss", "semantic_score")),
+            raw_score=_num(tags.get("raw_score")),
             topic=str(tags["topic"]) if isinstance(tags.get("topic"), str) and tags["topic"] else None,
             below_threshold=tags["below_threshold"] if isinstance(tags.get("below_threshold"), bool) else None,
             file_url=url if isinstance(url, str) else None,

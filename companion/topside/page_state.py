@@ -69,7 +69,8 @@ def _age(now: float, then: float | None) -> float | None:
 def _capture_view(c: Capture) -> dict:
     return {
         "image_index": c.image_index, "dive": c.dive, "time_utc": c.time_utc, "depth_m": c.depth_m,
-        "heading_deg": c.heading_deg, "score": c.score, "topic": c.topic,
+        "heading_deg": c.heading_deg, "score": c.score, "raw_score": c.raw_score,
+        "topic": c.topic,
         "below_threshold": bool(c.below_threshold), "lat": c.lat, "lon": c.lon,
         "alt_m": c.alt_m, "thumbnail": c.thumbnail, "via": c.thumbnail_via, "bytes": c.thumbnail_bytes,
     }

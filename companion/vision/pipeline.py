@@ -524,10 +524,11 @@ class Pipeline:
             result.added, result.image_index = True, key
         result.added_to.append(topic.name)
         enhanced = image is not frame.image
+        raw_score = result.topic_scores.get(topic.name) if enhanced and result.enhanced_score is not None else None
         held = SummaryFrame(
             image_index=key, frame_index=frame.index, time_s=frame.time_s, capture_time=frame.capture_time,
             score=float(score), image=image, feature=feature.copy(), pose=pose,
-            raw_image=frame.image if enhanced else None, enhanced=enhanced, topic=topic.name,
+            raw_image=frame.image if enhanced else None, enhanced=enhanced, topic=topic.name, raw_score=raw_score,
         )
         topic.held[key] = held
         keys = self._all_keys()

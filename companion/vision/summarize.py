@@ -124,6 +124,7 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
         },
         "frames": [
             {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
+             "raw_score": None if f.raw_score is None else round(float(f.raw_score), 6),
              "file": frame_file(f, several), "topic": f.topic, "below_threshold": f.below_threshold}
             for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index, f.topic))
         ],

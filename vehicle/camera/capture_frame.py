@@ -27,6 +27,8 @@ class CaptureFrame(Protocol):
     enhanced: bool
     topic: str
     """The topic whose summary holds it (several may be followed at once; one name with one topic)."""
+    raw_score: float | None
+    """The raw frame's score when ``score`` is its enhanced copy's; else None."""
 
 
 class CaptureEvent(Protocol):

@@ -72,6 +72,9 @@ def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
         "score": _json_safe(round(float(frame.score), 4)), "enhanced": bool(frame.enhanced),
         "below_threshold": bool(getattr(frame, "below_threshold", False)),  # a stand-in: nothing passed
     }
+    raw_score = getattr(frame, "raw_score", None)
+    if raw_score is not None:
+        tags["raw_score"] = _json_safe(round(float(raw_score), 4))
     if pose is not None:
         tags["pose"] = {k: _json_safe(v) for k, v in pose.to_dict().items() if v is not None}
     return tags

@@ -153,7 +153,8 @@ function card(frame, marks, showTopic) {
     ["depth", "depth " + fmt(frame.depth_m, 1, " m")],
     ["heading", "heading " + (known(frame.heading_deg) ? (Math.round(frame.heading_deg) % 360) + "\u00b0" : "?")],
     ["time", timeText(frame.time_utc)],
-    ["score", "score " + fmt(frame.score, 2, "") + (frame.below_threshold ? " (below threshold)" : "")],
+    ["score", "score " + fmt(frame.score, 2, "") + (known(frame.raw_score) ? " (raw " + fmt(frame.raw_score, 2, "") + ")" : "")
+      + (frame.below_threshold ? " (below threshold)" : "")],
   ];
   if (showTopic) rows.splice(1, 0, ["topic", "topic " + (frame.topic || "?")]);
   const where = positionText(frame);

@@ -54,8 +54,9 @@ def test_summary_json_schema_and_frames(summary_dir):
         cells = line.split(",")
         labels[int(cells[0])] = cells[-1].strip() == "1"
     for f in frames:
-        assert set(f) == {"index", "time_s", "score", "file", "topic", "below_threshold"}
+        assert set(f) == {"index", "time_s", "score", "raw_score", "file", "topic", "below_threshold"}
         assert f["topic"] == "main" and f["below_threshold"] is False  # the one default topic; frames passed
+        assert f["raw_score"] is None  # no enhancement: the score is the frame's own
         assert f["index"] % 10 == 0  # 10 fps source at --fps 1
         assert f["time_s"] == pytest.approx(f["index"] / 10.0)
         assert 0.45 < f["score"] <= 1.0

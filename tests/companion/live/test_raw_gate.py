@@ -67,7 +67,10 @@ def test_every_topic_is_scored_on_one_embedding_and_a_frame_goes_on_for_any(enco
     want = [tuple(n for n in ("fish", "coral") if scores[n][i] > alone[n].tau_ss) for i in range(len(frames))]
     assert len(set(want)) >= 3, want  # frames passing one topic, the other, both or none: the case is real
     queued = stage.queue.get_batch(len(frames), timeout=0.1)
-    assert [c.topics for c in queued] == [w for w in want if w]
+    assert [tuple(c.topics) for c in queued] == [w for w in want if w]
+    kept = [i for i, w in enumerate(want) if w]
+    for c, i in zip(queued, kept, strict=True):  # each with its ss_t per topic: stored beside the enhanced copy's
+        np.testing.assert_allclose([c.topics[n] for n in want[i]], [scores[n][i] for n in want[i]], rtol=1e-5)
     assert [passed for _f, _s, passed, _e in out] == [bool(w) for w in want]
     assert all(encoded for *_rest, encoded in out)  # no frame gate given: every frame scored
     best = np.maximum(scores["fish"], scores["coral"])

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from companion.config import StoreConfig
+from companion.storage.frame_files import read_frame
 from companion.storage.store import Store
 from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
 from tests.conftest import run_merlion
@@ -102,3 +103,7 @@ def test_selective_enhancement_runs_on_its_worker_and_stores_raw_beside_enhanced
         sidecar = json.loads((store / "frames" / f"{index:06d}.json").read_text())
         assert sidecar["enhanced"] is True and sidecar["raw_file"] == f"frames/{index:06d}.raw.jpg"
         assert (store / sidecar["raw_file"]).is_file()
+        # both gates it passed: ss_t of the frame as captured (tau_ss 0.5 here) and ss_e of the copy (tau_ses)
+        assert sidecar["raw_score"] > 0.5 and sidecar["score"] > 0.5
+        held = read_frame(store, index)
+        assert held is not None and held.frame.raw_score == sidecar["raw_score"]

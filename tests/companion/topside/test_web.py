@@ -37,6 +37,8 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
                   6: summary_frame(6, depth=22.6, yaw_deg=270, score=0.77),
                   7: summary_frame(7, depth=23.0, yaw_deg=10, score=0.66),
                   8: summary_frame(8, depth=24.2, yaw_deg=45, score=0.71)}
+        # #6 is an enhanced copy (ss_e 0.77) of a frame that scored 0.59 as captured
+        frames[6] = dataclasses.replace(frames[6], enhanced=True, raw_score=0.59, raw_image=frames[6].image[::-1])
         frames[8] = dataclasses.replace(frames[8], pose=dataclasses.replace(frames[8].pose, lat=1.26440,
                                                                              lon=103.82220))
         assert wait_until(lambda: page_state(web)["companion"]["id"] == [1, 100], 15)  # its heartbeat reached the tool
@@ -50,7 +52,7 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         def ready() -> bool:
             s = page_state(web)
             return [f["image_index"] for f in s["summary"]] == [6, 5] and all(
-                f["thumbnail"] and f["score"] is not None for f in s["summary"])
+                f["thumbnail"] and f["score"] is not None for f in s["summary"]) and s["summary"][0]["raw_score"]
 
         assert wait_until(ready, 30), page_state(web)
         # each pushed thumbnail is checked against the companion's file with one CalcFileCRC32
@@ -65,8 +67,9 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
                                   ".map(f => [f.dataset.index, f.innerText])")
             assert [i for i, _ in cards] == ["6", "5"], cards  # newest first, the trimmed #7 gone
             text = dict(cards)
-            assert "depth 22.6 m" in text["6"] and "heading 270°" in text["6"] and "score 0.77" in text["6"]
+            assert "depth 22.6 m" in text["6"] and "heading 270°" in text["6"] and "score 0.77 (raw 0.59)" in text["6"]
             assert "depth 21.4 m" in text["5"] and "heading 135°" in text["5"] and "score 0.88" in text["5"]
+            assert "raw" not in text["5"]  # not enhanced: one score
             assert all(f"dive {DIVE}" in t for t in text.values()), text
             assert page.evaluate("document.querySelector('#gallery img').getAttribute('src')").startswith(
                 "files/summary/6.jpg")

@@ -44,6 +44,7 @@ def baseline(encoder, frames):
 
 def test_results_follow_the_frames_and_the_threshold(baseline, frames):
     pipe, results, _ = baseline
+    assert all(f.raw_score is None for f in pipe.summary)  # nothing enhanced: the score is the raw frame's
     assert [r.frame_index for r in results] == [f.index for f in frames]
     assert all(r.passed == (r.score > 0.25) for r in results)
     assert all(r.offered == r.passed for r in results)
@@ -126,9 +127,13 @@ def test_selective_enhancement_only_touches_passing_frames(encoder, frames):
     assert pipe.summary, "some enhanced frame should pass tau_ses"
     assert all(r.enhanced == r.passed for r in results)
     assert all(r.offered == (r.passed and r.enhanced_score > 0.3) for r in results)
+    by_index = {r.frame_index: r for r in results}
     for f in pipe.summary:
         assert f.enhanced and f.raw_image is not None and f.image is not f.raw_image
         assert f.score > 0.3  # ss_e
+        # the raw frame's ss_t is kept beside it: the gate it passed before the enhancer
+        assert f.raw_score == by_index[f.frame_index].topic_scores[f.topic] > 0.25
+        assert f.raw_score != f.score
     strict = make(encoder, mode="selective", tau_ses=0.999)
     results, events = run(strict, frames[4:8])
     assert events == [] and not any(r.offered for r in results)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -127,6 +128,7 @@ def test_a_resumed_summary_is_served_but_not_counted_or_announced_again():
         surface = Downlink(link, SurfaceConfig(), image_count=10)  # an earlier run took images 0-9
         old = added(8, [8])
         old.frame.raw_image = old.frame.image[:, ::-1].copy()
+        old.frame.enhanced, old.frame.raw_score = True, 0.61  # an enhanced copy (ss_e 0.8) of a frame with ss_t 0.61
         surface.publish(old)
         assert surface.captures.image_count == 10 and surface.budget.pending() == 0
         assert surface.tree.read("/summary/8.jpg") and surface.tree.read("/summary/raw/8.jpg")[:2] == b"\xff\xd8"
@@ -134,5 +136,8 @@ def test_a_resumed_summary_is_served_but_not_counted_or_announced_again():
         surface.publish(added(10, [8, 10]))
         assert surface.captures.image_count == 11
         assert surface.budget.pending(Priority.THUMBNAIL) > 0 and surface.budget.pending(Priority.STATUS) == 2
+        served = {t["image_index"]: t for t in json.loads(surface.tree.read("/summary/index.json"))["summary"]}
+        assert (served[8]["score"], served[8]["raw_score"], served[8]["raw"]) == (0.8, 0.61, "/summary/raw/8.jpg")
+        assert "raw_score" not in served[10] and "raw" not in served[10]
     finally:
         link.stop()
