@@ -52,6 +52,15 @@ _SEND_WAIT_S = 2.0
 BAD_LOG_S = 10.0
 """At most one log line per this many seconds about bad input (the count is in ``rx_bad``)."""
 _UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
+HEARTBEAT_PERIOD_S = 1.0
+
+
+def next_heartbeat(due: float, now: float, period: float = HEARTBEAT_PERIOD_S) -> float:
+    """When the heartbeat after the one due at ``due`` (sent at ``now``) is due: on a fixed grid, so that waking up
+    to a poll late does not push every later beat back (it gave 0.95 Hz); after a stall of more than a period, a
+    new grid from now, with no burst of beats to catch up."""
+    due += period
+    return due if due > now else now + period
 
 
 @dataclass(frozen=True)
@@ -561,7 +570,7 @@ class MavLink:
                 continue
             now = self.clock()
             if now >= next_beat:
-                next_beat = now + 1.0
+                next_beat = next_heartbeat(next_beat, now)
                 if self._is_healthy():
                     self.send(self.heartbeat_message())
 

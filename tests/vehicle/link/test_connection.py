@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from companion.config import MavlinkConfig
 from companion.errors import UsageError
 from tests.conftest import free_tcp_port, free_udp_port
-from vehicle.link.connection import MavLink, is_autopilot_heartbeat, parse_connection
+from vehicle.link.connection import MavLink, is_autopilot_heartbeat, next_heartbeat, parse_connection
 
 FAST = {"heartbeat_timeout_s": 0.6, "reconnect_initial_s": 0.05, "reconnect_max_s": 0.2}
 
@@ -181,3 +181,20 @@ def test_serial_link_on_a_pty():
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_heartbeats_keep_a_fixed_one_second_grid_when_each_is_sent_up_to_a_poll_late() -> None:
+    """The timer thread wakes at least every 0.1 s, so each beat goes out up to a poll after it is due; scheduling
+    the next from when it went out (as before) drifted to one beat every ~1.1 s. Simulated: wake-ups 0.10-0.13 s
+    apart, over 100 s (the old rule sends 97 here)."""
+    due, sent, t = 0.0, [], 0.0
+    while t < 100.0:
+        if t >= due:
+            sent.append(t)
+            due = next_heartbeat(due, t)
+        t = round(t + 0.1, 6) + 0.03 * (len(sent) % 2)
+    assert len(sent) == 100
+    assert all(0.8 <= b - a <= 1.2 for a, b in zip(sent, sent[1:], strict=False))
+    assert next_heartbeat(10.0, 10.09) == 11.0  # on the grid, not 11.09
+    assert next_heartbeat(10.0, 13.5) == 14.5  # after a stall: a new grid, no burst of beats to catch up
+

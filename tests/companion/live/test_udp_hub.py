@@ -1,0 +1,108 @@
+"""The UDP hub (BlueOS' router stand-in in the extension, demo, tests and benches) with real sockets on 127.0.0.1:
+peers that fall silent are forgotten, the table stays bounded, and outputs given up front always get traffic."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from companion.live.udp_hub import UdpHub
+
+
+def _socket() -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.settimeout(2.0)
+    return s
+
+
+def _wait(what: str, check: Callable[[], bool], timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+def _received(sock: socket.socket) -> list[bytes]:
+    """Everything queued on the socket now (the hub has already forwarded what it will)."""
+    sock.setblocking(False)
+    out = []
+    try:
+        while True:
+            out.append(sock.recv(65535))
+    except BlockingIOError:
+        pass
+    finally:
+        sock.settimeout(2.0)
+    return out
+
+
+@pytest.fixture
+def clock() -> list[float]:
+    return [1000.0]
+
+
+@pytest.fixture
+def hub(clock: list[float]) -> Iterator[UdpHub]:
+    hub = UdpHub(forget_after_s=10.0, max_peers=4, clock=lambda: clock[0]).start()
+    yield hub
+    hub.stop()
+
+
+def _say(hub: UdpHub, sock: socket.socket, data: bytes, to: int) -> None:
+    """Send through the hub and wait until it has learnt the sender and forwarded the datagram to ``to`` peers."""
+    before = hub.forwarded
+    sock.sendto(data, (hub.host, hub.port))
+    _wait(f"the hub to forward {data!r} to {to}",
+          lambda: sock.getsockname() in hub.peers and hub.forwarded >= before + to)
+    assert hub.forwarded == before + to
+
+
+def test_a_silent_peer_is_forgotten_and_learnt_again_when_it_speaks(clock: list[float]) -> None:
+    output = _socket()
+    hub = UdpHub(outputs=[output.getsockname()], forget_after_s=10.0, clock=lambda: clock[0]).start()
+    a, b = _socket(), _socket()
+    try:
+        _say(hub, a, b"a1", to=1)
+        _say(hub, b, b"b1", to=2)
+        assert hub.peers == [output.getsockname(), a.getsockname(), b.getsockname()]
+        assert a.recv(100) == b"b1" and _received(b) == []  # b joined after a1
+        clock[0] += 11.0  # b, like a client that restarted on another port, says nothing more
+        _say(hub, a, b"a2", to=1)
+        assert hub.peers == [output.getsockname(), a.getsockname()] and hub.forgotten == 1
+        _say(hub, a, b"a3", to=1)
+        assert _received(b) == []  # nothing more is sent to the silent peer
+        assert _received(output) == [b"a1", b"b1", b"a2", b"a3"]  # the output, silent throughout, gets it all
+        _say(hub, b, b"b2", to=2)  # it speaks again: learnt again
+        _say(hub, a, b"a4", to=2)
+        assert b.recv(100) == b"a4" and a.recv(100) == b"b2"
+    finally:
+        hub.stop()
+        for s in (output, a, b):
+            s.close()
+
+
+def test_many_senders_keep_at_most_max_peers_the_longest_silent_going_first(hub: UdpHub, clock: list[float]) -> None:
+    senders = [_socket() for _ in range(7)]
+    try:
+        for i, s in enumerate(senders[:5]):
+            clock[0] += 1.0
+            _say(hub, s, b"hello %d" % i, to=min(i, 3))
+        names = [s.getsockname() for s in senders]
+        assert hub.peers == names[1:5] and hub.forgotten == 1  # four kept: the first sender went
+        clock[0] += 1.0
+        _say(hub, senders[1], b"again", to=3)  # now the most recently heard
+        clock[0] += 1.0
+        _say(hub, senders[5], b"new", to=3)
+        assert hub.peers == [names[3], names[4], names[1], names[5]]  # senders[2], silent longest, went
+        assert _received(senders[2]) == [b"hello 3", b"hello 4", b"again"]  # nothing after it went
+        assert _received(senders[3]) == [b"hello 4", b"again", b"new"]
+        clock[0] += 1.0
+        _say(hub, senders[6], b"newer", to=3)
+        assert len(hub.peers) == 4 and names[3] not in hub.peers and hub.forgotten == 3
+    finally:
+        for s in senders:
+            s.close()
