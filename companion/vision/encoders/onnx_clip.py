@@ -31,6 +31,7 @@ from companion.vision.encoders.clip_texts import TextEmbeddings, resolved_reques
 from companion.vision.encoders.cpu_threads import intra_op_threads
 from companion.vision.encoders.heap_trim import release_freed_memory
 from companion.vision.encoders.weights import ResolvedWeights, resolve_clip_weights
+from companion.vision.onnx_runtime import onnxruntime
 
 log = logging.getLogger(__name__)
 
@@ -61,8 +62,7 @@ class OnnxClipEncoder(Encoder):
     """CLIP's image tower in ONNX Runtime (fp32), text embeddings from the cache; no torch in this process."""
 
     def __init__(self, cfg: EncoderConfig) -> None:
-        import onnxruntime as ort  # 0.15 s and its memory (measured), only in a process that runs ONNX
-
+        ort = onnxruntime("encoder.runtime onnx")
         if cfg.precision not in ("auto", "fp32") or cfg.device == "cuda":
             raise UsageError(f"encoder.runtime onnx runs the fp32 export (precision {cfg.precision}, device "
                              f"{cfg.device}): use precision fp32 (GPUs through encoder.providers) or runtime torch")

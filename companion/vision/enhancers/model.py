@@ -21,6 +21,7 @@ import numpy as np
 
 from companion.errors import MerlionError
 from companion.vision.enhancers.base import Enhancer
+from companion.vision.onnx_runtime import onnxruntime
 
 log = logging.getLogger(__name__)
 
@@ -69,8 +70,7 @@ class _TorchScriptRunner:
 
 class _OnnxRunner:
     def __init__(self, path: Path, device: str) -> None:
-        import onnxruntime as ort  # 0.15 s and its memory (measured): only for an ONNX model
-
+        ort = onnxruntime(f"enhance.model_path {path.name}")
         providers = ["CPUExecutionProvider"]
         if device == "cuda" and "CUDAExecutionProvider" in ort.get_available_providers():
             providers.insert(0, "CUDAExecutionProvider")
