@@ -246,13 +246,14 @@ def as_fraction(value: float, *, allow_zero: bool = False) -> float:
 
     ``allow_zero``: 0 is accepted too, for a gate where 0 means "no gate" (tau_ss).
     """
+    given = value
     if value > 1.0:
         value = value / 100.0
     if allow_zero and value == 0.0:
         return 0.0
     if not 0.0 < value < 1.0:
         low = "[0" if allow_zero else "(0"
-        raise ValueError(f"must be a fraction in {low}, 1) or a percentage in (1, 100), got {value}")
+        raise ValueError(f"must be a fraction in {low}, 1) or a percentage in (1, 100), got {given}")
     return float(value)
 
 

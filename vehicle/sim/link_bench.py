@@ -167,8 +167,8 @@ def _slow_param_change(name: str, value: float) -> None:
         os.fsync(f.fileno())
 
 
-def _refuse_queries(positive: str, negatives: list[str]) -> None:
-    raise _Refused("queries refused by the app")
+def _refuse_queries(topics: list) -> None:
+    raise _Refused(f"queries refused by the app ({len(topics)} topic(s))")
 
 
 def stress(clients: int, duration_s: float, *, frames: int = 6, width: int = 1280, height: int = 720,

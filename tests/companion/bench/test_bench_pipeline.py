@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import open_clip
 import pytest
@@ -29,6 +30,12 @@ def test_bench_pipeline_json_last_line():
     assert "x the paper's loop" in proc.stdout
     assert set(result["cpu_ms_per_frame"]) == {"end_to_end", "video", "encoder", "paper_loop"}
     assert all(v > 0 for v in result["cpu_ms_per_frame"].values()) and result["cpu_speedup_vs_paper_loop"] > 0
+    (cpu_line,) = [line for line in proc.stdout.splitlines() if line.startswith("CPU time")]
+    vs = result["cpu_speedup_vs_paper_loop"]  # paper loop's CPU per frame over ours: below 1, ours takes more
+    said = re.search(r"\(([\d.]+) x (less|more) than the paper's loop\)", cpu_line)
+    assert said, cpu_line
+    assert said[2] == ("less" if vs >= 1 else "more") or abs(vs - 1) < 0.01, (cpu_line, vs)
+    assert float(said[1]) == pytest.approx(vs if said[2] == "less" else 1 / vs, abs=0.011), (cpu_line, vs)
 
 
 def test_paper_loop_baseline_runs_clip_in_fp32_whatever_the_run_uses(tmp_path):

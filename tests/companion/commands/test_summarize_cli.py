@@ -120,6 +120,9 @@ def test_a_bad_option_is_blamed_on_the_option_and_its_value_shown_once(tmp_path)
     line = one_error_line(proc.stderr)
     assert proc.returncode == 2 and line.startswith("merlion: error: --threshold: queries.tau_ss: ")
     assert line.count("-1.0") == 1, line
+    proc = run_merlion("summarize", str(shared_file(SURVEY)), "--out", str(out), "--threshold", "150")
+    line = one_error_line(proc.stderr)  # read as a percentage, 1.5: the message shows what was given
+    assert proc.returncode == 2 and line.endswith("a percentage in (1, 100), got 150.0"), line
     assert not out.exists()
 
 

@@ -17,6 +17,9 @@ def test_bench_link_clients_reports_corruption_and_stalls():
     assert run["corrupted"] == 0 and min(run["received_by_client"]) > 100
     assert run["downloads"] > 0 and run["mismatched"] == 0 and run["autopilot_lost"] == 0
     assert run["refused_uploads"] and all(a.startswith("nak") for a in run["refused_uploads"])
+    # refused by the app's own handler, called as the downlink calls it (it once failed on its signature instead)
+    assert "refused: queries refused by the app (1 topic(s))" in result.stderr
+    assert "positional argument" not in result.stderr
     assert 0 < run["rx_longest_ms"] and 0 <= run["rx_longest_cpu_ms"] <= run["rx_longest_ms"]
     assert "bench link: 2 client(s)" in result.stdout
 
