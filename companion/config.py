@@ -289,7 +289,7 @@ def _error_key(err: ValidationError) -> tuple[str, ...]:
     return tuple(str(p) for p in err.errors()[0]["loc"])
 
 
-def _given(over: dict[str, Any], key: tuple[str, ...]) -> bool:
+def given_in(over: dict[str, Any], key: tuple[str, ...]) -> bool:
     """Whether ``key`` (a dotted path) was set by these overrides."""
     node: Any = over
     for part in key:
@@ -385,7 +385,7 @@ def load_config(
         return Config.model_validate(data or {})
     except ValidationError as err:
         key = _error_key(err)
-        if overrides and _given(overrides, key):  # the command line's value: blame its option, not the file
+        if overrides and given_in(overrides, key):  # the command line's value: blame its option, not the file
             option = (options or {}).get(".".join(p for p in key if not p.isdigit()))
             raise ConfigError(f"{option or 'command line'}: {_describe(err)}") from None
         raise ConfigError(f"{origin}: {_describe(err)}") from None

@@ -23,6 +23,7 @@ def register(add_command) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from companion.commands.arg_checks import require_positive
+    from companion.commands.query_source import blamed_queries
     from companion.live.runner import build, cli_overrides, run_companion
 
     require_positive("--duration", args.duration)
@@ -34,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
         from vehicle.link.signing import LinkSigning
 
         LinkSigning.from_settings(cfg.mavlink, name="companion")
-    report = run_companion(cfg, environ=os.environ, duration=args.duration)
+    with blamed_queries(cfg, config=args.config, overrides=overrides):
+        report = run_companion(cfg, environ=os.environ, duration=args.duration)
     store = report["store"]
     mode = f"memory-only ({store.get('reason')})" if store.get("memory_only") else "on disk"
     signing = report.get("signing", {})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 from typing import Any, get_args
@@ -45,14 +46,19 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.commands.query_source import blamed_queries
     from companion.vision.query_explain import explain_queries
     from companion.vision.score_images import score_images
 
-    cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
-    if args.explain:
-        print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
+    over = overrides_from(args)
+    cfg = load_config(args.config, overrides=over, options=OPTION_NAMES)
+    with blamed_queries(cfg, config=args.config, overrides=over):
+        if args.explain:
+            print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
+        scored = score_images(cfg, args.paths, like=args.like, unlike=args.unlike, dive=args.dive)
+        first = next(scored, None)  # the queries are read before the first image is scored
     failed = 0
-    for item in score_images(cfg, args.paths, like=args.like, unlike=args.unlike, dive=args.dive):
+    for item in itertools.chain([first] if first is not None else [], scored):
         if item.score is None:
             failed += 1
             print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)

@@ -33,13 +33,16 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from companion.commands.query_source import blamed_queries
     from companion.vision.query_explain import explain_queries
     from companion.vision.summarize import summarize
 
-    cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
-    if args.explain:
-        print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
-    result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
+    over = overrides_from(args)
+    cfg = load_config(args.config, overrides=over, options=OPTION_NAMES)
+    with blamed_queries(cfg, config=args.config, overrides=over):
+        if args.explain:
+            print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
+        result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
     sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
     below = sum(f["below_threshold"] for f in result.document["frames"])

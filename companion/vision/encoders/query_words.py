@@ -59,6 +59,7 @@ class UnknownWord(MerlionError):
     """A query word that resolves to no ImageNet class; ``word``, ``brief`` and ``near`` make the short line."""
 
     def __init__(self, query: str, word: str, why: str, near: tuple[str, ...], brief: str) -> None:
+        self.query = query
         self.word = word
         self.near = near
         self.brief = brief

@@ -1,0 +1,49 @@
+"""Which setting a refused query came from, so the one-line error names it as it names a bad config value: the
+option the user typed (``--query``) or the file and dotted key (``dive.yaml: queries.topics.1.positive``)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from companion.commands.overrides import OPTION_NAMES
+from companion.config import Config, QueryConfig, given_in
+from companion.errors import UsageError
+from companion.vision.encoders.query_words import UnknownWord
+
+
+def query_keys(queries: QueryConfig) -> Iterator[tuple[tuple[str, ...], str]]:
+    """Each query text of the configuration with its dotted key, positives first."""
+    if queries.topics:
+        for i, topic in enumerate(queries.topics):
+            yield ("queries", "topics", str(i), "positive"), topic.positive
+            for j, text in enumerate(topic.negatives):
+                yield ("queries", "topics", str(i), "negatives", str(j)), text
+        return
+    yield ("queries", "positive"), queries.positive
+    for j, text in enumerate(queries.negatives):
+        yield ("queries", "negatives", str(j)), text
+
+
+def query_source(cfg: Config, query: str, *, config: str | None, overrides: dict[str, Any] | None) -> str | None:
+    """The option or ``FILE: key`` that set ``query``; None when the configuration does not hold it (a query
+    uploaded from the surface before a restart, say)."""
+    for key, text in query_keys(cfg.queries):
+        if text.strip().lower() != query.strip().lower():
+            continue
+        if overrides and given_in(overrides, key):
+            return OPTION_NAMES.get(".".join(p for p in key[:3] if not p.isdigit()), "command line")
+        dotted = ".".join(key)
+        return f"{config}: {dotted}" if config else dotted
+    return None
+
+
+@contextmanager
+def blamed_queries(cfg: Config, *, config: str | None, overrides: dict[str, Any] | None) -> Iterator[None]:
+    """A query word the encoder does not know is bad input (exit 2), named by where the query was set."""
+    try:
+        yield
+    except UnknownWord as err:
+        where = query_source(cfg, err.query, config=config, overrides=overrides)
+        raise UsageError(f"{where}: {err}" if where else str(err)) from None
