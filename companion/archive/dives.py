@@ -65,7 +65,7 @@ def find_sources(paths: Iterable[str | Path]) -> list[Path]:
             else:
                 raise MerlionError(f"{raw}: no videos and no images in this folder")
         else:
-            raise MerlionError(f"{raw}: no such file or folder")
+            raise MerlionError(f"{raw}: no such file or folder", exit_code=2)
     unique = list(dict.fromkeys(found))
     if not unique:
         raise MerlionError("no sources given")

@@ -38,7 +38,7 @@ def find_logs(paths: Iterable[str | Path]) -> list[Path]:
         elif p.is_file():
             logs.append(p)
         else:
-            raise MerlionError(f"{raw}: no such telemetry log or folder")
+            raise MerlionError(f"{raw}: no such telemetry log or folder", exit_code=2)
     return list(dict.fromkeys(logs))
 
 
@@ -66,7 +66,7 @@ def read_mapping(path: str | Path) -> dict[str, MappingRow]:
             raise MerlionError(f"{p}: line {line}: offset_s {row['offset_s']!r} is not a number") from None
         tlog = (p.parent / row["tlog"]).resolve()
         if not tlog.is_file():
-            raise MerlionError(f"{p}: line {line}: no such telemetry log {row['tlog']!r}")
+            raise MerlionError(f"{p}: line {line}: no such telemetry log {row['tlog']!r}", exit_code=2)
         out[row["video"]] = MappingRow(tlog, offset)
     return out
 

@@ -30,7 +30,7 @@ def stream_tlog(path: str | Path) -> Iterator[Message]:
     """The good messages of a tlog in file order, each with ``_timestamp`` (record time, seconds since epoch)."""
     p = Path(path)
     if not p.is_file():
-        raise MerlionError(f"{p}: no such telemetry log")
+        raise MerlionError(f"{p}: no such telemetry log", exit_code=2)
     try:
         conn = mavutil.mavlink_connection(str(p), dialect="ardupilotmega", notimestamps=False)
     except OSError as err:

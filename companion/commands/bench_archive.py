@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--workers must be at least 1, got {workers}")
     video = Path(args.video) if args.video else DEFAULT_VIDEO
     if not video.is_file():
-        raise MerlionError(f"{video}: no such video")
+        raise MerlionError(f"{video}: no such video", exit_code=2)
     over: dict = {"encoder": {"name": args.encoder}}
     if args.fps is not None:
         over["source"] = {"fps": args.fps}

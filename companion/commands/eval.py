@@ -225,7 +225,7 @@ def default_data_dir() -> Path:
         if candidate.is_dir():
             return candidate
     raise MerlionError("SRUM data not found at ../shared/data/srum (beside the current folder or the repository); "
-                       "pass --data DIR")
+                       "pass --data DIR", exit_code=2)
 
 
 def _cmd_table(args: argparse.Namespace) -> int:

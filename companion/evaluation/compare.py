@@ -74,7 +74,7 @@ def compare(
     """Summarize ``video`` with MERLION and with the baseline; score both against ``labels``."""
     video = Path(video)
     if not video.is_file():
-        raise MerlionError(f"{video}: no such video file")
+        raise MerlionError(f"{video}: no such video file", exit_code=2)
     table = load_labels(labels)
     if table.fps is None:
         table.fps = _video_fps(video)

@@ -35,7 +35,7 @@ def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch:
     """Scores every frame of ``path`` against ``[positive, *negatives]``."""
     p = Path(path)
     if not p.is_file():
-        raise MerlionError(f"{p}: no such video file")
+        raise MerlionError(f"{p}: no such video file", exit_code=2)
     cap = cv2.VideoCapture(str(p))
     if not cap.isOpened():
         raise MerlionError(f"{p}: OpenCV cannot open this video")

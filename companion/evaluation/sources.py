@@ -111,7 +111,7 @@ def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False,
     """Every labelled frame of the shared data set folder ``data``; with ``stress`` also a murky copy of each."""
     root = Path(data)
     if not (root / "suim" / "labels.csv").is_file():
-        raise MerlionError(f"{root}: not the shared data folder (no suim/labels.csv)")
+        raise MerlionError(f"{root}: not the shared data folder (no suim/labels.csv)", exit_code=2)
     out: list[LabelledFrame] = load_deepfish(root) if deepfish else []
     for row in _rows(root / "suim" / "labels.csv", ("image", "fish_present")):
         out.append(LabelledFrame("suim", row["image"], row["fish_present"] == "1",

@@ -57,7 +57,7 @@ class VideoSource(FrameSource):
 
     def _probe(self) -> tuple[float, int]:
         if not self.path.is_file():
-            raise MerlionError(f"{self.path}: no such video file")
+            raise MerlionError(f"{self.path}: no such video file", exit_code=2)
         cap = self._open()
         fps = cap.get(cv2.CAP_PROP_FPS)
         count = cap.get(cv2.CAP_PROP_FRAME_COUNT)

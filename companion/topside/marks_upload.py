@@ -32,8 +32,8 @@ def upload_marks(connect: str, cfg: MavlinkConfig, target: tuple[int, int], like
     its status lines. Raises MerlionError naming what failed (no answer, or the companion refused them)."""
     try:
         data = marks_document(like, unlike)
-    except ValueError as err:
-        raise MerlionError(str(err)) from None
+    except ValueError as err:  # checked here, before anything is sent: bad input
+        raise MerlionError(str(err), exit_code=2) from None
     answer = upload_file(connect, cfg, target, MARKS_PATH, data, answers=ANSWERS, timeout=timeout,
                          name="surface-mark")
     if not answer.accepted:

@@ -238,7 +238,7 @@ def load_profile(path: str | Path | None) -> DiveProfile:
     try:
         data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such dive profile") from None
+        raise MerlionError(f"{p}: no such dive profile", exit_code=2) from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         raise MerlionError(f"{p}: cannot read dive profile ({type(err).__name__})") from None
     return compile_profile(data, origin_name=str(p))

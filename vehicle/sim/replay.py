@@ -71,7 +71,7 @@ def read_tlog(path: str | Path, stats: TlogStats | None = None) -> Iterator[Tlog
     try:
         f = p.open("rb")
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such telemetry log") from None
+        raise MerlionError(f"{p}: no such telemetry log", exit_code=2) from None
     except OSError as err:
         raise MerlionError(f"{p}: cannot read ({err.strerror})") from None
     with f:

@@ -28,7 +28,7 @@ def test_table_json_reproduces_the_paper():
 
 def test_table_without_data_is_a_one_line_error(tmp_path):
     r = run_merlion("eval", "table", "--data", str(tmp_path / "nowhere"))
-    assert r.returncode == 1
+    assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "nowhere" in r.stderr and "--data" in r.stderr
 
 

@@ -230,5 +230,5 @@ def test_training_reproduces_the_shipped_scene_head(encoded, pasted):
 
 def test_eval_train_head_command_refuses_a_folder_without_the_data(tmp_path):
     r = run_merlion("eval", "train-head", "--data", str(tmp_path))
-    assert r.returncode == 1
+    assert r.returncode == 2
     assert r.stderr.strip() == f"merlion: error: {tmp_path}: not the shared data folder (no suim/labels.csv)"

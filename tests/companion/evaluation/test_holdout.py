@@ -80,7 +80,7 @@ def test_eval_auroc_by_source_with_the_visual_baseline_is_chance(tmp_path):
     if habitats:
         assert out["deepfish_habitats"] == {"groups": 10, "mean": 0.5, "min": 0.5, "max": 0.5, "spread": 0.0}
     bad = run_merlion("eval", "auroc", "--data", str(tmp_path), "--encoder", "visual")
-    assert bad.returncode == 1
+    assert bad.returncode == 2
     assert bad.stderr.strip() == f"merlion: error: {tmp_path}: not the shared data folder (no suim/labels.csv)"
 
 
