@@ -119,6 +119,9 @@ class ImageNetEncoder(Encoder):
             raise ValueError(f"reduce must be max or mean, got {reduce!r}")
         if colour not in COLOURS:
             raise ValueError(f"colour must be one of {COLOURS}, got {colour!r}")
+        if cfg.precision not in ("auto", "fp32"):  # its heads were fitted on fp32 features
+            log.warning("encoder.precision %s: the packaged imagenet encoder runs in fp32 only; ignored",
+                        cfg.precision)
         self._device = pick_device(cfg.device)
         self._net = _load_network(backbone).to(self._device).to(memory_format=torch.channels_last)
         self.name = f"imagenet:efficientnet-{backbone}"

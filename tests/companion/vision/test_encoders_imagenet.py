@@ -161,3 +161,12 @@ def test_the_cpu_takes_two_frames_per_forward_whatever_the_batch(suim):
     assert sizes == [CPU_FORWARD_FRAMES] * 2 + [1]
     alone = np.concatenate([enc.encode_images([f]) for f in land])
     np.testing.assert_allclose(together, alone, atol=1e-4)
+
+
+def test_a_reduced_precision_is_ignored_with_a_warning_and_scores_stay_fp32(encoder, caplog):
+    """The heads were fitted on fp32 features: `--precision int8` on the packaged encoder says so, not silently."""
+    images = [cv2.imread(str(shared_file("suim/images/n_l_12_.jpg")))]
+    with caplog.at_level("WARNING", logger="companion.vision.encoders.imagenet"):
+        low = ImageNetEncoder(EncoderConfig(name="imagenet", precision="int8"))  # the fixture's device
+    assert "encoder.precision int8: the packaged imagenet encoder runs in fp32 only; ignored" in caplog.text
+    np.testing.assert_allclose(low.encode_images(images), encoder.encode_images(images), atol=1e-5)
