@@ -302,7 +302,7 @@ def given_in(over: dict[str, Any], key: tuple[str, ...]) -> bool:
     return True
 
 
-def _env_overrides(environ: dict[str, str]) -> dict[str, Any]:
+def env_overrides(environ: dict[str, str]) -> dict[str, Any]:
     """MERLION__SECTION__KEY=value, the value parsed as YAML (so numbers and lists work)."""
     tree: dict[str, Any] = {}
     for name, raw in sorted(environ.items()):
@@ -375,7 +375,7 @@ def load_config(
         if not isinstance(loaded, dict):
             raise ConfigError(f"{p}: top level must be a mapping of sections, got {type(loaded).__name__}")
         data = loaded
-    env = _env_overrides(dict(os.environ) if environ is None else environ)
+    env = env_overrides(dict(os.environ) if environ is None else environ)
     if env:
         data = _merge(data, env)
         origin = f"{origin} (with {ENV_PREFIX}* environment overrides)"

@@ -3,12 +3,13 @@ option the user typed (``--query``) or the file and dotted key (``dive.yaml: que
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from companion.commands.overrides import OPTION_NAMES
-from companion.config import Config, QueryConfig, given_in
+from companion.config import ENV_PREFIX, Config, QueryConfig, env_overrides, given_in
 from companion.errors import UsageError
 from companion.vision.encoders.query_words import UnknownWord
 
@@ -34,9 +35,24 @@ def query_source(cfg: Config, query: str, *, config: str | None, overrides: dict
             continue
         if overrides and given_in(overrides, key):
             return OPTION_NAMES.get(".".join(p for p in key[:3] if not p.isdigit()), "command line")
+        env = env_overrides(dict(os.environ))
+        if given_in(env, key):
+            return f"environment {_variable(env, key)}"
         dotted = ".".join(key)
         return f"{config}: {dotted}" if config else dotted
     return None
+
+
+def _variable(env: dict[str, Any], key: tuple[str, ...]) -> str:
+    """The MERLION__ variable that set ``key``: its path down to the value it gave (a whole list, say)."""
+    node: Any = env
+    parts: list[str] = []
+    for part in key:
+        if not isinstance(node, dict):
+            break
+        parts.append(part)
+        node = node[part]
+    return ENV_PREFIX + "__".join(p.upper() for p in parts)
 
 
 @contextmanager

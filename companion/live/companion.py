@@ -48,6 +48,7 @@ from companion.storage.queries_file import QueriesFile
 from companion.storage.store import ResumeState, Store
 from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.factory import make_encoder
+from companion.vision.encoders.query_words import UnknownWord
 from companion.vision.enhancers.factory import make_enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.gate import FrameGate
@@ -123,15 +124,24 @@ class LiveCompanion:
         self.saved_params = self._params_file().load()
         self.store = Store(self.cfg.store)
         queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__)
-        self.cfg, configured = follow_saved_queries(self.cfg, queries_file)
-        cfg = self.cfg
+        own = self.cfg
+        self.cfg, configured = follow_saved_queries(own, queries_file)
         marks_file = MarksFile(self.store.dir / "marks.json", version=__version__)
         saved_marks = marks_file.load()
         resume = self.store.resume_state()
         if resume.frames:
             log.info("resuming with %d summary frame(s); next image index %d", len(resume.frames),
                      resume.next_image_index)
-        self._build_pipeline(resume)
+        try:
+            self._build_pipeline(resume)
+        except UnknownWord as err:
+            if self.cfg is own:
+                raise
+            # an upload this encoder cannot read (made under another one, say) must not stop every restart
+            log.warning("%s: saved queries not followed, following the configuration: %s", queries_file.path, err)
+            self.cfg = own
+            self._build_pipeline(resume)
+        cfg = self.cfg
         self.keeper.start()  # from here on, what the surface asks is applied by the keeper's thread
         ctx = self.control = ControlContext(cfg, self.pipeline, self.keeper, self.encoder, self.store,
                                             self.selective)
@@ -148,7 +158,8 @@ class LiveCompanion:
 
     def _build_pipeline(self, resume: ResumeState) -> None:
         factory = self.options.make_encoder or make_encoder
-        self.encoder = CountedEncoder(factory(self.cfg.encoder))  # counted: one pass serves every topic
+        if self.encoder is None:  # built once, also when the saved queries are given up for the configured ones
+            self.encoder = CountedEncoder(factory(self.cfg.encoder))  # counted: one pass serves every topic
         cfg = self.cfg
         if cfg.enhance.mode == "selective":
             # the pipeline samples enhanced frames behind a tau_ses gate; tau_ss is applied before the worker

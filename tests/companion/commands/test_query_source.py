@@ -23,7 +23,8 @@ def _cfg(tmp_path: Path, text: str) -> str:
     return str(path)
 
 
-@pytest.mark.parametrize("case", ["--query", "--negative", "config positive", "config topic", "run topic"])
+@pytest.mark.parametrize("case", ["--query", "--negative", "config positive", "config topic", "run topic",
+                                  "environment"])
 def test_an_unknown_query_word_is_blamed_on_the_setting_that_gave_it(tmp_path, case):
     image = str(shared_file("suim/images/n_l_12_.jpg"))
     if case == "--query":
@@ -32,6 +33,10 @@ def test_an_unknown_query_word_is_blamed_on_the_setting_that_gave_it(tmp_path, c
     elif case == "--negative":
         proc = run_merlion("score", image, "--encoder", "imagenet", "--query", "fish", "--negative", "blorptang")
         where = "--negative"
+    elif case == "environment":  # over a file that sets a good query: the variable is to blame, not the file
+        cfg = _cfg(tmp_path, "queries:\n  positive: underwater image with fish\n")
+        proc = run_merlion("score", image, "--config", cfg, env={"MERLION__QUERIES__POSITIVE": "a blorptang"})
+        where = "environment MERLION__QUERIES__POSITIVE"
     elif case == "config positive":
         cfg = _cfg(tmp_path, "queries:\n  positive: underwater image with blorptang\n")
         proc = run_merlion("summarize", image, "--out", str(tmp_path / "out"), "--config", cfg)

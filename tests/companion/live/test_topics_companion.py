@@ -13,6 +13,7 @@ from pathlib import Path
 from companion.config import build_config
 from companion.live.companion import LiveCompanion
 from companion.storage.marks_file import MarksFile, SavedMarks
+from companion.storage.queries_file import QueriesFile, SavedQueries, topic_dicts
 from companion.vision.feedback import MarkedPreSampler
 from tests.waiting import wait_until
 from vehicle.protocol.queries import QueryTopic
@@ -157,3 +158,28 @@ def test_selective_enhancement_serves_every_topic_and_follows_their_changes(tmp_
     assert any(s["enhanced"] for s in sidecars)  # (MERL_ENHANCE was off for a moment)
     # the raw frames once each, their enhanced versions once more: still one pass for both topics
     assert doc["encoder"]["images"] == doc["encoder"]["scored"] and doc["encoder"]["marks"] == 0
+
+
+def test_an_upload_this_encoder_cannot_read_is_given_up_at_restart_for_the_configured_topics(tmp_path: Path,
+                                                                                           caplog) -> None:
+    """Topics uploaded under one encoder (CLIP reads any words) and a restart under the packaged one, which does
+    not know a word of them: the companion starts with its configured topics and says why, instead of failing
+    every start until someone deletes queries.json."""
+    store = tmp_path / "store"
+    cfg = build_config({"source": {"uri": "synthetic://dive?seconds=2&width=160&height=96", "fps": 10},
+                        "encoder": {"name": "imagenet"}, "queries": {"topics": [FISH]},
+                        "mavlink": {"connection": None}, "store": {"dir": str(store)}})
+    saved = QueriesFile(store / "queries.json", version="0.1.0")
+    saved.save(SavedQueries(topics=[{"name": "odd", "positive": "a blorptang on the sea floor", "negatives": []}],
+                            configured=topic_dicts(cfg.queries.topic_list())))
+    app = LiveCompanion(cfg)
+    with caplog.at_level(logging.WARNING):
+        app.start()
+    try:
+        assert [t.name for t in app.pipeline.topics] == ["fish"]
+        assert app.cfg.queries.topic_list()[0].positive == FISH["positive"]
+        assert f"{store / 'queries.json'}: saved queries not followed, following the configuration: 'blorptang'" \
+            in caplog.text
+    finally:
+        app.stop()
+
