@@ -24,7 +24,7 @@ from companion.live.loops import LiveCounters
 from companion.live.queues import DropOldestQueue
 from companion.live.raw_gate import RawGate
 from companion.live.summary_keeper import SummaryKeeper
-from companion.sources.frame import Frame
+from companion.sources.frame import Captured, Frame
 from companion.vision.dive_mean import DiveFrames
 from companion.vision.gate import FrameGate
 
@@ -130,26 +130,18 @@ class EnhanceWorker(threading.Thread):
 
     def step(self, items: list[Candidate]) -> None:
         stage = self.stage
-        raws: dict[int, Candidate] = {}
         frames: list[Frame] = []
         for item in items:
             enhanced = stage.enhancer.enhance(item.frame.image)
-            raws[item.frame.index] = item
-            frames.append(Frame(enhanced, item.frame.index, item.frame.time_s, item.frame.capture_time))
+            frames.append(Frame(enhanced, item.frame.index, item.frame.time_s, item.frame.capture_time,
+                                captured=Captured(item.frame.image, dict(item.topics))))
             self.health.beat("enhance")
         poses = [item.pose for item in items]
         only = [item.topics for item in items]
         seen = DiveFrames.stack([item.seen for item in items])
 
-        def sample():
-            outcome = stage.pipeline.process(frames, poses=poses, only=only, seen=seen, judge=stage.raw)
-            for event in outcome.events:  # the frame as captured goes to the store beside the enhanced one
-                raw = raws.get(event.frame.frame_index)
-                if event.kind == "added" and raw is not None and event.frame.raw_image is None:
-                    event.frame.raw_image = raw.frame.image
-                    event.frame.enhanced = True
-                    event.frame.raw_score = raw.topics.get(event.frame.topic)
-            return outcome
+        def sample():  # the frames as captured go to the store beside the enhanced ones (Frame.captured)
+            return stage.pipeline.process(frames, poses=poses, only=only, seen=seen, judge=stage.raw)
 
         outcome = self.keeper.change(sample, lambda o: o.events)
         stage.enhanced += len(items)

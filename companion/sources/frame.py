@@ -23,3 +23,14 @@ class Frame:
     """Seconds from the start of the source."""
     capture_time: float
     """Companion wall-clock time (seconds since the epoch) when the frame was captured."""
+    captured: Captured | None = None
+    """When ``image`` is an enhanced copy made outside the pipeline (the live enhance worker): the frame as the
+    camera gave it, and its ss_t per topic, which the summary keeps beside the copy."""
+
+
+@dataclass(frozen=True)
+class Captured:
+    """A frame as captured, behind its enhanced copy: its pixels and its scores (ss_t) by topic name."""
+
+    image: np.ndarray
+    scores: dict[str, float]

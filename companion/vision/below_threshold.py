@@ -25,14 +25,14 @@ MIN_GAP_S = 2.0
 
 
 def stand_in(frame: Frame, image: np.ndarray, score: float, feature: np.ndarray, pose: Pose | None,
-             topic: str) -> SummaryFrame:
+             topic: str, raw: tuple[np.ndarray | None, float | None] = (None, None)) -> SummaryFrame:
     """A frame below the threshold as a summary frame (numbered when shown); ``image`` is what the summary
-    shows (its enhanced copy, when it is not the frame as captured)."""
-    enhanced = image is not frame.image
+    shows, and ``raw`` the frame as captured and its ss_t when that image is an enhanced copy."""
+    raw_image, raw_score = raw
     return SummaryFrame(image_index=-1, frame_index=frame.index, time_s=frame.time_s,
                         capture_time=frame.capture_time, score=score, image=image, feature=feature, pose=pose,
-                        raw_image=frame.image if enhanced else None, enhanced=enhanced, topic=topic,
-                        below_threshold=True)
+                        raw_image=raw_image, enhanced=raw_image is not None, topic=topic, below_threshold=True,
+                        raw_score=raw_score)
 
 
 @dataclass

@@ -139,6 +139,16 @@ def downscale_for(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image, (nw, nh), interpolation=interp)
 
 
+def raw_behind(frame: Frame, image: np.ndarray, result: FrameResult, topic: str,
+               enhance_mode: str) -> tuple[np.ndarray | None, float | None]:
+    """The raw frame behind a summary image that is an enhanced copy, and its ss_t for the topic (None where the
+    encoder never saw it raw: mode ``always``); (None, None) for a frame shown as captured."""
+    if frame.captured is not None:  # enhanced by the live worker, scored raw by its raw gate
+        return frame.captured.image, frame.captured.scores.get(topic)
+    if image is frame.image:
+        return None, None
+    return frame.image, result.topic_scores.get(topic) if enhance_mode == "selective" else None
+
 class Pipeline:
     """Encoder + pre-sampler + optional enhancer + informative sampler per topic, with running image indices."""
 
@@ -431,10 +441,10 @@ class Pipeline:
                         events.extend(self._offer(self.topics[t], frames[i], results[i], feats[row],
                                                   final_images[i], final_scores[i, t],
                                                   poses[i] if poses is not None else None))
-        events.extend(self._stand_ins(frames, pooled, passed, final_scores, final_images, poses))
+        events.extend(self._stand_ins(frames, results, pooled, passed, final_scores, final_images, poses))
         return BatchOutcome(results, events)
 
-    def _stand_ins(self, frames, pooled, passed, scores, images, poses) -> list[SummaryEvent]:
+    def _stand_ins(self, frames, results, pooled, passed, scores, images, poses) -> list[SummaryEvent]:
         """Per topic: a pass ends the quiet period (its stand-ins leave); else, while its summary is empty, the
         batch's best frame may become a stand-in, and stand-ins enter once the quiet period is long enough."""
         events: list[SummaryEvent] = []
@@ -453,7 +463,9 @@ class Pipeline:
             i = int(np.argmax(scores[:, t]))
             below.consider(stand_in(frames[i], images[i], float(scores[i, t]),
                                     dist.prepare_features(pooled[i:i + 1])[0],
-                                    poses[i] if poses is not None else None, topic.name))
+                                    poses[i] if poses is not None else None, topic.name,
+                                    raw=raw_behind(frames[i], images[i], results[i], topic.name,
+                                                     self.enhance_mode)))
             if below.due(frames[-1].time_s, self.quiet_s):
                 events.extend(self._show_stand_ins(topic))
         return events
@@ -523,12 +535,11 @@ class Pipeline:
         if not result.added:
             result.added, result.image_index = True, key
         result.added_to.append(topic.name)
-        enhanced = image is not frame.image
-        raw_score = result.topic_scores.get(topic.name) if enhanced and result.enhanced_score is not None else None
+        raw_image, raw_score = raw_behind(frame, image, result, topic.name, self.enhance_mode)
         held = SummaryFrame(
             image_index=key, frame_index=frame.index, time_s=frame.time_s, capture_time=frame.capture_time,
             score=float(score), image=image, feature=feature.copy(), pose=pose,
-            raw_image=frame.image if enhanced else None, enhanced=enhanced, topic=topic.name, raw_score=raw_score,
+            raw_image=raw_image, enhanced=raw_image is not None, topic=topic.name, raw_score=raw_score,
         )
         topic.held[key] = held
         keys = self._all_keys()

@@ -77,6 +77,50 @@ def test_every_topic_is_scored_on_one_embedding_and_a_frame_goes_on_for_any(enco
     np.testing.assert_allclose([s for _f, s, _p, _e in out], best, rtol=1e-5)
 
 
+def _worker_events(encoder, frames, tmp_path, *, tau_ses: float, quiet_s: float | None = None):
+    """Two topics through the live selective stage: the candidates and the summary events of their copies."""
+    queries = {"tau_ss": tau_ses, "topics": [
+        {"name": "fish", "positive": FISH.positive, "negatives": list(FISH.negatives)},
+        {"name": "coral", "positive": CORAL.positive, "negatives": list(CORAL.negatives)}]}
+    if quiet_s is not None:
+        queries["below_threshold_after_s"] = quiet_s
+    cfg = Config.model_validate({"sampler": {"k": 50}, "gate": {"mode": "none"}, "queries": queries})
+    pipeline = Pipeline.from_config(cfg, encoder)
+    events: list = []
+    keeper = SummaryKeeper(pipeline, Store(StoreConfig(dir=str(tmp_path))), tags=lambda frame: {},
+                           publish=events.append)
+    stage = SelectiveStage(pipeline, RawGate(encoder, [FISH, CORAL], tau_ss=0.5), enhancer=ClassicEnhancer(),
+                           queue_size=len(frames), lock=keeper.lock)
+    stage.score(frames, None)
+    candidates = stage.queue.get_batch(len(frames), timeout=0.1)
+    worker = EnhanceWorker(stage, Health(10.0), LiveCounters(), threading.Event(), batch=8, keeper=keeper)
+    added = []  # (the batch it was added in, the frame)
+    for at in range(0, len(candidates), 4):  # batches of four: stand-ins may be shown a batch after their own
+        worker.step(candidates[at:at + 4])
+        added += [(at // 4, e.frame) for e in events[len(added):] if e.kind == "added"]
+        del events[:]
+    return {c.frame.index: (n // 4, c) for n, c in enumerate(candidates)}, added
+
+
+def test_an_enhanced_frame_keeps_its_raw_frame_and_ss_t_for_the_topic_it_entered(encoder, frames, tmp_path):
+    by_index, added = _worker_events(encoder, frames, tmp_path, tau_ses=0.0)
+    assert {f.topic for _, f in added} == {"fish", "coral"}, added  # the pairing is tested with both topics
+    for _, f in added:
+        _, candidate = by_index[f.frame_index]
+        assert f.enhanced and f.raw_image is candidate.frame.image and f.image is not f.raw_image
+        assert f.raw_score == candidate.topics[f.topic]  # this topic's ss_t, not the frame's best
+
+
+def test_an_enhanced_stand_in_shown_a_batch_later_keeps_its_raw_frame_and_ss_t(encoder, frames, tmp_path):
+    by_index, added = _worker_events(encoder, frames, tmp_path, tau_ses=0.999, quiet_s=3.0)
+    assert added and all(f.below_threshold for _, f in added)  # no copy passes 0.999: only stand-ins are shown
+    assert any(by_index[f.frame_index][0] < batch for batch, f in added), "none shown after its own batch"
+    for _, f in added:
+        _, candidate = by_index[f.frame_index]
+        assert f.enhanced and f.raw_image is candidate.frame.image
+        assert f.raw_score == candidate.topics.get(f.topic)  # None for a topic its raw frame did not pass
+
+
 def test_the_gate_follows_query_changes_and_tau_for_every_topic(encoder) -> None:
     gate = RawGate(encoder, [FISH, CORAL], tau_ss=0.4)
     fish = gate.presamplers["fish"]

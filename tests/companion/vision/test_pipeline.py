@@ -139,6 +139,23 @@ def test_selective_enhancement_only_touches_passing_frames(encoder, frames):
     assert events == [] and not any(r.offered for r in results)
 
 
+def test_an_enhanced_stand_in_keeps_its_raw_frame_and_ss_t(encoder, frames):
+    """No copy passes tau_ses: the frames shown below the threshold are enhanced copies, each with its frame as
+    captured and that frame's ss_t beside the copy's score."""
+    cfg = Config.model_validate({"sampler": {"k": 3}, "gate": {"mode": "none"},
+                                 "queries": {"tau_ss": 0.25, "below_threshold_after_s": 0},
+                                 "enhance": {"mode": "selective", "tau_ses": 0.999}})
+    pipe = Pipeline.from_config(cfg, encoder)
+    results, events = run(pipe, frames[4:12])
+    by_index = {r.frame_index: r for r in results}
+    shown = [e.frame for e in events if e.kind == "added"]
+    assert shown and all(f.below_threshold for f in shown)
+    for f in shown:
+        assert f.enhanced and f.raw_image is not None and f.image is not f.raw_image
+        assert f.score == pytest.approx(by_index[f.frame_index].enhanced_score)  # the copy's ss_e
+        assert f.raw_score == by_index[f.frame_index].topic_scores[f.topic] != f.score
+
+
 def test_always_enhances_every_frame(encoder, frames):
     pipe = make(encoder, mode="always")
     out = pipe.process(frames[:2])
