@@ -14,10 +14,13 @@ with 15 of them fall behind a 3,300-datagram/s flood and drop the companion's he
 
 from __future__ import annotations
 
+import logging
 import socket
 import threading
 import time
 from collections.abc import Callable
+
+log = logging.getLogger(__name__)
 
 FORGET_AFTER_S = 60.0
 """A learnt peer silent this long is forgotten (it is learnt again by its next datagram)."""
@@ -36,6 +39,10 @@ class UdpHub:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
         except OSError:
             pass  # the kernel's default then; a smaller buffer only drops sooner under a burst
+        got = self.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it keeps
+        if got < RECEIVE_BUFFER:
+            log.info("udp hub: receive buffer %d KB of the %d KB asked (net.core.rmem_max caps it)", got // 1024,
+                     RECEIVE_BUFFER // 1024)
         self.sock.bind((host, port))
         self.sock.settimeout(0.2)
         self.host, self.port = self.sock.getsockname()[:2]

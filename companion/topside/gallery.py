@@ -32,7 +32,7 @@ from companion.errors import MerlionError
 
 LOG_COLUMNS = [
     "event", "wall_time", "dive", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
-    "lat", "lon", "alt_m", "thumbnail", "thumbnail_via", "file_url", "topic",
+    "lat", "lon", "alt_m", "thumbnail", "thumbnail_via", "file_url", "topic", "raw_score",
 ]
 
 
