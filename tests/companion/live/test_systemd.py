@@ -55,7 +55,7 @@ def test_install_service_stages_unit_and_config_and_the_unit_verifies(tmp_path: 
 
 def test_install_service_names_a_missing_config(tmp_path: Path) -> None:
     done = run_merlion("install-service", "--root", str(tmp_path), "--config", str(tmp_path / "nope.yaml"), timeout=60)
-    assert done.returncode == 1
+    assert done.returncode == 2  # a missing input file is bad input
     assert done.stderr.strip().splitlines()[-1] == f"merlion: error: {tmp_path / 'nope.yaml'}: no such config file"
 
 
