@@ -3,13 +3,15 @@ option the user typed (``--query``) or the file and dotted key (``dive.yaml: que
 
 from __future__ import annotations
 
+import argparse
 import os
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from companion.commands.overrides import OPTION_NAMES
-from companion.config import ENV_PREFIX, Config, QueryConfig, env_overrides, given_in
+from companion.config import ENV_PREFIX, Config, QueryConfig, env_overrides, given_in, load_config
 from companion.errors import UsageError
 from companion.vision.encoders.query_words import UnknownWord
 
@@ -63,3 +65,15 @@ def blamed_queries(cfg: Config, *, config: str | None, overrides: dict[str, Any]
     except UnknownWord as err:
         where = query_source(cfg, err.query, config=config, overrides=overrides)
         raise UsageError(f"{where}: {err}" if where else str(err)) from None
+
+
+def explained_config(args: argparse.Namespace, overrides: dict[str, Any]) -> Config:
+    """The command's configuration; with ``--explain``, what each query was read as, on stderr, first."""
+    from companion.vision.query_explain import explain_queries  # WordNet only when asked
+
+    cfg = load_config(args.config, overrides=overrides, options=OPTION_NAMES)
+    if args.explain:
+        with blamed_queries(cfg, config=args.config, overrides=overrides):
+            print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
+    return cfg
+

@@ -8,8 +8,8 @@ import json
 import sys
 from typing import Any, get_args
 
-from companion.commands.overrides import OPTION_NAMES, Overrides, add_topic_option, put_queries_and_encoder
-from companion.config import Precision, load_config
+from companion.commands.overrides import Overrides, add_topic_option, put_queries_and_encoder
+from companion.config import Precision
 
 
 def register(add_command) -> None:
@@ -46,15 +46,12 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.commands.query_source import blamed_queries
-    from companion.vision.query_explain import explain_queries
+    from companion.commands.query_source import blamed_queries, explained_config
     from companion.vision.score_images import score_images
 
     over = overrides_from(args)
-    cfg = load_config(args.config, overrides=over, options=OPTION_NAMES)
+    cfg = explained_config(args, over)
     with blamed_queries(cfg, config=args.config, overrides=over):
-        if args.explain:
-            print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
         scored = score_images(cfg, args.paths, like=args.like, unlike=args.unlike, dive=args.dive)
         first = next(scored, None)  # the queries are read before the first image is scored
     failed = 0

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
 
-from companion.commands.overrides import OPTION_NAMES, Overrides, add_summary_options, put_summary_options
-from companion.config import load_config
+from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
 
 
 def register(add_command) -> None:
@@ -33,15 +31,12 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.commands.query_source import blamed_queries
-    from companion.vision.query_explain import explain_queries
+    from companion.commands.query_source import blamed_queries, explained_config
     from companion.vision.summarize import summarize
 
     over = overrides_from(args)
-    cfg = load_config(args.config, overrides=over, options=OPTION_NAMES)
+    cfg = explained_config(args, over)
     with blamed_queries(cfg, config=args.config, overrides=over):
-        if args.explain:
-            print("\n".join(explain_queries(cfg)), file=sys.stderr, flush=True)
         result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
     lost = f", {result.frames_lost} lost" if result.frames_lost else ""
     sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
