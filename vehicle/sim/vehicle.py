@@ -459,13 +459,12 @@ class SimVehicle:
                 self._in_failsafe.add("pilot_input")
             if gcs_lost:
                 self._in_failsafe.add("gcs")
+        # each action first, then the record and the message: whoever sees a failsafe sees what it did
         if pilot_lost:
+            self._set_armed(False)  # after set_neutral_controls()
             self.failsafes.append((now - self._start, "pilot_input"))
             self.statustext(mav2.MAV_SEVERITY_CRITICAL, "Lost manual control")
-            self._set_armed(False)  # after set_neutral_controls()
         if gcs_lost:
-            self.failsafes.append((now - self._start, "gcs"))
-            self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")
             if armed and self.gcs_failsafe == "disarm":
                 self._set_armed(False)
             elif armed and self.gcs_failsafe == "depth_hold":
@@ -474,6 +473,8 @@ class SimVehicle:
             elif armed and self.gcs_failsafe == "surface":
                 self._set_mode(_MODE_NUMBERS["SURFACE"])
                 self._fly(now, -PILOT_SPEED_MPS)
+            self.failsafes.append((now - self._start, "gcs"))
+            self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")
 
     def _fly(self, now: float, rate_mps: float) -> None:
         """From now on the vehicle stays where it is and moves vertically at ``rate_mps`` (down positive)."""
