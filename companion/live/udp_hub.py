@@ -68,7 +68,7 @@ class UdpHub:
     def peers(self) -> list[tuple[str, int]]:
         """Where a datagram may go now: the outputs, then the learnt peers, the longest silent first."""
         with self._lock:
-            return self.outputs + [p for p in self._heard if p not in self.outputs]
+            return self.outputs + list(self._heard)  # an output is never learnt
 
     def start(self) -> UdpHub:
         self._thread = threading.Thread(target=self._run, name="udp-hub", daemon=True)
@@ -101,11 +101,11 @@ class UdpHub:
             if sender is not None and sender not in self.outputs:
                 self._heard.pop(sender, None)
                 self._heard[sender] = now  # most recently heard last
-            for peer in [p for p, t in self._heard.items() if now - t > self.forget_after_s]:
-                del self._heard[peer]
-                self.forgotten += 1
-            while len(self._heard) > self.max_peers:
-                del self._heard[next(iter(self._heard))]  # the longest silent
+            while self._heard:  # the longest silent first: it goes when silent too long or one too many
+                oldest, heard = next(iter(self._heard.items()))
+                if now - heard <= self.forget_after_s and len(self._heard) <= self.max_peers:
+                    break
+                del self._heard[oldest]
                 self.forgotten += 1
             return [p for p in self.outputs + list(self._heard) if p != sender]
 

@@ -149,6 +149,7 @@ def raw_behind(frame: Frame, image: np.ndarray, result: FrameResult, topic: str,
         return None, None
     return frame.image, result.topic_scores.get(topic) if enhance_mode == "selective" else None
 
+
 class Pipeline:
     """Encoder + pre-sampler + optional enhancer + informative sampler per topic, with running image indices."""
 
