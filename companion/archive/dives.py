@@ -15,7 +15,7 @@ from pathlib import Path
 
 import cv2
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.sources.folder import IMAGE_SUFFIXES
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".mkv", ".avi", ".m4v", ".ts", ".mts", ".h264", ".h265", ".hevc",
@@ -65,7 +65,7 @@ def find_sources(paths: Iterable[str | Path]) -> list[Path]:
             else:
                 raise MerlionError(f"{raw}: no videos and no images in this folder")
         else:
-            raise MerlionError(f"{raw}: no such file or folder", exit_code=2)
+            raise UsageError(f"{raw}: no such file or folder")
     unique = list(dict.fromkeys(found))
     if not unique:
         raise MerlionError("no sources given")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from companion.archive.dives import Dive
 from companion.archive.tlog_stream import log_span
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 
 LOG_SUFFIXES = (".tlog",)
 
@@ -38,7 +38,7 @@ def find_logs(paths: Iterable[str | Path]) -> list[Path]:
         elif p.is_file():
             logs.append(p)
         else:
-            raise MerlionError(f"{raw}: no such telemetry log or folder", exit_code=2)
+            raise UsageError(f"{raw}: no such telemetry log or folder")
     return list(dict.fromkeys(logs))
 
 
@@ -66,7 +66,7 @@ def read_mapping(path: str | Path) -> dict[str, MappingRow]:
             raise MerlionError(f"{p}: line {line}: offset_s {row['offset_s']!r} is not a number") from None
         tlog = (p.parent / row["tlog"]).resolve()
         if not tlog.is_file():
-            raise MerlionError(f"{p}: line {line}: no such telemetry log {row['tlog']!r}", exit_code=2)
+            raise UsageError(f"{p}: line {line}: no such telemetry log {row['tlog']!r}")
         out[row["video"]] = MappingRow(tlog, offset)
     return out
 

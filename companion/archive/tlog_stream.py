@@ -17,7 +17,7 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from vehicle.autopilot.pose import Pose
 from vehicle.autopilot.telemetry import VehicleTelemetry
 from vehicle.link.connection import is_autopilot_heartbeat
@@ -30,7 +30,7 @@ def stream_tlog(path: str | Path) -> Iterator[Message]:
     """The good messages of a tlog in file order, each with ``_timestamp`` (record time, seconds since epoch)."""
     p = Path(path)
     if not p.is_file():
-        raise MerlionError(f"{p}: no such telemetry log", exit_code=2)
+        raise UsageError(f"{p}: no such telemetry log")
     try:
         conn = mavutil.mavlink_connection(str(p), dialect="ardupilotmega", notimestamps=False)
     except OSError as err:

@@ -28,7 +28,7 @@ def register(add_command) -> None:
 def run(args: argparse.Namespace) -> int:
     from companion.bench.archive_bench import bench_archive
     from companion.config import load_config
-    from companion.errors import MerlionError, UsageError
+    from companion.errors import UsageError
 
     if args.videos < 1 or args.seconds <= 0:
         raise UsageError(f"--videos must be at least 1 and --seconds more than 0, got {args.videos}, {args.seconds}")
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--workers must be at least 1, got {workers}")
     video = Path(args.video) if args.video else DEFAULT_VIDEO
     if not video.is_file():
-        raise MerlionError(f"{video}: no such video", exit_code=2)
+        raise UsageError(f"{video}: no such video")
     over: dict = {"encoder": {"name": args.encoder}}
     if args.fps is not None:
         over["source"] = {"fps": args.fps}

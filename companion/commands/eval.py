@@ -224,8 +224,8 @@ def default_data_dir() -> Path:
         candidate = base.parent / "shared" / "data" / "srum"
         if candidate.is_dir():
             return candidate
-    raise MerlionError("SRUM data not found at ../shared/data/srum (beside the current folder or the repository); "
-                       "pass --data DIR", exit_code=2)
+    raise UsageError("SRUM data not found at ../shared/data/srum (beside the current folder or the repository); "
+                     "pass --data DIR")
 
 
 def _cmd_table(args: argparse.Namespace) -> int:

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 
 from companion.config import Config, build_config
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.evaluation.auroc import auroc
 from companion.evaluation.datasets import LabelTable, load_labels, read_summary_json
 from companion.evaluation.frame_scores import score_video
@@ -74,7 +74,7 @@ def compare(
     """Summarize ``video`` with MERLION and with the baseline; score both against ``labels``."""
     video = Path(video)
     if not video.is_file():
-        raise MerlionError(f"{video}: no such video file", exit_code=2)
+        raise UsageError(f"{video}: no such video file")
     table = load_labels(labels)
     if table.fps is None:
         table.fps = _video_fps(video)

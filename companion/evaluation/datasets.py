@@ -24,7 +24,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 
 _SPLIT = re.compile(r"[;|]")
 
@@ -80,7 +80,7 @@ def load_dataset(path: str | Path) -> SrumDataset:
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such file", exit_code=2) from None
+        raise UsageError(f"{p}: no such file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise MerlionError(f"{p}: not a readable JSON data set ({err})") from None
     if not isinstance(data, dict):
@@ -138,7 +138,7 @@ def csv_rows(path: Path, *, missing: str = "no such file") -> list[dict[str, str
         with path.open(newline="", encoding="utf-8") as fh:
             return list(csv.DictReader(fh))
     except FileNotFoundError:
-        raise MerlionError(f"{path}: {missing}", exit_code=2) from None
+        raise UsageError(f"{path}: {missing}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise MerlionError(f"{path}: cannot read as CSV ({err})") from None
 
@@ -201,7 +201,7 @@ def load_humans(path: str | Path) -> dict[str, list[int]]:
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such file", exit_code=2) from None
+        raise UsageError(f"{p}: no such file") from None
     except OSError as err:
         raise MerlionError(f"{p}: cannot read ({err.strerror})") from None
     except UnicodeDecodeError as err:
@@ -245,7 +245,7 @@ def read_summary_json(path: str | Path, label_fps: float | None = None) -> tuple
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such summary file", exit_code=2) from None
+        raise UsageError(f"{p}: no such summary file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise MerlionError(f"{p}: not a readable summary.json ({err})") from None
     entries = data.get("frames") if isinstance(data, dict) else None

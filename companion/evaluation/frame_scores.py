@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from companion.config import QueryConfig
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.vision.encoders.base import Encoder
 from companion.vision.pipeline import downscale_for
 from companion.vision.presampler import PreSampler
@@ -35,7 +35,7 @@ def score_video(path: str | Path, encoder: Encoder, queries: QueryConfig, batch:
     """Scores every frame of ``path`` against ``[positive, *negatives]``."""
     p = Path(path)
     if not p.is_file():
-        raise MerlionError(f"{p}: no such video file", exit_code=2)
+        raise UsageError(f"{p}: no such video file")
     cap = cv2.VideoCapture(str(p))
     if not cap.isOpened():
         raise MerlionError(f"{p}: OpenCV cannot open this video")

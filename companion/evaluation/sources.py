@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.evaluation.datasets import csv_rows
 
 AQUARIUM_VIDEO_STEP = 20
@@ -111,7 +111,7 @@ def load_sources(data: str | Path, *, survey: bool = True, stress: bool = False,
     """Every labelled frame of the shared data set folder ``data``; with ``stress`` also a murky copy of each."""
     root = Path(data)
     if not (root / "suim" / "labels.csv").is_file():
-        raise MerlionError(f"{root}: not the shared data folder (no suim/labels.csv)", exit_code=2)
+        raise UsageError(f"{root}: not the shared data folder (no suim/labels.csv)")
     out: list[LabelledFrame] = load_deepfish(root) if deepfish else []
     for row in _rows(root / "suim" / "labels.csv", ("image", "fish_present")):
         out.append(LabelledFrame("suim", row["image"], row["fish_present"] == "1",

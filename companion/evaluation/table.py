@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from decimal import Decimal
 from pathlib import Path
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.evaluation.datasets import SrumDataset, load_dataset
 from companion.evaluation.srum import PAPER, SrumParams, human_score, srum
 
@@ -72,8 +72,7 @@ def find_datasets(data_dir: str | Path) -> list[Path]:
     """The data set JSONs in a folder, the paper's three first in the paper's order."""
     d = Path(data_dir)
     if not d.is_dir():
-        raise MerlionError(f"{d}: SRUM data folder not found (pass --data DIR; the paper's data is ../shared/data/srum)",
-                           exit_code=2)
+        raise UsageError(f"{d}: SRUM data folder not found (pass --data DIR; the paper's data is ../shared/data/srum)")
     files = sorted(d.glob("*.json"), key=lambda f: (DATASET_ORDER.index(f.stem) if f.stem in DATASET_ORDER
                                                     else len(DATASET_ORDER), f.stem))
     if not files:

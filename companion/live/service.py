@@ -71,7 +71,7 @@ def install(plan: InstallPlan) -> list[str]:
         if plan.config is not None or not conf_path.exists():
             if plan.config is not None:
                 if not plan.config.is_file():
-                    raise MerlionError(f"{plan.config}: no such config file", exit_code=2)
+                    raise UsageError(f"{plan.config}: no such config file")
                 shutil.copyfile(plan.config, conf_path)
                 source = str(plan.config)
             else:

@@ -60,7 +60,7 @@ class FolderSource(FrameSource):
         self.loop = loop
         self.lost = 0
         if not self.folder.is_dir():
-            raise MerlionError(f"{self.folder}: no such folder", exit_code=2)
+            raise UsageError(f"{self.folder}: no such folder")
         self.files = list_images(self.folder)
         if not self.files:
             raise MerlionError(f"{self.folder}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in this folder")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import cv2
 
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.sources.base import FrameSource
 from companion.sources.ffmpeg_log import opening
 from companion.sources.frame import Frame
@@ -57,7 +57,7 @@ class VideoSource(FrameSource):
 
     def _probe(self) -> tuple[float, int]:
         if not self.path.is_file():
-            raise MerlionError(f"{self.path}: no such video file", exit_code=2)
+            raise UsageError(f"{self.path}: no such video file")
         cap = self._open()
         fps = cap.get(cv2.CAP_PROP_FPS)
         count = cap.get(cv2.CAP_PROP_FRAME_COUNT)

@@ -9,7 +9,7 @@ file). The file is checked with the vehicle's own parser before anything is sent
 from __future__ import annotations
 
 from companion.config import MavlinkConfig
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.topside.station_upload import upload_file
 from vehicle.protocol.marks import MARKS_PATH, format_marks, parse_marks
 
@@ -33,7 +33,7 @@ def upload_marks(connect: str, cfg: MavlinkConfig, target: tuple[int, int], like
     try:
         data = marks_document(like, unlike)
     except ValueError as err:  # checked here, before anything is sent: bad input
-        raise MerlionError(str(err), exit_code=2) from None
+        raise UsageError(str(err)) from None
     answer = upload_file(connect, cfg, target, MARKS_PATH, data, answers=ANSWERS, timeout=timeout,
                          name="surface-mark")
     if not answer.accepted:

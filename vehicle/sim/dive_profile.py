@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+from vehicle.errors import UsageError
 from vehicle.errors import UserError as MerlionError
 
 _EARTH_RADIUS_M = 6378137.0
@@ -238,7 +239,7 @@ def load_profile(path: str | Path | None) -> DiveProfile:
     try:
         data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such dive profile", exit_code=2) from None
+        raise UsageError(f"{p}: no such dive profile") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         raise MerlionError(f"{p}: cannot read dive profile ({type(err).__name__})") from None
     return compile_profile(data, origin_name=str(p))

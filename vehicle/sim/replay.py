@@ -22,6 +22,7 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
+from vehicle.errors import UsageError
 from vehicle.errors import UserError as MerlionError
 from vehicle.link.connection import MavLink
 
@@ -71,7 +72,7 @@ def read_tlog(path: str | Path, stats: TlogStats | None = None) -> Iterator[Tlog
     try:
         f = p.open("rb")
     except FileNotFoundError:
-        raise MerlionError(f"{p}: no such telemetry log", exit_code=2) from None
+        raise UsageError(f"{p}: no such telemetry log") from None
     except OSError as err:
         raise MerlionError(f"{p}: cannot read ({err.strerror})") from None
     with f:

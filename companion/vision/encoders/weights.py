@@ -91,7 +91,7 @@ def resolve_clip_weights(model: str, weights: str | None, tag: str | None) -> Re
     if weights:
         path = Path(weights).expanduser()
         if not path.exists():
-            raise MerlionError(f"CLIP weights {path}: no such file; {how_to_get(model, tag)}", exit_code=2)
+            raise UsageError(f"CLIP weights {path}: no such file; {how_to_get(model, tag)}")
         return ResolvedWeights(path=path, source="file")
     if not tag:
         raise MerlionError(f"no CLIP weights for {model}: encoder.weights and encoder.pretrained are both unset; "
