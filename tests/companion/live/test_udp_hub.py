@@ -4,12 +4,12 @@ peers that fall silent are forgotten, the table stays bounded, and outputs given
 from __future__ import annotations
 
 import socket
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
 
 from companion.live.udp_hub import UdpHub
+from tests.waiting import wait_until
 
 
 def _socket() -> socket.socket:
@@ -17,13 +17,6 @@ def _socket() -> socket.socket:
     s.bind(("127.0.0.1", 0))
     s.settimeout(2.0)
     return s
-
-
-def _wait(what: str, check: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not check():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.01)
 
 
 def _received(sock: socket.socket) -> list[bytes]:
@@ -56,8 +49,8 @@ def _say(hub: UdpHub, sock: socket.socket, data: bytes, to: int) -> None:
     """Send through the hub and wait until it has learnt the sender and forwarded the datagram to ``to`` peers."""
     before = hub.forwarded
     sock.sendto(data, (hub.host, hub.port))
-    _wait(f"the hub to forward {data!r} to {to}",
-          lambda: sock.getsockname() in hub.peers and hub.forwarded >= before + to)
+    assert wait_until(lambda: sock.getsockname() in hub.peers and hub.forwarded >= before + to), \
+        f"the hub did not forward {data!r} to {to}"
     assert hub.forwarded == before + to
 
 
