@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from companion.errors import MerlionError, UsageError
 from vehicle.autopilot.pose import Pose
 from vehicle.autopilot.telemetry import VehicleTelemetry
-from vehicle.link.connection import is_autopilot_heartbeat
+from vehicle.link.autopilot_watch import is_autopilot_heartbeat
 from vehicle.settings import TelemetryConfig
 
 Message = mav2.MAVLink_message

@@ -10,7 +10,7 @@ import math
 import socket
 
 from companion.errors import UsageError
-from vehicle.link.connection import parse_connection
+from vehicle.link.endpoint import parse_connection
 
 
 def require_positive(option: str, value: float | None) -> None:

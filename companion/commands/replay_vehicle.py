@@ -28,7 +28,8 @@ def run(args: argparse.Namespace) -> int:
     from companion.commands.arg_checks import require_non_negative, require_positive
     from companion.config import MavlinkConfig
     from companion.errors import MerlionError
-    from vehicle.link.connection import MavLink, parse_connection
+    from vehicle.link.connection import MavLink
+    from vehicle.link.endpoint import parse_connection
     from vehicle.sim.replay import TlogReplay, read_tlog
 
     require_positive("--speed", args.speed)

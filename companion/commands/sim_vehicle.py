@@ -63,7 +63,7 @@ def _rates(items: list[str]) -> dict[str, float]:
 def run(args: argparse.Namespace) -> int:
     from companion.commands.arg_checks import require_non_negative, require_positive
     from companion.errors import UsageError
-    from vehicle.link.connection import parse_connection
+    from vehicle.link.endpoint import parse_connection
     from vehicle.sim.dive_profile import load_profile
     from vehicle.sim.vehicle import SimVehicle, run_sim_vehicle
 

@@ -15,7 +15,7 @@ from companion.topside.actions import page_mark
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
 from companion.topside.web import WebServer
-from vehicle.link.connection import parse_connection
+from vehicle.link.endpoint import parse_connection
 from vehicle.link.signing import load_key
 
 log = logging.getLogger("merlion.surface")

@@ -20,7 +20,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from companion.config import Config, ConfigError, load_config
 from companion.sources.factory import open_source
 from companion.vision.encoders.weights import clip_weights_available
-from vehicle.link.connection import MavLink, parse_connection
+from vehicle.link.connection import MavLink
+from vehicle.link.endpoint import parse_connection
 from vehicle.link.signing import AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY, AUTOPILOT_UNKNOWN
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"

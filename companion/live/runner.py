@@ -12,7 +12,7 @@ from companion.config import Config, load_config
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.notify import Notifier
 from companion.sources.factory import check_source_uri
-from vehicle.link.connection import parse_connection
+from vehicle.link.endpoint import parse_connection
 
 log = logging.getLogger(__name__)
 

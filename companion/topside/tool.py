@@ -43,7 +43,8 @@ from companion.topside.surface_state import (
     SurfaceContext,
     SurfaceOptions,
 )
-from vehicle.link.connection import MavLink, is_autopilot_heartbeat
+from vehicle.link.autopilot_watch import is_autopilot_heartbeat
+from vehicle.link.connection import MavLink
 from vehicle.link.signing import MAX_SOURCES, OTHER_SOURCES
 
 __all__ = ["LinkStatus", "SurfaceOptions", "SurfaceTool"]

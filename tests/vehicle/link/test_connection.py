@@ -8,9 +8,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.config import MavlinkConfig
-from companion.errors import UsageError
 from tests.conftest import free_tcp_port, free_udp_port
-from vehicle.link.connection import MavLink, is_autopilot_heartbeat, next_heartbeat, parse_connection
+from vehicle.link.connection import MavLink, next_heartbeat
 
 FAST = {"heartbeat_timeout_s": 0.6, "reconnect_initial_s": 0.05, "reconnect_max_s": 0.2}
 
@@ -45,27 +44,6 @@ def pair():
     yield comp, ap
     ap.stop()
     comp.stop()
-
-
-def test_connection_strings_are_checked_up_front():
-    assert parse_connection("udpin:0.0.0.0:14550").scheme == "udpin"
-    assert str(parse_connection("tcp:127.0.0.1:5777")) == "tcp:127.0.0.1:5777"
-    serial = parse_connection("/dev/ttyACM0,57600")
-    assert (serial.scheme, serial.address, serial.baud) == ("serial", "/dev/ttyACM0", 57600)
-    for bad in ("udp-in:1.2.3.4:5", "udpin:127.0.0.1", "tcp:host:99999", "", "/dev/ttyACM0,fast"):
-        with pytest.raises(UsageError, match="mavlink connection"):
-            parse_connection(bad)
-
-
-def test_heartbeat_kinds():
-    assert is_autopilot_heartbeat(_sub_heartbeat())
-    rover = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GROUND_ROVER, mav2.MAV_AUTOPILOT_PX4, 0, 0, 4, 3)
-    assert is_autopilot_heartbeat(rover)
-    gcs = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3)
-    camera = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_CAMERA, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3)
-    computer = mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                                              0, 0, 4, 3)
-    assert not any(is_autopilot_heartbeat(m) for m in (gcs, camera, computer))
 
 
 def test_udpin_sends_nothing_before_a_peer_and_then_our_heartbeat_carries_the_vehicle_ids(pair):

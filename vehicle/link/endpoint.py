@@ -1,0 +1,93 @@
+"""Where a MAVLink connection goes: the connection string, checked up front, and the transport it opens.
+
+pymavlink's ``mavutil`` opens every transport; this module adds what it lacks for a connection that must stay up
+for hours: a typo is a one-line error before any thread starts, a stalled serial port cannot hold up a sender,
+and a UDP socket has room for a burst while its reader is descheduled.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from dataclasses import dataclass
+
+from pymavlink import mavutil
+
+from vehicle.errors import UsageError
+
+log = logging.getLogger(__name__)
+
+_SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
+_SERIAL_WRITE_TIMEOUT_S = 0.2
+_UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """A parsed connection string: ``scheme`` is udpin | udpout | tcp | tcpin | serial."""
+
+    scheme: str
+    address: str
+    baud: int = 115200
+
+    @property
+    def reconnects(self) -> bool:
+        """TCP client and serial links are re-opened after a failure; UDP and TCP servers just wait."""
+        return self.scheme in ("tcp", "serial")
+
+    @property
+    def is_udp(self) -> bool:
+        return self.scheme.startswith("udp")
+
+    @property
+    def is_tcp(self) -> bool:
+        return self.scheme in ("tcp", "tcpin")
+
+    def __str__(self) -> str:
+        return f"{self.address},{self.baud}" if self.scheme == "serial" else f"{self.scheme}:{self.address}"
+
+
+def parse_connection(connection: str) -> Endpoint:
+    """Check a connection string up front so a typo is a one-line error, not a thread dying later."""
+    text = (connection or "").strip()
+    scheme, sep, rest = text.partition(":")
+    if sep and scheme in _SCHEMES:
+        host, _, port = rest.rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise UsageError(f"mavlink connection {connection!r}: expected {scheme}:HOST:PORT")
+        return Endpoint(scheme, f"{host}:{int(port)}")
+    if text.startswith("/") or text.upper().startswith("COM"):
+        device, _, baud = text.partition(",")
+        if baud and not baud.isdigit():
+            raise UsageError(f"mavlink connection {connection!r}: baud rate must be a number")
+        return Endpoint("serial", device, int(baud) if baud else 115200)
+    raise UsageError(
+        f"mavlink connection {connection!r}: expected udpin:, udpout:, tcp:, tcpin:HOST:PORT or /dev/DEVICE,BAUD"
+    )
+
+
+def open_transport(endpoint: Endpoint, system_id: int, component_id: int, name: str) -> mavutil.mavfile:
+    """Open ``endpoint`` with pymavlink; raises what the transport raises (the caller retries)."""
+    kwargs = {"source_system": system_id, "source_component": component_id}
+    if endpoint.scheme == "serial":
+        conn = mavutil.mavlink_connection(endpoint.address, baud=endpoint.baud, **kwargs)
+        conn.port.write_timeout = _SERIAL_WRITE_TIMEOUT_S  # a stalled port must not hold up a sender
+        return conn
+    if endpoint.scheme == "tcp":
+        return mavutil.mavlink_connection(f"tcp:{endpoint.address}", retries=0, **kwargs)
+    conn = mavutil.mavlink_connection(f"{endpoint.scheme}:{endpoint.address}", **kwargs)
+    if endpoint.is_udp:
+        try:
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF)
+        except OSError as err:  # the kernel caps it at net.core.rmem_max; a smaller buffer still works
+            log.debug("%s: SO_RCVBUF: %s", name, err)
+    return conn
+
+
+def has_peer(endpoint: Endpoint, conn: mavutil.mavfile) -> bool:
+    """Whether ``conn`` has someone to write to: a UDP server once a client spoke, a TCP link while connected."""
+    if endpoint.scheme == "udpin":
+        return bool(conn.clients)
+    if endpoint.is_tcp:
+        return conn.port is not None
+    return True
