@@ -35,15 +35,12 @@ from dataclasses import replace
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from vehicle.autopilot.pose_history import euler_to_quaternion
 from vehicle.link.connection import MavLink
 from vehicle.settings import MavlinkConfig
-from vehicle.sim.dive_profile import DiveProfile, Origin, VehicleState, geodetic, load_profile
+from vehicle.sim.dive_profile import DiveProfile, Origin, VehicleState, load_profile
+from vehicle.sim.messages import MODE_NUMBERS, Moment, build_message
 
 log = logging.getLogger(__name__)
-
-GRAVITY = 9.80665
-_MODE_NUMBERS = {name: number for number, name in mavutil.mode_mapping_sub.items()}
 
 GCS_SYSID = 255
 """MAV_GCS_SYSID: the ground station whose heartbeats arm the GCS failsafe."""
@@ -291,49 +288,11 @@ class SimVehicle:
 
     def build(self, name: str) -> mav2.MAVLink_message:
         """One message of the kind ``name`` describing the vehicle now."""
-        s = self.state()
-        boot_ms = self.time_boot_ms()
-        heading = math.degrees(s.yaw) % 360.0
-        if name == "HEARTBEAT":
-            base = mav2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav2.MAV_MODE_FLAG_STABILIZE_ENABLED
-            if s.armed:
-                base |= mav2.MAV_MODE_FLAG_SAFETY_ARMED
-            return mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_SUBMARINE, mav2.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
-                                                  _MODE_NUMBERS.get(s.mode, 19), mav2.MAV_STATE_ACTIVE, 3)
-        if name == "SYSTEM_TIME":
-            return mav2.MAVLink_system_time_message(int(self.wall_clock() * 1e6), boot_ms)
-        if name == "ATTITUDE":
-            return mav2.MAVLink_attitude_message(boot_ms, s.roll, s.pitch, _wrap_pi(s.yaw), 0.0, 0.0, 0.0)
-        if name == "ATTITUDE_QUATERNION":
-            w, x, y, z = euler_to_quaternion(s.roll, s.pitch, s.yaw)
-            return mav2.MAVLink_attitude_quaternion_message(boot_ms, w, x, y, z, 0.0, 0.0, 0.0, [0.0] * 4)
-        origin = self.origin()
-        if name == "GLOBAL_POSITION_INT":
-            lat = lon = alt = 0  # 0 until the EKF has an origin; relative_alt (from the depth sensor) always valid
-            if origin is not None:
-                glat, glon, galt = geodetic(origin, s.north, s.east, s.depth)
-                lat, lon, alt = int(round(glat * 1e7)), int(round(glon * 1e7)), int(round(galt * 1000))
-            return mav2.MAVLink_global_position_int_message(
-                boot_ms, lat, lon, alt, int(round(-s.depth * 1000)), _cms(s.vn), _cms(s.ve), _cms(s.vd),
-                int(round(heading * 100)) % 36000)
-        if name == "LOCAL_POSITION_NED":
-            return mav2.MAVLink_local_position_ned_message(boot_ms, s.north, s.east, s.depth, s.vn, s.ve, s.vd)
-        if name == "VFR_HUD":
-            alt = origin.alt_m - s.depth if origin is not None else 0.0  # 0 without an EKF origin, as on ArduSub
-            return mav2.MAVLink_vfr_hud_message(0.0, math.hypot(s.vn, s.ve), int(heading), 0, alt, -s.vd)
-        if name == "SCALED_PRESSURE":  # the flight controller's own barometer, inside the dry hull
-            return mav2.MAVLink_scaled_pressure_message(boot_ms, self.surface_pressure_hpa, 0.0, 2500, 0)
-        if name == "SCALED_PRESSURE2":
-            press = self.surface_pressure_hpa + self.fluid_density * GRAVITY * s.depth / 100.0
-            return mav2.MAVLink_scaled_pressure2_message(boot_ms, press, 0.0, 1500, 0)
-        remaining = max(0, 100 - int((self.clock() - self._start) / 60))
-        volts = 12.8 + 3.2 * remaining / 100
-        if name == "SYS_STATUS":
-            return mav2.MAVLink_sys_status_message(0, 0, 0, 200, int(volts * 1000), 850, remaining, 0, 0, 0, 0, 0, 0)
-        if name == "BATTERY_STATUS":
-            cells = [int(volts * 1000)] + [65535] * 9
-            return mav2.MAVLink_battery_status_message(0, 0, 0, 2500, cells, 850, -1, -1, remaining)
-        raise ValueError(f"sim vehicle cannot send {name}")
+        now = self.clock()
+        at = Moment(boot_ms=self.time_boot_ms(), wall_s=self.wall_clock(), since_start_s=now - self._start,
+                    origin=self.origin(), surface_pressure_hpa=self.surface_pressure_hpa,
+                    fluid_density=self.fluid_density)
+        return build_message(name, self.state(), at)
 
     # ------------------------------------------------------------------------------------------ commands
     def _for_us(self, target_system: int, target_component: int) -> bool:
@@ -468,10 +427,10 @@ class SimVehicle:
             if armed and self.gcs_failsafe == "disarm":
                 self._set_armed(False)
             elif armed and self.gcs_failsafe == "depth_hold":
-                self._set_mode(_MODE_NUMBERS["ALT_HOLD"])
+                self._set_mode(MODE_NUMBERS["ALT_HOLD"])
                 self._fly(now, 0.0)
             elif armed and self.gcs_failsafe == "surface":
-                self._set_mode(_MODE_NUMBERS["SURFACE"])
+                self._set_mode(MODE_NUMBERS["SURFACE"])
                 self._fly(now, -PILOT_SPEED_MPS)
             self.failsafes.append((now - self._start, "gcs"))
             self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")
@@ -492,14 +451,6 @@ class SimVehicle:
         on = msg.start_stop and msg.req_message_rate > 0
         for name in names:
             self._set_interval(name, 1.0 / msg.req_message_rate if on else None)
-
-
-def _cms(v: float) -> int:
-    return int(round(v * 100))
-
-
-def _wrap_pi(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 def run_sim_vehicle(
