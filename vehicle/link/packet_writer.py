@@ -60,12 +60,14 @@ class PacketWriter(Generic[Item]):
         """Write ``item`` on the writer thread and wait for it; the bytes written (0 if it took over SEND_WAIT_S:
         the packet may still go, and is counted then)."""
         thread = self._thread
-        if thread is None or threading.current_thread() is thread or self._stopping:
-            return self._write(item)  # not started, or stopping: no thread to wait for
         job = _Outgoing(item)
-        with self._cond:
-            self._outbox.append(job)
-            self._cond.notify()
+        with self._cond:  # decided under the lock that stop() takes: a job is queued only while the loop runs
+            queued = thread is not None and threading.current_thread() is not thread and not self._stopping
+            if queued:
+                self._outbox.append(job)
+                self._cond.notify()
+        if not queued:
+            return self._write(item)  # not started, stopping, or the writer itself: no thread to wait for
         if not job.done.wait(SEND_WAIT_S):
             return 0
         return job.sent

@@ -76,3 +76,26 @@ def test_a_stalled_wire_holds_a_sender_no_longer_than_the_send_wait(monkeypatch)
         hold.set()
         writer.stop()
     assert wire.items == [("stuck", 1)]  # it still went out once the wire moved
+
+
+def test_a_send_racing_stop_is_written_once_and_never_left_waiting():
+    wire = _Wire()
+    for _ in range(300):
+        writer = PacketWriter(wire.write, "test-tx")
+        writer.start()
+        go = threading.Barrier(3)
+        results: list[int] = []
+
+        def sender(writer: PacketWriter = writer, go: threading.Barrier = go, results: list[int] = results) -> None:
+            go.wait()
+            results.extend(writer.send(("r", 1)) for _ in range(3))
+
+        senders = [threading.Thread(target=sender) for _ in range(2)]
+        for t in senders:
+            t.start()
+        go.wait()
+        writer.stop()
+        for t in senders:
+            t.join(10)
+        assert results == [11] * 6  # each written, each charged: none queued after the loop had ended
+    assert len(wire.items) == 1800
