@@ -1,9 +1,11 @@
 """The UDP hub (BlueOS' router stand-in in the extension, demo, tests and benches) with real sockets on 127.0.0.1:
-peers that fall silent are forgotten, the table stays bounded, and outputs given up front always get traffic."""
+peers that fall silent or close their port are forgotten, the table stays bounded, and outputs given up front
+always get traffic."""
 
 from __future__ import annotations
 
 import socket
+import sys
 from collections.abc import Iterator
 
 import pytest
@@ -99,3 +101,38 @@ def test_many_senders_keep_at_most_max_peers_the_longest_silent_going_first(hub:
     finally:
         for s in senders:
             s.close()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the hub reads ICMP errors with Linux's IP_RECVERR")
+def test_a_peer_whose_port_closed_is_forgotten_at_once_and_the_live_peers_lose_nothing(clock: list[float]) -> None:
+    early = _socket()
+    output = early.getsockname()
+    early.close()  # a surface tool given up front that has not started listening yet
+    hub = UdpHub(outputs=[output], forget_after_s=10.0, clock=lambda: clock[0]).start()
+    a, b, gone = _socket(), _socket(), _socket()
+    listener = None
+    try:
+        _say(hub, gone, b"hello", to=1)
+        _say(hub, b, b"hello", to=2)
+        _say(hub, a, b"hello", to=3)
+        gone_address = gone.getsockname()
+        gone.close()  # the client exits; no clock moves, so only its closed port can tell
+        _received(b)
+        sent = [b"m%d" % i for i in range(30)]
+        for data in sent:
+            a.sendto(data, (hub.host, hub.port))
+        got: list[bytes] = []
+        assert wait_until(lambda: got.extend(_received(b)) or len(got) >= len(sent), 5), f"b got {got}"
+        assert got == sent  # every datagram, in order, though the refusals were reported on sends to b
+        assert gone_address not in hub.peers and hub.refused == 1 and hub.forgotten == 1
+        assert hub.peers == [output, b.getsockname(), a.getsockname()]  # the output, refusing too, is kept
+        listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        listener.bind(output)  # the surface tool starts
+        listener.settimeout(2.0)
+        a.sendto(b"now", (hub.host, hub.port))
+        assert listener.recv(100) == b"now" and b.recv(100) == b"now"
+    finally:
+        hub.stop()
+        for s in (a, b, listener):
+            if s is not None:
+                s.close()
