@@ -176,3 +176,19 @@ def test_heartbeats_keep_a_fixed_one_second_grid_when_each_is_sent_up_to_a_poll_
     assert next_heartbeat(10.0, 10.09) == 11.0  # on the grid, not 11.09
     assert next_heartbeat(10.0, 13.5) == 14.5  # after a stall: a new grid, no burst of beats to catch up
 
+
+
+def test_a_link_stopped_and_started_again_writes_on_its_one_writer_thread_again(pair):
+    comp, ap = pair
+    got, event = _collector(comp, ["STATUSTEXT"])
+
+    def writers(link: MavLink) -> list[threading.Thread]:
+        return [t for t in threading.enumerate() if t.name == f"{link.name}-mavlink-tx" and t.is_alive()]
+
+    ap.stop()
+    assert writers(ap) == []
+    ap.start()
+    assert ap.wait_open(5)
+    assert ap.send(mav2.MAVLink_statustext_message(6, b"after restart")) > 0
+    assert len(writers(ap)) == 1  # the writer object outlives stop(): start() must bring its thread back
+    assert event.wait(5) and got[0].text == "after restart"
