@@ -136,3 +136,23 @@ def test_a_peer_whose_port_closed_is_forgotten_at_once_and_the_live_peers_lose_n
         for s in (a, b, listener):
             if s is not None:
                 s.close()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the hub reads ICMP errors with Linux's IP_RECVERR")
+def test_a_refusal_whose_report_the_full_buffer_dropped_does_not_lose_the_next_send() -> None:
+    early = _socket()
+    output = early.getsockname()
+    early.close()  # an output given up front, not listening
+    hub = UdpHub(outputs=[output])  # not started: its receive buffer is filled first, as by a flood
+    flood, live = _socket(), _socket()
+    try:
+        for _ in range(5000):  # far past the hub's buffer; the rest is dropped by the kernel
+            flood.sendto(b"x" * 1000, (hub.host, hub.port))
+        hub._send(b"to the output", output)  # refused; the buffer being full, the kernel drops the error's entry
+        hub._send(b"to a live peer", live.getsockname())  # this send fails on that refusal, with nothing queued
+        assert live.recv(100) == b"to a live peer"
+        assert hub.forwarded == 2
+    finally:
+        hub.stop()
+        flood.close()
+        live.close()
