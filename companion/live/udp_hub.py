@@ -20,6 +20,7 @@ a flood still cost the hub 492 datagrams. Peers given up front are kept: a liste
 from __future__ import annotations
 
 import logging
+import selectors
 import socket
 import sys
 import threading
@@ -61,7 +62,9 @@ class UdpHub:
             except OSError:
                 self._hears_refusals = False  # peers are then forgotten by silence only
         self.sock.bind((host, port))
-        self.sock.settimeout(_RECEIVE_WAIT_S)
+        self.sock.setblocking(False)  # waits are the selector's: the error queue is then read without a mode switch
+        self._readable = selectors.DefaultSelector()
+        self._readable.register(self.sock, selectors.EVENT_READ)
         self.host, self.port = self.sock.getsockname()[:2]
         self.outputs: list[tuple[str, int]] = list(outputs or [])
         """Given up front: always sent to, never forgotten."""
@@ -98,8 +101,9 @@ class UdpHub:
         while not self._stop.is_set():
             try:
                 data, sender = self.sock.recvfrom(65535)
-            except TimeoutError:
-                self._learn(None)
+            except BlockingIOError:  # nothing queued: wait for some (under a flood there is always some)
+                if not self._readable.select(_RECEIVE_WAIT_S):
+                    self._learn(None)
                 continue
             except OSError:
                 if self._stop.is_set():
@@ -113,6 +117,11 @@ class UdpHub:
         for _ in range(_SEND_TRIES):
             try:
                 self.sock.sendto(data, peer)
+            except BlockingIOError:  # the send buffer is full: wait for room, as a blocking send would
+                with selectors.DefaultSelector() as writable:
+                    writable.register(self.sock, selectors.EVENT_WRITE)
+                    writable.select(_RECEIVE_WAIT_S)
+                continue
             except OSError as error:
                 # With IP_RECVERR a refusal of an earlier datagram, to any peer, fails this send once: forget
                 # whoever refused, then send again, unless this peer refused or no refusal explains the failure.
@@ -132,16 +141,12 @@ class UdpHub:
         named: set[tuple[str, int]] = set()
         if not self._hears_refusals:
             return named
-        self.sock.setblocking(False)  # with a timeout, Python would wait for data before reading the error queue
-        try:
-            for _ in range(_ERRORS_AT_ONCE):
-                try:
-                    _data, _anc, _flags, address = self.sock.recvmsg(1, 512, socket.MSG_ERRQUEUE)
-                except OSError:  # empty (BlockingIOError) or unreadable: what was read is what there is
-                    break
-                named.add(address[:2])
-        finally:
-            self.sock.settimeout(_RECEIVE_WAIT_S)
+        for _ in range(_ERRORS_AT_ONCE):
+            try:
+                _data, _anc, _flags, address = self.sock.recvmsg(1, 512, socket.MSG_ERRQUEUE)
+            except OSError:  # empty (BlockingIOError) or unreadable: what was read is what there is
+                break
+            named.add(address[:2])
         with self._lock:
             for peer in named:
                 if self._heard.pop(peer, None) is not None:
@@ -168,4 +173,5 @@ class UdpHub:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2)
+        self._readable.close()
         self.sock.close()
