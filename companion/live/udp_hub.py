@@ -27,6 +27,8 @@ import threading
 import time
 from collections.abc import Callable
 
+from vehicle.link.endpoint import ask_receive_buffer
+
 log = logging.getLogger(__name__)
 
 FORGET_AFTER_S = 60.0
@@ -47,11 +49,7 @@ class UdpHub:
                  forget_after_s: float = FORGET_AFTER_S, max_peers: int = MAX_PEERS,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
-        except OSError:
-            pass  # the kernel's default then; a smaller buffer only drops sooner under a burst
-        got = self.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2  # Linux reports twice what it keeps
+        got = ask_receive_buffer(self.sock, RECEIVE_BUFFER)
         if got < RECEIVE_BUFFER:
             log.info("udp hub: receive buffer %d KB of the %d KB asked (net.core.rmem_max caps it)", got // 1024,
                      RECEIVE_BUFFER // 1024)
@@ -65,6 +63,8 @@ class UdpHub:
         self.sock.setblocking(False)  # waits are the selector's: the error queue is then read without a mode switch
         self._readable = selectors.DefaultSelector()
         self._readable.register(self.sock, selectors.EVENT_READ)
+        self._writable = selectors.DefaultSelector()
+        self._writable.register(self.sock, selectors.EVENT_WRITE)
         self.host, self.port = self.sock.getsockname()[:2]
         self.outputs: list[tuple[str, int]] = list(outputs or [])
         """Given up front: always sent to, never forgotten."""
@@ -118,9 +118,7 @@ class UdpHub:
             try:
                 self.sock.sendto(data, peer)
             except BlockingIOError:  # the send buffer is full: wait for room, as a blocking send would
-                with selectors.DefaultSelector() as writable:
-                    writable.register(self.sock, selectors.EVENT_WRITE)
-                    writable.select(_RECEIVE_WAIT_S)
+                self._writable.select(_RECEIVE_WAIT_S)
                 continue
             except OSError as error:
                 # With IP_RECVERR a refusal of an earlier datagram, to any peer, fails this send once: forget
@@ -174,4 +172,5 @@ class UdpHub:
         if self._thread is not None:
             self._thread.join(timeout=2)
         self._readable.close()
+        self._writable.close()
         self.sock.close()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import socket
+import sys
 from dataclasses import dataclass
 
 from pymavlink import mavutil
@@ -19,7 +20,7 @@ log = logging.getLogger(__name__)
 
 _SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
 _SERIAL_WRITE_TIMEOUT_S = 0.2
-_UDP_RCVBUF = 1 << 20  # room for a burst (a parameter download, a busy router) while the thread is descheduled
+_UDP_RCVBUF = 1 << 20  # a parameter download, a busy router
 
 
 @dataclass(frozen=True)
@@ -77,11 +78,20 @@ def open_transport(endpoint: Endpoint, system_id: int, component_id: int, name: 
         return mavutil.mavlink_connection(f"tcp:{endpoint.address}", retries=0, **kwargs)
     conn = mavutil.mavlink_connection(f"{endpoint.scheme}:{endpoint.address}", **kwargs)
     if endpoint.is_udp:
-        try:
-            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF)
-        except OSError as err:  # the kernel caps it at net.core.rmem_max; a smaller buffer still works
-            log.debug("%s: SO_RCVBUF: %s", name, err)
+        kept = ask_receive_buffer(conn.port, _UDP_RCVBUF)
+        log.debug("%s: UDP receive buffer %d KB", name, kept // 1024)
     return conn
+
+
+def ask_receive_buffer(sock: socket.socket, nbytes: int) -> int:
+    """Ask for ``nbytes`` of receive buffer on a UDP socket, room for a burst while its reader is descheduled;
+    the bytes the kernel keeps (it caps the request at net.core.rmem_max; a smaller buffer still works)."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, nbytes)
+    except OSError:
+        pass  # the kernel's default then; a smaller buffer only drops sooner under a burst
+    granted = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    return granted // 2 if sys.platform == "linux" else granted  # Linux reports twice what it keeps
 
 
 def has_peer(endpoint: Endpoint, conn: mavutil.mavfile) -> bool:
