@@ -21,6 +21,8 @@ if TYPE_CHECKING:
 
 GROUP = "eval"
 GROUP_HELP = "evaluate summaries: SRUM, Table I, labels, AUROC, comparison with the visual baseline"
+MAX_ORDERS = 50
+"""Frame orders ``eval auroc --orders`` takes: each costs about 20 s per protocol on two cores."""
 
 
 def _srum_options(p: argparse.ArgumentParser, fps_default: str) -> None:
@@ -91,6 +93,10 @@ def register(add_command) -> None:
     p.add_argument("--marks", type=int, metavar="N", help="with --data: in each group the first N positive and N "
                                                           "negative frames become marks; the rest are scored with "
                                                           "and without them (with --holdout: by the held-out head)")
+    p.add_argument("--orders", type=int, metavar="N",
+                   help="with --holdout or --marks: frame orders (seeds 0..N-1) each dive is streamed in; the scene "
+                        "residual and the marks depend on the order, so their figures are given per order and "
+                        "summarised over all (default 3)")
     p.add_argument("--config", help="YAML configuration (encoder and queries)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="override encoder.name")
     p.add_argument("--query", help="the label that counts as positive (default: fish when present, else any)")
@@ -296,8 +302,8 @@ def _cmd_auroc(args: argparse.Namespace) -> int:
         return _auroc_by_source(args)
     if not args.video or not args.labels:
         raise UsageError("eval auroc needs VIDEO --labels CSV, or --data DIR")
-    if args.stress or args.sweep or args.marks is not None or args.holdout:
-        raise UsageError("--stress, --sweep, --holdout and --marks go with --data")
+    if args.stress or args.sweep or args.marks is not None or args.holdout or args.orders is not None:
+        raise UsageError("--stress, --sweep, --holdout, --marks and --orders go with --data")
     cfg = _config(args, args.encoder)
     table = load_labels(args.labels)
     query = args.query or default_query(table)
@@ -398,7 +404,7 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
 
 def _auroc_by_source(args: argparse.Namespace) -> int:
     """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
-    from companion.evaluation.dive_centring import stream_order
+    from companion.evaluation.dive_centring import ORDER_SEEDS, stream_order
     from companion.evaluation.head_training import held_out_head
     from companion.evaluation.holdout import leave_one_group_out, per_group, per_source, spread
     from companion.evaluation.pasted_fish import fish_crops
@@ -407,6 +413,11 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
 
     if args.marks is not None and args.marks < 1:  # before minutes of loading
         raise UsageError(f"--marks {args.marks}: must be 1 or more")
+    if args.orders is not None and not 1 <= args.orders <= MAX_ORDERS:
+        raise UsageError(f"--orders {args.orders}: must be 1 to {MAX_ORDERS}")
+    if args.orders is not None and not (args.holdout or args.marks):
+        raise UsageError("--orders goes with --holdout or --marks (the figures that depend on the frame order)")
+    seeds = ORDER_SEEDS if args.orders is None else tuple(range(args.orders))
     frames = load_sources(args.data, stress=args.stress)
     cfg = _config(args, args.encoder)
     encoder = make_encoder(cfg)
@@ -441,15 +452,15 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
                 from companion.evaluation.scene_holdout import held_out_scene
 
                 scene = encoder.scene_of(embeddings)
-                result["scene"] = held_out_scene(scene, frames, pasted=pasted)
+                result["scene"] = held_out_scene(scene, frames, seeds, pasted=pasted)
                 if any(f.clip for f in frames):  # the same, with no change of clip inside a dive
-                    result["scene_by_clip"] = held_out_scene(scene, frames, pasted=pasted, by_clip=True)
+                    result["scene_by_clip"] = held_out_scene(scene, frames, seeds, pasted=pasted,
+                                                                   by_clip=True)
     if args.marks:
-        from companion.evaluation.dive_centring import ORDER_SEEDS
         from companion.evaluation.group_feedback import marks_by_group
 
         result["marks"] = marks_by_group(encoder, presampler, embeddings, frames, args.marks,
-                                         held_out=args.holdout, seeds=ORDER_SEEDS, pasted=pasted)
+                                         held_out=args.holdout, seeds=seeds, pasted=pasted)
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
 
@@ -502,10 +513,19 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
             if o["groups"]:
                 print(f"  order seed {seed}: mean gain {o['mean_gain']:+.3f}  worst {o['worst_gain']:+.3f}  "
                       f"mean AUROC {o['mean_query']:.3f} -> {o['mean_marked']:.3f}")
+        if len(m["orders"]) > 1 and m["over_orders"]:
+            print("  over " + _orders_line(m["over_orders"]))
     for row in result.get("leave_one_group_out", []):
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
     return 0
+
+
+def _orders_line(summary: dict) -> str:
+    """One line: each figure's mean and range over the frame orders."""
+    n = next(iter(summary.values()))["orders"]
+    return f"{n} orders: " + ", ".join(f"{name.replace('_', ' ')} {v['mean']:.3f} ({v['min']:.3f}-{v['max']:.3f})"
+                                       for name, v in summary.items())
 
 
 def _print_scene(c: dict) -> None:
@@ -514,6 +534,8 @@ def _print_scene(c: dict) -> None:
         d = o["deepfish_habitats"]
         print(f"  {name:16s} group mean {o['group_mean']:.3f}  pooled {o['pooled']:.3f}  DeepFish habitats mean "
               f"{d['mean']:.3f} min {d['min']:.3f}  DeepFish pooled {o['deepfish_pooled']:.3f}")
+    if len(c["orders"]) > 1:
+        print("  over " + _orders_line(c["over_orders"]))
     first = next(iter(c["orders"].values()), None)
     if first:
         print("  per group (pooled head -> scene head, first order): " + ", ".join(

@@ -22,7 +22,7 @@ from companion.errors import MerlionError
 from companion.evaluation.dive_centring import ORDER_SEED, stream_order
 from companion.evaluation.feedback_eval import evaluate
 from companion.evaluation.head_training import Extra, extra_without, fit, with_extra
-from companion.evaluation.holdout import groups_of
+from companion.evaluation.holdout import groups_of, over_orders
 from companion.evaluation.pasted_fish import PastedFish
 from companion.evaluation.scene_holdout import pasted_rows, scene_features
 from companion.evaluation.sources import LabelledFrame
@@ -121,4 +121,6 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     first = seeds[0]
     return {"marks": n, "held_out": bool(held_out and head is not None), "skipped": skipped, "seed": first,
             "weight": choose_weight(gains) if reported else None, **_summary(rows[first]),
-            "orders": {str(seed): _summary(rows[seed]) for seed in seeds}}
+            "orders": (per_order := {str(seed): _summary(rows[seed]) for seed in seeds}),
+            "over_orders": over_orders(per_order, {k: k for k in ("mean_query", "mean_marked", "mean_gain",
+                                                                  "worst_gain")}) if reported else {}}

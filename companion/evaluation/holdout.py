@@ -72,3 +72,20 @@ def spread(aurocs: Mapping[str, float], prefix: str) -> dict[str, float]:
         return {}
     return {"groups": len(values), "mean": float(np.mean(values)), "min": float(np.min(values)),
             "max": float(np.max(values)), "spread": float(np.max(values) - np.min(values))}
+
+
+def over_orders(orders: Mapping[str, Mapping], figures: Mapping[str, str]) -> dict[str, dict[str, float]]:
+    """Mean, min and max over frame orders of each figure (``figures``: name -> dotted path in an order's result):
+    a dive-relative score depends on the order the frames came in, so one order's figure is one draw."""
+    def read(o: Mapping, path: str) -> float:
+        for key in path.split("."):
+            o = o[key]
+        return float(o)
+
+    out = {}
+    for name, path in figures.items():
+        values = [read(o, path) for o in orders.values()]
+        if values:
+            out[name] = {"orders": len(values), "mean": float(np.mean(values)), "min": float(np.min(values)),
+                         "max": float(np.max(values))}
+    return out

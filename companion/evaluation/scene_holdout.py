@@ -18,7 +18,7 @@ import numpy as np
 
 from companion.evaluation.dive_centring import ORDER_SEED, ORDER_SEEDS, stream_order
 from companion.evaluation.head_training import Extra, nested_holdout, train_head
-from companion.evaluation.holdout import per_group, spread
+from companion.evaluation.holdout import over_orders, per_group, spread
 from companion.evaluation.pasted_fish import PastedFish
 from companion.evaluation.roc import auroc
 from companion.evaluation.sources import DEEPFISH, LabelledFrame
@@ -27,6 +27,9 @@ from companion.vision.scene_memory import SceneInput, SceneMemory
 
 SCENE_LAMBDAS = (1e4, 3e4, 1e5)
 """Ridge strengths tried for the scene head (its features are smaller and sparser than the pooled ones)."""
+ORDER_FIGURES = {"deepfish_habitats_mean": "deepfish_habitats.mean", "deepfish_habitats_min": "deepfish_habitats.min",
+                 "deepfish_pooled": "deepfish_pooled", "group_mean": "group_mean", "pooled": "pooled"}
+"""The scene head's figures summarised over frame orders."""
 
 
 def scene_features(scene: SceneInput, frames: Sequence[LabelledFrame], seed: int = ORDER_SEED, *,
@@ -103,8 +106,8 @@ def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
                    "empty frames (less the copies of a dive's first frame)")
     if by_clip:
         method += "; each DeepFish clip its own dive (no change of clip inside a dive), trained and tested so"
-    return {"method": method,
-            "pooled_head": figures(pooled), "orders": orders}
+    return {"method": method, "pooled_head": figures(pooled), "orders": orders,
+            "over_orders": over_orders(orders, ORDER_FIGURES)}
 
 
 def train_scene_head(frames: Sequence[LabelledFrame], scene: SceneInput, *, concept: str,

@@ -93,7 +93,13 @@ def test_options_that_would_be_ignored_or_found_late_are_refused_at_once(tmp_pat
     (tmp_path / "afile").write_text("kept\n")
     cases = [
         (("eval", "auroc", "video.mp4", "--labels", "l.csv", "--marks", "-2"),
-         "merlion: error: --stress, --sweep, --holdout and --marks go with --data"),  # was silently ignored
+         "merlion: error: --stress, --sweep, --holdout, --marks and --orders go with --data"),  # was ignored
+        (("eval", "auroc", "video.mp4", "--labels", "l.csv", "--orders", "5"),
+         "merlion: error: --stress, --sweep, --holdout, --marks and --orders go with --data"),
+        (("eval", "auroc", "--data", str(tmp_path / "nowhere"), "--holdout", "--orders", "0"),
+         "merlion: error: --orders 0: must be 1 to 50"),
+        (("eval", "auroc", "--data", str(tmp_path / "nowhere"), "--orders", "5"),
+         "merlion: error: --orders goes with --holdout or --marks (the figures that depend on the frame order)"),
         (("eval", "auroc", "--data", str(tmp_path / "nowhere"), "--marks", "0"),
          "merlion: error: --marks 0: must be 1 or more"),  # before loading the data, not after
         (("summarize", str(tmp_path), "--out", str(tmp_path / "afile" / "x")),

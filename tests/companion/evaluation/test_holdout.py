@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from companion.evaluation.holdout import leave_one_group_out, per_source
+from companion.evaluation.holdout import leave_one_group_out, over_orders, per_source
 from companion.evaluation.sources import GROUPS, LabelledFrame, load_sources, murky
 from tests.conftest import SHARED_DATA, run_merlion, shared_file
 
@@ -102,3 +102,12 @@ def test_a_broken_data_folder_is_one_line_naming_the_file(tmp_path, labels, mess
     assert done.returncode != 0
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], done.stderr
+
+
+def test_over_orders_summarises_each_figure_over_the_frame_orders():
+    orders = {"0": {"pooled": 0.8, "habitats": {"mean": 0.86}}, "1": {"pooled": 0.9, "habitats": {"mean": 0.84}},
+              "2": {"pooled": 0.7, "habitats": {"mean": 0.85}}}
+    out = over_orders(orders, {"pooled": "pooled", "habitat_mean": "habitats.mean"})
+    assert out["pooled"] == pytest.approx({"orders": 3, "mean": 0.8, "min": 0.7, "max": 0.9})
+    assert out["habitat_mean"] == pytest.approx({"orders": 3, "mean": 0.85, "min": 0.84, "max": 0.86})
+    assert over_orders({}, {"pooled": "pooled"}) == {}

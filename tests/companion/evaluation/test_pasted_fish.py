@@ -252,14 +252,19 @@ def test_train_head_and_eval_auroc_learn_from_pasted_fish_end_to_end(tmp_path):
     assert head.input == "scene" and 58 <= head.trained_on["extra_rows"]["rows"] <= 60
     assert head.trained_on["extra_rows"]["positives"] == head.trained_on["extra_rows"]["rows"]
     assert set(figures["scene"]["groups"]) >= {"deepfish:9907", "suim", "aquarium"}
-    done = run_merlion("eval", "auroc", "--data", str(data), "--holdout", "--json", timeout=500)
+    done = run_merlion("eval", "auroc", "--data", str(data), "--holdout", "--orders", "4", "--json", timeout=500)
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)["scene"]
     assert "60 pasted-fish copies of 30 empty frames" in result["method"]
-    assert set(result["orders"]) == {"0", "1", "2"}
+    assert set(result["orders"]) == {"0", "1", "2", "3"}
     assert all(o["deepfish_habitats"]["groups"] == 1 for o in result["orders"].values())
+    habitat = [o["deepfish_habitats"]["mean"] for o in result["orders"].values()]
+    assert result["over_orders"]["deepfish_habitats_mean"] == pytest.approx(
+        {"orders": 4, "mean": np.mean(habitat), "min": min(habitat), "max": max(habitat)})
+    assert result["over_orders"]["pooled"]["mean"] == pytest.approx(
+        np.mean([o["pooled"] for o in result["orders"].values()]))
     by_clip = json.loads(done.stdout)["scene_by_clip"]  # the same with each DeepFish clip its own dive
-    assert "each DeepFish clip its own dive" in by_clip["method"] and set(by_clip["orders"]) == {"0", "1", "2"}
+    assert "each DeepFish clip its own dive" in by_clip["method"] and set(by_clip["orders"]) == {"0", "1", "2", "3"}
     assert all(o["deepfish_habitats"]["groups"] == 1 for o in by_clip["orders"].values())
     assert by_clip["orders"]["0"]["by_group"] != result["orders"]["0"]["by_group"]
 
