@@ -428,6 +428,7 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     crops = fish_crops(args.data) if args.holdout and scene_head is not None else []
     scores = np.zeros(len(frames), dtype=np.float32)
     embeddings: np.ndarray | None = None
+    done = 0
     for stream in stream_order(frames):  # each source is one dive, scored in its own order
         presampler.new_dive()
         for i in range(0, len(stream), batch):
@@ -437,6 +438,9 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
                 embeddings = np.zeros((len(frames), emb.shape[1]), dtype=emb.dtype)
             embeddings[idx] = emb
             scores[idx] = presampler.scores(emb)
+            done += len(idx)
+            if done % 100 < len(idx) or done == len(frames):
+                _progress(f"encoding: {done} of {len(frames)} frames")
     features = encoder.sampler_features(embeddings)
     pasted = _pasted(encoder, frames, crops) if crops else None
     result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
@@ -452,19 +456,22 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
                 from companion.evaluation.scene_holdout import held_out_scene
 
                 scene = encoder.scene_of(embeddings)
-                result["scene"] = held_out_scene(scene, frames, seeds, pasted=pasted)
+                result["scene"] = held_out_scene(scene, frames, seeds, pasted=pasted,
+                                                 progress=lambda m: _progress(f"scene head, {m}"))
                 if any(f.clip for f in frames):  # the same, with no change of clip inside a dive
-                    result["scene_by_clip"] = held_out_scene(scene, frames, seeds, pasted=pasted,
-                                                                   by_clip=True)
+                    result["scene_by_clip"] = held_out_scene(
+                        scene, frames, seeds, pasted=pasted, by_clip=True,
+                        progress=lambda m: _progress(f"scene head, each clip a dive, {m}"))
     if args.marks:
         from companion.evaluation.group_feedback import marks_by_group
 
         result["marks"] = marks_by_group(encoder, presampler, embeddings, frames, args.marks,
-                                         held_out=args.holdout, seeds=seeds, pasted=pasted)
+                                         held_out=args.holdout, seeds=seeds, pasted=pasted,
+                                         progress=lambda m: _progress(f"marks, {m}"))
     if args.sweep:
         from companion.evaluation.encoder_sweep import sweep
 
-        variants = sweep(frames, progress=lambda name: print(f"sweep: {name}", file=sys.stderr, flush=True))
+        variants = sweep(frames, progress=lambda name: _progress(f"sweep: {name}"))
         result["variants"] = {name: per_source(s, frames) for name, s in variants.items()}
         result["leave_one_group_out"] = leave_one_group_out(variants, frames)
     if args.json:
@@ -521,6 +528,11 @@ def _auroc_by_source(args: argparse.Namespace) -> int:
     return 0
 
 
+def _progress(message: str) -> None:
+    """One line on stderr: the held-out figures take minutes to an hour, and stdout may be the JSON."""
+    print(message, file=sys.stderr, flush=True)
+
+
 def _orders_line(summary: dict) -> str:
     """One line: each figure's mean and range over the frame orders."""
     n = next(iter(summary.values()))["orders"]
@@ -546,7 +558,7 @@ def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: li
     """The scene head's extra training frames (``pasted_fish``), encoded, with a line on stderr: it takes a while."""
     from companion.evaluation.pasted_fish import pasted_fish
 
-    print("scene head: encoding empty DeepFish frames with fish pasted in", file=sys.stderr, flush=True)
+    _progress("scene head: encoding empty DeepFish frames with fish pasted in")
     return pasted_fish(encoder, frames, crops)
 
 

@@ -14,7 +14,7 @@ only (``choose_weight``). The same rule on every group gives the product's ``CEN
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -74,7 +74,7 @@ def _summary(rows: dict) -> dict:
 def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, embeddings: np.ndarray,
                    frames: Sequence[LabelledFrame], n: int, *, held_out: bool = True,
                    seeds: Sequence[int] = (ORDER_SEED,), weights: Sequence[float] = WEIGHTS,
-                   pasted: PastedFish | None = None) -> dict:
+                   pasted: PastedFish | None = None, progress: Callable[[str], None] = lambda _: None) -> dict:
     """{"groups": {group: {auroc_query, auroc_marked, gain, trust, centred_trust, weight}}, "mean_gain",
     "worst_gain", ...} for the first seed's order, the same per seed under "orders", and "weight": the rule
     applied on every group; each group's weight is chosen without it. Groups without n + n frames and something
@@ -92,7 +92,8 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     tried: dict[int, dict[float, dict]] = {seed: {w: {} for w in weights} for seed in seeds}
     skipped = []
     try:
-        for g, mask in in_group.items():
+        for k, (g, mask) in enumerate(in_group.items(), 1):
+            progress(f"group {g} ({k} of {len(in_group)})")
             if min(y[mask].sum(), (~y[mask]).sum()) < n + 1:
                 skipped.append(g)
                 continue

@@ -12,7 +12,7 @@ empty frames with fish pasted in, each judged as if it had come in place of its 
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -72,7 +72,8 @@ def pasted_rows(scene: SceneInput, frames: Sequence[LabelledFrame], pasted: Past
 
 def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
                    seeds: Sequence[int] = ORDER_SEEDS, pasted: PastedFish | None = None, *,
-                   pixels: bool = True, by_clip: bool = False) -> dict:
+                   pixels: bool = True, by_clip: bool = False,
+                   progress: Callable[[str], None] = lambda _: None) -> dict:
     """Per order: per-group AUROC of the scene head (pooled head on each dive's first frame), every choice made
     without the reported group; and the same for the pooled head alone, for comparison. Without ``pixels`` the
     head reads the view features' residual only (what the pixel changes add, measured); ``by_clip``: each clip
@@ -90,7 +91,8 @@ def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
                 "deepfish_pooled": float(auroc(scores[deepfish], y[deepfish]))}
 
     orders = {}
-    for seed in seeds:
+    for n, seed in enumerate(seeds, 1):
+        progress(f"order seed {seed} ({n} of {len(seeds)})")
         x = scene_features(scene, frames, seed, by_clip=by_clip)[:, :None if pixels else scene.views.shape[2]]
         ok = np.isfinite(x).all(axis=1)
         scores = pooled.copy()

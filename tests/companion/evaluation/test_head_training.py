@@ -170,8 +170,10 @@ def test_held_out_head_beats_the_lexical_mapping_on_deepfish_habitats(encoded):
 def test_marks_lift_held_out_habitats_and_never_lower_a_group_by_more_than_002(encoded, pasted):
     encoder, frames, emb = encoded
     deep = [i for i, f in enumerate(frames) if f.source.startswith(DEEPFISH)]
+    said: list[str] = []
     result = marks_by_group(encoder, PreSampler(encoder, "fish"), emb, frames, 3, held_out=True, seeds=(0, 1, 2),
-                            pasted=pasted)
+                            pasted=pasted, progress=said.append)
+    assert said[0].endswith("(1 of 13)") and said[-1].endswith("(13 of 13)") and len(said) == 13
     assert result["held_out"] and not result["skipped"] and result["weight"] == CENTRED_WEIGHT
     for seed, order in result["orders"].items():
         habitats = {g: r for g, r in order["groups"].items() if g.startswith(DEEPFISH)}

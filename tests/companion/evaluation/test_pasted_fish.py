@@ -254,6 +254,11 @@ def test_train_head_and_eval_auroc_learn_from_pasted_fish_end_to_end(tmp_path):
     assert set(figures["scene"]["groups"]) >= {"deepfish:9907", "suim", "aquarium"}
     done = run_merlion("eval", "auroc", "--data", str(data), "--holdout", "--orders", "4", "--json", timeout=500)
     assert done.returncode == 0, done.stderr
+    # long work shows progress on stderr, the JSON alone on stdout
+    frames = json.loads(done.stdout)["frames"]
+    assert f"encoding: {frames} of {frames} frames" in done.stderr
+    assert "scene head, order seed 3 (4 of 4)" in done.stderr
+    assert "scene head, each clip a dive, order seed 0 (1 of 4)" in done.stderr
     result = json.loads(done.stdout)["scene"]
     assert "60 pasted-fish copies of 30 empty frames" in result["method"]
     assert set(result["orders"]) == {"0", "1", "2", "3"}
