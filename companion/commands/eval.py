@@ -4,25 +4,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from companion.commands.eval_setup import eval_config, make_encoder
+from companion.commands.eval_sources import auroc_by_source, cmd_train_head
 from companion.errors import MerlionError, UsageError
-from companion.output_path import check_target
-
-if TYPE_CHECKING:
-    from companion.evaluation.pasted_fish import PastedFish
-    from companion.evaluation.sources import LabelledFrame
-    from companion.vision.encoders.imagenet import ImageNetEncoder
 
 GROUP = "eval"
 GROUP_HELP = "evaluate summaries: SRUM, Table I, labels, AUROC, comparison with the visual baseline"
-MAX_ORDERS = 50
-"""Frame orders ``eval auroc --orders`` takes: each costs about 20 s per protocol on two cores."""
 
 
 def _srum_options(p: argparse.ArgumentParser, fps_default: str) -> None:
@@ -113,7 +104,7 @@ def register(add_command) -> None:
     p.add_argument("--nested", action="store_true",
                    help="also report each group with the strength chosen without it (slow: one SVD per inner fold)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=_cmd_train_head)
+    p.set_defaults(func=cmd_train_head)
 
     p = add_command("feedback", "AUROC with and without the operator's marks: the first N positive and N "
                     "negative items become marks, the rest are scored", group=GROUP)
@@ -213,7 +204,7 @@ def _report(args: argparse.Namespace, name: str, summary: dict | None, base: Pat
     if summary is not None and base is not None:
         run = run_from_summary(name, summary, base, shown)
         if args.video:
-            cfg = summary_config(summary, _config(args, None))
+            cfg = summary_config(summary, eval_config(args, None))
             attach_scores(run, args.video, cfg, make_encoder(cfg))
     else:
         if args.video:
@@ -270,26 +261,6 @@ def _cmd_labels(args: argparse.Namespace) -> int:
     return 0
 
 
-def _config(args: argparse.Namespace, encoder: str | None):
-    from companion.config import load_config
-
-    overrides = {"encoder": {"name": encoder}} if encoder else None
-    return load_config(args.config, overrides=overrides)
-
-
-def make_encoder(cfg):
-    """The configured encoder: the team's factory, with the visual baseline always available."""
-    if cfg.encoder.name == "visual":
-        from companion.vision.encoders.visual import VisualEncoder
-
-        return VisualEncoder(cfg.encoder)
-    try:
-        from companion.vision.encoders.factory import make_encoder as factory
-    except ImportError:
-        raise MerlionError(f"encoder {cfg.encoder.name!r}: companion.vision.encoders.factory is not installed") from None
-    return factory(cfg.encoder)
-
-
 def _cmd_auroc(args: argparse.Namespace) -> int:
     from companion.evaluation.auroc import auroc, threshold_rates
     from companion.evaluation.datasets import load_labels
@@ -299,12 +270,12 @@ def _cmd_auroc(args: argparse.Namespace) -> int:
     if args.data:
         if args.video or args.labels:
             raise UsageError("--data scores the shared data by source: give it without VIDEO and --labels")
-        return _auroc_by_source(args)
+        return auroc_by_source(args)
     if not args.video or not args.labels:
         raise UsageError("eval auroc needs VIDEO --labels CSV, or --data DIR")
     if args.stress or args.sweep or args.marks is not None or args.holdout or args.orders is not None:
         raise UsageError("--stress, --sweep, --holdout, --marks and --orders go with --data")
-    cfg = _config(args, args.encoder)
+    cfg = eval_config(args, args.encoder)
     table = load_labels(args.labels)
     query = args.query or default_query(table)
     encoder = make_encoder(cfg)
@@ -334,7 +305,7 @@ def _cmd_auroc(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from companion.evaluation.compare import compare, format_compare
 
-    cfg = _config(args, args.encoder)
+    cfg = eval_config(args, args.encoder)
     result = compare(args.video, args.labels, cfg, make_encoder, query=args.query, out_dir=args.out,
                      report_dir=args.report, scores=not args.no_scores)
     print(json.dumps(result) if args.json else format_compare(result))
@@ -386,7 +357,7 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
     labels = read_item_labels(args.labels)
     images, positive, _ = _labelled_items(args.items, labels, args.labels)
     split_marks(positive, args.marks)  # refuse an impossible --marks before loading the encoder
-    cfg = _config(args, args.encoder)
+    cfg = eval_config(args, args.encoder)
     encoder = make_encoder(cfg)
     presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
     embeddings = np.concatenate([encoder.encode_images(images[i:i + cfg.encoder.batch])
@@ -399,216 +370,4 @@ def _cmd_feedback(args: argparse.Namespace) -> int:
         print(f"AUROC query alone {result['auroc_query']:.4f}  with {args.marks} + {args.marks} marks "
               f"{result['auroc_marked']:.4f}  ({result['positives']} positive of {result['scored']} scored; "
               f"encoder {encoder.name})")
-    return 0
-
-
-def _auroc_by_source(args: argparse.Namespace) -> int:
-    """Per-source and pooled AUROC of the configured encoder on the shared data; --sweep: held-out choices."""
-    from companion.evaluation.dive_centring import ORDER_SEEDS, stream_order
-    from companion.evaluation.head_training import held_out_head
-    from companion.evaluation.holdout import leave_one_group_out, per_group, per_source, spread
-    from companion.evaluation.pasted_fish import fish_crops
-    from companion.evaluation.sources import DEEPFISH, load_sources
-    from companion.vision.presampler import PreSampler
-
-    if args.marks is not None and args.marks < 1:  # before minutes of loading
-        raise UsageError(f"--marks {args.marks}: must be 1 or more")
-    if args.orders is not None and not 1 <= args.orders <= MAX_ORDERS:
-        raise UsageError(f"--orders {args.orders}: must be 1 to {MAX_ORDERS}")
-    if args.orders is not None and not (args.holdout or args.marks):
-        raise UsageError("--orders goes with --holdout or --marks (the figures that depend on the frame order)")
-    seeds = ORDER_SEEDS if args.orders is None else tuple(range(args.orders))
-    frames = load_sources(args.data, stress=args.stress)
-    cfg = _config(args, args.encoder)
-    encoder = make_encoder(cfg)
-    presampler = PreSampler(encoder, cfg.queries.positive, cfg.queries.negatives, cfg.queries.tau_ss)
-    batch = cfg.encoder.batch
-    # the held-out scene head that answers the query also learns from pasted fish: their boxes are read first
-    scene_head = encoder.scene_head_of(presampler.text_embeddings) if hasattr(encoder, "scene_head_of") else None
-    crops = fish_crops(args.data) if args.holdout and scene_head is not None else []
-    scores = np.zeros(len(frames), dtype=np.float32)
-    embeddings: np.ndarray | None = None
-    done = 0
-    for stream in stream_order(frames):  # each source is one dive, scored in its own order
-        presampler.new_dive()
-        for i in range(0, len(stream), batch):
-            idx = stream[i:i + batch]
-            emb = encoder.encode_images([frames[j].image for j in idx])
-            if embeddings is None:
-                embeddings = np.zeros((len(frames), emb.shape[1]), dtype=emb.dtype)
-            embeddings[idx] = emb
-            scores[idx] = presampler.scores(emb)
-            done += len(idx)
-            if done % 100 < len(idx) or done == len(frames):
-                _progress(f"encoding: {done} of {len(frames)} frames")
-    features = encoder.sampler_features(embeddings)
-    pasted = _pasted(encoder, frames, crops) if crops else None
-    result: dict = {"encoder": encoder.describe(), "frames": len(frames), "auroc": per_source(scores, frames)}
-    result["by_group"] = per_group(scores, frames)
-    result["deepfish_habitats"] = spread(result["by_group"], DEEPFISH)
-    if args.holdout:
-        result["holdout"] = held_out_head(encoder, presampler, features, frames)
-        if result["holdout"]["by_group"]:
-            from companion.evaluation.dive_centring import held_out_centred
-
-            result["dive_centred"] = held_out_centred(features, frames)
-            if hasattr(encoder, "scene_of"):  # the scene head's input: the region views and small frames
-                from companion.evaluation.scene_holdout import held_out_scene
-
-                scene = encoder.scene_of(embeddings)
-                result["scene"] = held_out_scene(scene, frames, seeds, pasted=pasted,
-                                                 progress=lambda m: _progress(f"scene head, {m}"))
-                if any(f.clip for f in frames):  # the same, with no change of clip inside a dive
-                    result["scene_by_clip"] = held_out_scene(
-                        scene, frames, seeds, pasted=pasted, by_clip=True,
-                        progress=lambda m: _progress(f"scene head, each clip a dive, {m}"))
-    if args.marks:
-        from companion.evaluation.group_feedback import marks_by_group
-
-        result["marks"] = marks_by_group(encoder, presampler, embeddings, frames, args.marks,
-                                         held_out=args.holdout, seeds=seeds, pasted=pasted,
-                                         progress=lambda m: _progress(f"marks, {m}"))
-    if args.sweep:
-        from companion.evaluation.encoder_sweep import sweep
-
-        variants = sweep(frames, progress=lambda name: _progress(f"sweep: {name}"))
-        result["variants"] = {name: per_source(s, frames) for name, s in variants.items()}
-        result["leave_one_group_out"] = leave_one_group_out(variants, frames)
-    if args.json:
-        print(json.dumps(result))
-        return 0
-    print(f"encoder {encoder.name}, {len(frames)} frames")
-    for source, value in result["auroc"].items():
-        print(f"  {source:24s} AUROC {value:.3f}")
-    for name in ("deepfish_habitats",):
-        d = result[name]
-        if d:
-            print(f"DeepFish habitats: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
-                  f"spread {d['spread']:.3f} ({d['groups']} habitats)")
-    if "holdout" in result:
-        h = result["holdout"]
-        print(f"held out ({h['method']}):")
-        for group, value in h["by_group"].items():
-            print(f"  {group:24s} AUROC {value:.3f}")
-        d = h["deepfish_habitats"]
-        if d:
-            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
-                  f"spread {d['spread']:.3f}")
-    if "dive_centred" in result:
-        c = result["dive_centred"]
-        print(f"held out, dive-centred ({c['method']}):")
-        for group, value in c["by_group"].items():
-            choice = c["chosen"].get(group)
-            note = f"  (lambda {choice['lambda']:g}, prior weight {choice['prior_weight']})" if choice else ""
-            print(f"  {group:24s} AUROC {value:.3f}{note}")
-        d = c["deepfish_habitats"]
-        if d:
-            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
-                  f"spread {d['spread']:.3f}; DeepFish pooled {c['deepfish_pooled']:.3f}")
-    for key in ("scene", "scene_by_clip"):
-        if key in result:
-            _print_scene(result[key])
-    if "marks" in result:
-        m = result["marks"]
-        print(f"{m['marks']} + {m['marks']} marks from each group's first frames in its dive's order (seed "
-              f"{m['seed']}){' (held-out head)' if m['held_out'] else ''}; centred marks' weight chosen without "
-              f"each group (on all groups: {m['weight']}):")
-        for group, r in m["groups"].items():
-            print(f"  {group:24s} query {r['auroc_query']:.3f}  marked {r['auroc_marked']:.3f}  "
-                  f"gain {r['gain']:+.3f}  trust {r['centred_trust']:.2f}  weight {r['weight']:g}")
-        for seed, o in m["orders"].items():
-            if o["groups"]:
-                print(f"  order seed {seed}: mean gain {o['mean_gain']:+.3f}  worst {o['worst_gain']:+.3f}  "
-                      f"mean AUROC {o['mean_query']:.3f} -> {o['mean_marked']:.3f}")
-        if len(m["orders"]) > 1 and m["over_orders"]:
-            print("  over " + _orders_line(m["over_orders"]))
-    for row in result.get("leave_one_group_out", []):
-        print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
-              f"held-out {row['held_out_auroc']:.3f}")
-    return 0
-
-
-def _progress(message: str) -> None:
-    """One line on stderr: the held-out figures take minutes to an hour, and stdout may be the JSON."""
-    print(message, file=sys.stderr, flush=True)
-
-
-def _orders_line(summary: dict) -> str:
-    """One line: each figure's mean and range over the frame orders."""
-    n = next(iter(summary.values()))["orders"]
-    return f"{n} orders: " + ", ".join(f"{name.replace('_', ' ')} {v['mean']:.3f} ({v['min']:.3f}-{v['max']:.3f})"
-                                       for name, v in summary.items())
-
-
-def _print_scene(c: dict) -> None:
-    print(f"held out, scene residual ({c['method']}):")
-    for name, o in [("pooled head", c["pooled_head"])] + [(f"order seed {k}", o) for k, o in c["orders"].items()]:
-        d = o["deepfish_habitats"]
-        print(f"  {name:16s} group mean {o['group_mean']:.3f}  pooled {o['pooled']:.3f}  DeepFish habitats mean "
-              f"{d['mean']:.3f} min {d['min']:.3f}  DeepFish pooled {o['deepfish_pooled']:.3f}")
-    if len(c["orders"]) > 1:
-        print("  over " + _orders_line(c["over_orders"]))
-    first = next(iter(c["orders"].values()), None)
-    if first:
-        print("  per group (pooled head -> scene head, first order): " + ", ".join(
-            f"{g} {c['pooled_head']['by_group'][g]:.2f} -> {v:.2f}" for g, v in first["by_group"].items()))
-
-
-def _pasted(encoder: ImageNetEncoder, frames: Sequence[LabelledFrame], crops: list[np.ndarray]) -> PastedFish:
-    """The scene head's extra training frames (``pasted_fish``), encoded, with a line on stderr: it takes a while."""
-    from companion.evaluation.pasted_fish import pasted_fish
-
-    _progress("scene head: encoding empty DeepFish frames with fish pasted in")
-    return pasted_fish(encoder, frames, crops)
-
-
-def _cmd_train_head(args: argparse.Namespace) -> int:
-    from companion.config import EncoderConfig
-    from companion.evaluation.head_training import frame_scenes, nested_holdout, train_head
-    from companion.evaluation.holdout import per_group, spread
-    from companion.evaluation.pasted_fish import fish_crops
-    from companion.evaluation.scene_holdout import train_scene_head
-    from companion.evaluation.sources import DEEPFISH, load_sources
-    from companion.vision.encoders.imagenet import ImageNetEncoder
-
-    for out in (args.out, args.scene_out):  # before the long encoding: a bad path fails at once
-        if out:
-            check_target(out)
-    frames = load_sources(args.data)
-    crops = fish_crops(args.data) if args.scene_out else []  # before the long encoding: no boxes, no wait
-    encoder = ImageNetEncoder(EncoderConfig(name="imagenet", device="cpu"), heads=False)
-    classes = np.flatnonzero(encoder.encode_texts(["fish"])[0, :1000] > 0)
-    scene = frame_scenes(encoder, frames)
-    features = np.ascontiguousarray(scene.views[:, 0])
-    head, figures = train_head(frames, features, concept="fish", classes=classes)
-    if args.scene_out:
-        pasted = _pasted(encoder, frames, crops)
-        scene_head, scene_figures = train_scene_head(frames, scene, concept="fish", classes=classes, pasted=pasted)
-        figures["scene"] = {**scene_figures, "deepfish_habitats": spread(scene_figures["groups"], DEEPFISH),
-                            "file": str(scene_head.save(args.scene_out))}
-    figures["deepfish_habitats"] = spread(figures["groups"], DEEPFISH)
-    if args.nested:
-        y = np.array([f.fish for f in frames])
-        scores, chosen = nested_holdout(features, y, np.array([f.group for f in frames]))
-        groups = per_group(scores, frames)
-        figures["nested"] = {"groups": groups, "lambda": chosen, "deepfish_habitats": spread(groups, DEEPFISH)}
-    if args.out:
-        figures["file"] = str(head.save(args.out))
-    if args.json:
-        print(json.dumps(figures))
-        return 0
-    d = figures["deepfish_habitats"]
-    print(f"fish head: {len(frames)} frames, lambda {figures['lambda']:g}; leave-one-group-out: group mean AUROC "
-          f"{figures['group_mean_auroc']:.3f}, pooled {figures['pooled_auroc']:.3f}; DeepFish habitats mean "
-          f"{d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f}")
-    for g, v in figures["groups"].items():
-        print(f"  held out {g:20s} AUROC {v:.3f}")
-    if "file" in figures:
-        print(f"head: {figures['file']}")
-    if "scene" in figures:
-        c = figures["scene"]
-        d = c["deepfish_habitats"]
-        print(f"scene head: lambda {c['lambda']:g}; leave-one-group-out: group "
-              f"mean AUROC {c['group_mean_auroc']:.3f}, pooled {c['pooled_auroc']:.3f}; DeepFish habitats mean "
-              f"{d['mean']:.3f} min {d['min']:.3f}; head: {c['file']}")
     return 0
