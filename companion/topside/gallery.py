@@ -22,6 +22,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import threading
 import time
 from dataclasses import asdict, dataclass, fields
@@ -29,6 +30,18 @@ from pathlib import Path
 
 from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
+
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+
+
+def safe_dive(dive: str) -> str:
+    """``dive`` when it may name a folder in DIR, else ValueError. A dive id comes from the wire (a capture's
+    ``file_url``, index.json) and becomes ``dives/<dive>/`` and ``full/<dive>/``: ``..`` or ``/tmp/x`` there would
+    move thumbnails, or write a full frame the page asked for, outside DIR. The companion makes 8 hex digits."""
+    if not isinstance(dive, str) or not _SAFE_NAME.fullmatch(dive):
+        raise ValueError(f"dive id {str(dive)[:80]!r} is not a safe name (letters, digits, _ and -, at most 64)")
+    return dive
+
 
 LOG_COLUMNS = [
     "event", "wall_time", "dive", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
@@ -127,7 +140,7 @@ class Gallery:
                 cap = Capture.from_dict(item)
                 self._captures[cap.image_index] = cap
             self._archived = [Capture.from_dict(item) for item in data.get("archived", [])]
-            self.dive = data.get("dive")
+            self.dive = safe_dive(data["dive"]) if data.get("dive") else None  # a folder name, see safe_dive
             self._dives = [str(d) for d in data.get("dives", [])]
             self._topics = [Topic.from_dict(t) for t in data.get("topics", [])]
         except (OSError, ValueError, TypeError, AttributeError, KeyError) as err:
@@ -180,7 +193,7 @@ class Gallery:
 
     def full_path(self, image_index: int, dive: str | None) -> Path:
         """Where a full-resolution frame fetched on demand is kept: ``full/<dive>/<n>.jpg``."""
-        return self.root / "full" / (dive or "unknown") / f"{image_index}.jpg"
+        return self.root / "full" / (safe_dive(dive) if dive else "unknown") / f"{int(image_index)}.jpg"
 
     # --- writing -------------------------------------------------------------------------------------------
 
@@ -193,9 +206,11 @@ class Gallery:
     def use_dive(self, dive: str | None) -> str:
         """What a message of ``dive`` means here: ``"current"`` (file it), ``"new"`` (the vehicle's store was reset:
         the gallery now shows that dive, the old one is filed under ``dives/``) or ``"old"`` (a late message of an
-        earlier dive: ignore it). A companion that names no dive is always current."""
+        earlier dive: ignore it). A companion that names no dive is always current; a dive id that is not a safe
+        name (``safe_dive``) is a ValueError."""
         if not dive:
             return "current"
+        safe_dive(dive)
         with self._lock:
             if dive == self.dive:
                 return "current"

@@ -62,7 +62,7 @@ class GallerySync:
             dive = index_dive(data)
             topics = index_topics(data)
         except (ValueError, UnicodeDecodeError) as err:
-            log.warning("%s: not JSON this tool understands (%s)", INDEX_PATH, err)
+            log.warning("%s ignored: %s", INDEX_PATH, err)  # not JSON, or a dive id that is not a safe name
             return
         if not self.dive_ok(dive):
             return  # asked for before the store was reset: it lists the earlier dive

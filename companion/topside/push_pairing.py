@@ -19,6 +19,7 @@ from companion.topside.gallery import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
 from companion.topside.surface_state import SurfaceContext
+from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
 log = logging.getLogger("merlion.surface")
@@ -31,10 +32,16 @@ class PushPairing:
         self.ctx = ctx
         self.sync = sync
         self.images = ImageReceiver(clock=ctx.clock)
+        self._refusal_log = WarningBucket()  # a flood of refused captures is a few lines, not one per message
 
     def on_capture(self, msg) -> None:
         ctx, p = self.ctx, self.ctx.pairing
-        cap = capture_from_message(msg)
+        try:
+            cap = capture_from_message(msg)
+        except ValueError as err:  # a dive id that is not a safe name: nothing of it goes near DIR
+            if self._refusal_log.take():
+                log.warning("capture %d ignored: %s", msg.image_index, err)
+            return
         if not self.sync.dive_ok(cap.dive):
             return
         known = ctx.gallery.get(cap.image_index)

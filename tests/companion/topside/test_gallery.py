@@ -138,3 +138,9 @@ def test_a_gallery_folder_from_before_topics_still_opens_and_its_log_stays_align
     assert rows[0] == old_columns and all(len(r) == len(old_columns) for r in rows)  # no column slipped
     assert [r[0] for r in rows[1:]] == ["added", "tags", "topics"]
     assert Gallery(tmp_path).get(4).topic == "fish"
+
+
+def test_a_gallery_file_whose_dive_is_a_path_is_a_one_line_error(tmp_path):
+    (tmp_path / "gallery.json").write_text(json.dumps({"dive": "../../elsewhere", "captures": []}))
+    with pytest.raises(MerlionError, match="gallery.json: .*not a safe name"):
+        Gallery(tmp_path)
