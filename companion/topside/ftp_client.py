@@ -28,6 +28,10 @@ DoneFn = Callable[[str, "bytes | None", str], None]
 """done(path, data or None, error text) is called once per fetch."""
 crc32_mavftp = crc32_ardupilot
 """The CRC-32 a server answers CalcFileCRC32 with, so a file we hold is checked with one small request."""
+MAX_FILE_BYTES = 16 * 1024 * 1024
+"""The largest file read: a thumbnail, index.json or a full frame is kilobytes to a few MB. The size comes from
+the server's open ACK (a u32): a hostile one announcing 4 GiB made the client allocate two buffers of that size
+before it read a byte."""
 
 
 @dataclass
@@ -98,8 +102,10 @@ class FtpClient:
 
     def __init__(self, send: SendFn, target: tuple[int, int], *, own: tuple[int, int] | None = None,
                  clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 0.5,
-                 max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True) -> None:
+                 max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True,
+                 max_file_bytes: int = MAX_FILE_BYTES) -> None:
         self._send = send
+        self.max_file_bytes = max_file_bytes
         self.target = target
         self._own = own
         self._clock = clock
@@ -282,7 +288,11 @@ class FtpClient:
                 self._finish(None, f"open failed: {reply.error_text()}", terminate=False)
                 return
             job.session = reply.session
-            job.start(struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None)  # 0: read to EOF
+            size = struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None  # 0: read to EOF
+            if size is not None and size > self.max_file_bytes:
+                self._finish(None, f"file of {size} bytes refused: over the {self._cap_text()} cap")
+                return
+            job.start(size)
             self._continue()
         elif opcode == Op.READ_FILE:
             if reply.opcode == Op.NAK:
@@ -297,11 +307,18 @@ class FtpClient:
                     self._finish(None, f"read failed at {offset}: {reply.error_text()}")
                 return
             self._store(offset, reply.data)
+            if len(job.buf) > self.max_file_bytes:  # a file of unknown size that never ends
+                self._finish(None, f"file refused: over the {self._cap_text()} cap at offset {offset}")
+                return
             self._continue()
         elif opcode == Op.TERMINATE_SESSION:
             if job.upload is not None and reply.opcode == Op.NAK and not job.error:
                 job.error = f"refused: {reply.error_text()}"
             self._complete()
+
+    def _cap_text(self) -> str:
+        cap = self.max_file_bytes
+        return f"{cap // (1 << 20)} MiB" if cap % (1 << 20) == 0 else f"{cap}-byte"
 
     def _write_next(self) -> None:
         """The next piece of an upload, or the closing request (the server takes the file then) after the last."""

@@ -4,16 +4,22 @@ the real FTP server answering. Each test is an attack an earlier helper found, a
 from __future__ import annotations
 
 import json
+import socket
 import threading
+import time
+from collections.abc import Callable
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from companion.topside.ftp_client import MAX_FILE_BYTES, FtpClient
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
 from tests.companion.surface_peer import CompanionPeer, summary_frame
 from tests.conftest import free_udp_port
 from tests.waiting import wait_until
 from vehicle.camera.captures import captured_message
+from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, nak
 
 
 @pytest.fixture
@@ -30,6 +36,72 @@ def surface(tmp_path):
     stop.set()
     thread.join(10)
     assert not thread.is_alive()
+
+
+class HostileFtpServer:
+    """A far side that answers MAVLink FTP requests on a real UDP socket as ``answer`` says (as system 1/100)."""
+
+    def __init__(self, answer: Callable[[FtpPacket], list[FtpPacket]]) -> None:
+        self.answer = answer
+        self.requests: list[FtpPacket] = []
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.port = self.sock.getsockname()[1]
+        self._mav = mav.MAVLink(None, srcSystem=1, srcComponent=100)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        parser = mav.MAVLink(None)
+        while not self._stop.is_set():
+            try:
+                data, who = self.sock.recvfrom(4096)
+            except TimeoutError:
+                continue
+            for msg in parser.parse_buffer(data) or []:
+                request = FtpPacket.unpack(msg.payload)
+                self.requests.append(request)
+                for reply in self.answer(request):
+                    out = mav.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(), msg.get_srcComponent(),
+                                                                     list(reply.pack()))
+                    self.sock.sendto(out.pack(self._mav), who)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.sock.close()
+
+
+def fetch_from(server: HostileFtpServer, path: str, **client_options) -> tuple[bytes | None, str]:
+    """Our FTP client reading ``path`` from ``server`` over a real UDP socket; (data or None, error)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.02)
+    packer, parser = mav.MAVLink(None, srcSystem=254, srcComponent=190), mav.MAVLink(None)
+
+    def send(system: int, component: int, payload: bytes) -> None:
+        msg = mav.MAVLink_file_transfer_protocol_message(0, system, component, list(payload))
+        sock.sendto(msg.pack(packer), ("127.0.0.1", server.port))
+
+    client = FtpClient(send, (1, 100), own=(254, 190), **client_options)
+    outcome: list[tuple[bytes | None, str]] = []
+    client.fetch(path, lambda _p, data, error: outcome.append((data, error)))
+    end = time.monotonic() + 30
+    try:
+        while not outcome and time.monotonic() < end:
+            try:
+                data = sock.recv(4096)
+            except TimeoutError:
+                data = b""
+            for msg in parser.parse_buffer(data) or []:
+                client.handle(msg)
+            client.tick()
+    finally:
+        sock.close()
+    assert outcome, "the client never finished"
+    return outcome[0]
 
 
 def meet(peer: CompanionPeer) -> None:
@@ -60,3 +132,44 @@ def test_a_dive_id_that_is_not_a_safe_name_puts_nothing_outside_the_gallery(surf
     assert tool.gallery.dive is None and tool.gallery.dives() == []
     assert tool.gallery.get(7) is None  # ignored, with a log line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gallery"]
+
+
+def test_an_ftp_file_over_16_mib_is_refused_before_a_byte_is_read():
+    """The open's ACK says 64 MiB (a hostile server could say 4 GiB): before, the client allocated buffers of that
+    size and asked for the file; now it closes the session at once and says why."""
+
+    def answer(request: FtpPacket) -> list[FtpPacket]:
+        if request.opcode == Op.OPEN_FILE_RO:
+            return [ack(request, data=(64 << 20).to_bytes(4, "little"))]
+        if request.opcode == Op.TERMINATE_SESSION:
+            return [ack(request)]
+        return [nak(request, FtpErr.FAIL)]
+
+    server = HostileFtpServer(answer)
+    try:
+        data, error = fetch_from(server, "/summary/index.json")
+    finally:
+        server.close()
+    assert data is None and error == f"file of {64 << 20} bytes refused: over the 16 MiB cap"
+    assert [r.opcode for r in server.requests] == [Op.OPEN_FILE_RO, Op.TERMINATE_SESSION]  # nothing read
+    assert MAX_FILE_BYTES == 16 << 20
+
+
+def test_a_file_of_unknown_size_that_never_ends_is_cut_at_the_cap():
+    """An open ACK of size 0 means "read to the end": a server that never says EOF is cut at the cap."""
+
+    def answer(request: FtpPacket) -> list[FtpPacket]:
+        if request.opcode == Op.OPEN_FILE_RO:
+            return [ack(request, data=(0).to_bytes(4, "little"))]
+        if request.opcode == Op.READ_FILE:
+            return [ack(request, data=b"x" * MAX_DATA)]
+        return [ack(request)]
+
+    server = HostileFtpServer(answer)
+    try:
+        data, error = fetch_from(server, "/summary/index.json", max_file_bytes=20 * MAX_DATA)
+    finally:
+        server.close()
+    assert data is None and error == f"file refused: over the {20 * MAX_DATA}-byte cap at offset {20 * MAX_DATA}"
+    reads = [r for r in server.requests if r.opcode == Op.READ_FILE]
+    assert len(reads) == 21 and server.requests[-1].opcode == Op.TERMINATE_SESSION
