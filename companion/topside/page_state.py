@@ -43,7 +43,7 @@ class PageState:
                 "pushed_ok": s.pushed_ok, "pushed_lost": s.pushed_lost,
                 "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
                 "verified": s.verified, "mismatched": s.mismatched,
-                "unsigned_ignored": s.unsigned_ignored,
+                "unsigned_ignored": s.unsigned_ignored, "unpaired_dropped": s.unpaired_dropped,
                 "unsigned_sources": {f"{a}/{b}": n for (a, b), n in sorted(s.unsigned_sources.items())},
             }
             companion = {

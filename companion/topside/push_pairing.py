@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.topside.gallery import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
-from companion.topside.surface_state import SurfaceContext
+from companion.topside.surface_state import MAX_UNPAIRED, SurfaceContext
 from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
@@ -174,7 +174,7 @@ class PushPairing:
         elif isinstance(result, PushedImage):
             index = p.bound.pop(result.handshake_no, None)
             if index is None:
-                p.orphans[result.handshake_no] = result
+                self._unpaired(p.orphans, result)
             else:
                 self._store_push(index, result)
         elif isinstance(result, Abandoned):
@@ -184,9 +184,19 @@ class PushPairing:
             log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
                      result.received_packets, result.packets)
             if index is None:
-                p.lost_push[result.handshake_no] = result
+                self._unpaired(p.lost_push, result)
             else:
                 self.sync.fetch_thumbnail(index, partial=result)
+
+    def _unpaired(self, pending: dict, push: PushedImage | Abandoned) -> None:
+        dropped = self.ctx.pairing.keep_unpaired(pending, push.handshake_no, push)
+        if dropped:
+            with self.ctx.lock:
+                self.ctx.status.unpaired_dropped += dropped
+                first = self.ctx.status.unpaired_dropped == dropped
+            if first:
+                log.warning("more than %d pushes no capture claims: the oldest are dropped (a sender pushing "
+                            "images it never announced)", MAX_UNPAIRED)
 
     def _store_push(self, index: int, image: PushedImage) -> None:
         expected = self.ctx.pairing.expected.get(index)

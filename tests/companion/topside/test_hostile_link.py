@@ -173,3 +173,19 @@ def test_a_file_of_unknown_size_that_never_ends_is_cut_at_the_cap():
     assert data is None and error == f"file refused: over the {20 * MAX_DATA}-byte cap at offset {20 * MAX_DATA}"
     reads = [r for r in server.requests if r.opcode == Op.READ_FILE]
     assert len(reads) == 21 and server.requests[-1].opcode == Op.TERMINATE_SESSION
+
+
+def test_pushes_no_capture_claims_are_kept_16_at_most(surface):
+    """Before, every pushed image nobody announced stayed in memory for the whole run (40 here, 1,000 as easily)."""
+    tool, port = surface
+    peer = CompanionPeer(port)
+    try:
+        meet(peer)
+        for i in range(40):
+            peer.push(bytes([i]) * 600, 20, 20)  # three packets each, never announced
+        assert wait_until(lambda: tool.images.completed == 40, 10)
+        assert wait_until(lambda: tool.status.unpaired_dropped == 24, 5)
+    finally:
+        peer.close()
+    assert sorted(tool.ctx.pairing.orphans) == list(range(25, 41))  # the newest 16, by handshake number
+    assert tool.snapshot()["link"]["unpaired_dropped"] == 24
