@@ -40,6 +40,7 @@ class PageState:
                 "lost_packets": s.lost_packets,
                 "autopilot": list(s.autopilot) if s.autopilot else None,
                 "autopilot_heartbeat_age_s": _age(now, s.autopilot_heartbeat),
+                "foreign_autopilot_heartbeats": s.foreign_autopilot_heartbeats,
                 "pushed_ok": s.pushed_ok, "pushed_lost": s.pushed_lost,
                 "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
                 "verified": s.verified, "mismatched": s.mismatched,

@@ -64,6 +64,8 @@ class LinkStatus:
     companion_heartbeat: float | None = None
     autopilot: tuple[int, int] | None = None
     autopilot_heartbeat: float | None = None
+    foreign_autopilot_heartbeats: int = 0
+    """Autopilot heartbeats from another system or component than the first autopilot: ignored."""
     values: dict[str, float] = field(default_factory=dict)
     values_at: float | None = None
     statustext: deque = field(default_factory=lambda: deque(maxlen=20))

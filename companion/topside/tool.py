@@ -230,8 +230,13 @@ class SurfaceTool:
                 if source == status.companion:
                     status.companion_heartbeat = now
             elif is_autopilot_heartbeat(msg) and source[0] != 255:
-                status.autopilot = source
-                status.autopilot_heartbeat = now
+                # the first autopilot is the vehicle's (as the link's AutopilotWatch settles it): a stranger's
+                # heartbeat neither replaces it on the page nor keeps a lost one looking alive
+                status.autopilot = status.autopilot or source
+                if source == status.autopilot:
+                    status.autopilot_heartbeat = now
+                else:
+                    status.foreign_autopilot_heartbeats += 1
         if self.ctx.options.companion == source:
             self._adopt(source)
 

@@ -189,3 +189,40 @@ def test_pushes_no_capture_claims_are_kept_16_at_most(surface):
         peer.close()
     assert sorted(tool.ctx.pairing.orphans) == list(range(25, 41))  # the newest 16, by handshake number
     assert tool.snapshot()["link"]["unpaired_dropped"] == 24
+
+
+class Sender:
+    """A pymavlink packer with its own ids on its own UDP socket, sending to the tool."""
+
+    def __init__(self, port: int, system: int, component: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.mav = mav.MAVLink(None, srcSystem=system, srcComponent=component)
+        self.to = ("127.0.0.1", port)
+
+    def send(self, msg) -> None:
+        self.sock.sendto(msg.pack(self.mav), self.to)
+        self.mav.seq = (self.mav.seq + 1) % 256
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def autopilot_heartbeat() -> mav.MAVLink_heartbeat_message:
+    return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_SUBMARINE, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3)
+
+
+def test_a_stranger_claiming_to_be_an_autopilot_does_not_replace_the_first(surface):
+    tool, port = surface
+    vehicle, stranger = Sender(port, 1, 1), Sender(port, 42, 1)
+    try:
+        vehicle.send(autopilot_heartbeat())
+        assert wait_until(lambda: tool.snapshot()["link"]["autopilot"] == [1, 1], 10)
+        for _ in range(5):
+            stranger.send(autopilot_heartbeat())
+        assert wait_until(lambda: tool.status.foreign_autopilot_heartbeats == 5, 10)
+    finally:
+        vehicle.close()
+        stranger.close()
+    link = tool.snapshot()["link"]
+    assert link["autopilot"] == [1, 1] and link["foreign_autopilot_heartbeats"] == 5
