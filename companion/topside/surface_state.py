@@ -85,6 +85,10 @@ class LinkStatus:
     unsigned_ignored: int = 0
     """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
     unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)
+    inbox_dropped: int = 0
+    """Messages dropped because the receive loop was ``tool.INBOX_MAX`` behind."""
+    values_dropped: int = 0
+    """Values under a new name once ``tool.MAX_VALUES`` names are shown: ignored."""
     unpaired_dropped: int = 0
     """Pushes no capture claimed, dropped beyond ``MAX_UNPAIRED``."""
 

@@ -53,6 +53,17 @@ log = logging.getLogger("merlion.surface")
 
 MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
 MAV_TYPE_GCS = mav.MAV_TYPE_GCS
+INBOX_MAX = 4096
+"""Messages waiting for the receive loop. The link's thread only parses; when the loop is held up (a slow disk, a
+flood) a longer queue would only grow memory without bound: past this, messages are dropped and counted, as the
+socket would drop them (what matters is re-sent or re-read: captures, index.json, FTP)."""
+HANDLE_AT_ONCE = 256
+"""Messages handled before the loop's housekeeping runs again (FTP retries, expiries, the page's requests): a
+flood cannot starve them."""
+MAX_VALUES = 64
+"""Value names kept (the companion sends a handful); a sender making up new names is ignored past this."""
+EARLY_TEXT_SOURCES = 16
+"""Sources whose status lines are kept before the companion is known (the newest sources)."""
 
 
 def verified(msg) -> bool:
@@ -78,7 +89,7 @@ class SurfaceTool:
         self.pairing = PushPairing(self.ctx, self.sync)
         self.page = PageState(self.ctx)
         self.actions = SurfaceActions(self.ctx)
-        self._inbox: queue.Queue = queue.Queue()
+        self._inbox: queue.Queue = queue.Queue(maxsize=INBOX_MAX)
         self._opened = False
         self._early_text: dict[tuple[int, int], deque] = {}
         self._last_seq: dict[tuple[int, int], int] = {}
@@ -102,7 +113,7 @@ class SurfaceTool:
         if self._opened:
             return
         self._opened = True
-        self._link.subscribe(self._inbox.put)
+        self._link.subscribe(self._receive)
         self._link.start()
         self._link.wait_open(timeout)
 
@@ -120,16 +131,30 @@ class SurfaceTool:
                     msg = self._inbox.get(timeout=0.05)
                 except queue.Empty:
                     msg = None
+                handled = 0
                 while msg is not None:
                     self.handle(msg)
+                    handled += 1
                     try:
-                        msg = self._inbox.get_nowait()
+                        msg = self._inbox.get_nowait() if handled < HANDLE_AT_ONCE else None
                     except queue.Empty:
                         msg = None
                 self.housekeeping()
         finally:
             self.close()
             self.write_offline_page()
+
+    def _receive(self, msg) -> None:
+        """On the link's receive thread: queue for the loop, or drop when the queue is full."""
+        try:
+            self._inbox.put_nowait(msg)
+        except queue.Full:
+            with self.ctx.lock:
+                self.ctx.status.inbox_dropped += 1
+                first = self.ctx.status.inbox_dropped == 1
+            if first:
+                log.warning("the receive loop is %d messages behind: dropping what arrives until it catches up",
+                            INBOX_MAX)
 
     def housekeeping(self) -> None:
         now = self.ctx.clock()
@@ -176,7 +201,11 @@ class SurfaceTool:
             self._adopt(source)
         if status.companion is None and kind == "STATUSTEXT":
             # the companion's first lines ("started") may come before its heartbeat: keep a few for later
-            self._early_text.setdefault(source, deque(maxlen=5)).append((msg, now))
+            early = self._early_text.pop(source, None) or deque(maxlen=5)
+            early.append((msg, now))
+            self._early_text[source] = early  # newest source last: the oldest goes past EARLY_TEXT_SOURCES
+            while len(self._early_text) > EARLY_TEXT_SOURCES:
+                del self._early_text[next(iter(self._early_text))]
         if status.companion is None or source != status.companion:
             return
         if kind == "CAMERA_IMAGE_CAPTURED":
@@ -217,6 +246,9 @@ class SurfaceTool:
         measured = self._boot_clock.local(int(msg.time_boot_ms), now)  # not its arrival: see boot_clock
         with self.ctx.lock:
             status = self.ctx.status
+            if name not in status.values and len(status.values) >= MAX_VALUES:
+                status.values_dropped += 1
+                return
             status.values[name] = float(msg.value)
             status.values_at = now
             if name == DEPTH_VALUE and math.isfinite(float(msg.value)):

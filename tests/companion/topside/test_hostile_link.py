@@ -226,3 +226,58 @@ def test_a_stranger_claiming_to_be_an_autopilot_does_not_replace_the_first(surfa
         stranger.close()
     link = tool.snapshot()["link"]
     assert link["autopilot"] == [1, 1] and link["foreign_autopilot_heartbeats"] == 5
+
+
+def test_values_under_made_up_names_are_shown_64_at_most(surface):
+    tool, port = surface
+    peer = CompanionPeer(port)
+    try:
+        meet(peer)
+        peer.add(summary_frame(1))  # the companion is known: its values are shown
+        peer.values(MRL_DEPTH=12.5)
+        for i in range(100):
+            peer.send(mav.MAVLink_named_value_float_message(0, f"X{i}".encode(), float(i)))
+        peer.values(MRL_DEPTH=13.0)  # a name already shown is still updated
+        assert wait_until(lambda: tool.snapshot()["companion"]["values"].get("MRL_DEPTH") == 13.0, 10)
+    finally:
+        peer.close()
+    values = tool.snapshot()["companion"]["values"]
+    assert len(values) == 64 and "X62" in values and "X63" not in values
+    assert tool.snapshot()["link"]["values_dropped"] == 37
+
+
+def test_a_flood_while_the_loop_is_held_up_is_dropped_at_the_inbox_not_queued(surface):
+    """The loop held up (here by a request that waits, as a slow disk would): 10,000 messages arrive, 4,096 wait,
+    the rest are counted; once free, the loop answers again."""
+    from companion.topside.tool import INBOX_MAX
+
+    tool, port = surface
+    held, release = threading.Event(), threading.Event()
+    tool.ctx.requests.put(lambda: held.set() or release.wait(30))
+    assert held.wait(10)
+    flood = Sender(port, 42, 1)
+    try:
+        beat = autopilot_heartbeat()
+        for _ in range(250):
+            flood.sock.sendto(b"".join(beat.pack(flood.mav) for _ in range(40)), flood.to)  # 40 to a datagram
+            time.sleep(0.001)
+        assert wait_until(lambda: tool.status.inbox_dropped + tool._inbox.qsize() == 10_000, 20)
+        assert tool._inbox.qsize() == INBOX_MAX and tool.status.inbox_dropped == 10_000 - INBOX_MAX
+    finally:
+        release.set()
+        flood.close()
+    assert wait_until(lambda: tool._inbox.qsize() == 0, 20)
+    assert tool.full_frame(1, timeout=10) is None  # the loop answers the page again (no companion: nothing to fetch)
+
+
+def test_status_lines_before_the_companion_are_kept_for_16_sources_at_most(surface):
+    tool, port = surface
+    senders = [Sender(port, 100 + i, 100) for i in range(40)]
+    try:
+        for s in senders:
+            s.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"started"))
+        assert wait_until(lambda: tool.status.messages == 40, 10)
+    finally:
+        for s in senders:
+            s.close()
+    assert sorted(tool._early_text) == [(100 + i, 100) for i in range(24, 40)]
