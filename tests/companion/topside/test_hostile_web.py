@@ -62,3 +62,11 @@ def test_one_address_holds_16_of_the_32_slots_and_the_page_still_answers_others(
     assert wait_until(lambda: web.serving() == 0, 10)
     assert _get(web.port, "/api/state")[0] == 200  # the address's slots came back
 
+
+def test_deeply_nested_json_is_a_400_not_a_recursion(web):
+    status, answer = _post(web, b"[" * 30_000 + b"]" * 30_000)  # within the 64 kB a body may have
+    assert (status, answer) == (400, {"error": "JSON nested deeper than 32 levels"})
+    status, answer = _post(web, b'{"a": ' * 40 + b"1" + b"}" * 40)
+    assert status == 400
+    status, answer = _post(web, json.dumps({"index": 3, "kind": "like", "note": "[[[[" * 100}).encode())
+    assert status == 200 and answer["got"]["index"] == 3  # brackets inside a string are text
