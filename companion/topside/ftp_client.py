@@ -103,7 +103,8 @@ class FtpClient:
     def __init__(self, send: SendFn, target: tuple[int, int], *, own: tuple[int, int] | None = None,
                  clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 0.5,
                  max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True,
-                 max_file_bytes: int = MAX_FILE_BYTES) -> None:
+                 max_file_bytes: int = MAX_FILE_BYTES, session: int | None = None) -> None:
+        """``session``: the session number this client opens its files with (default: a random one)."""
         self._send = send
         self.max_file_bytes = max_file_bytes
         self.target = target
@@ -117,6 +118,11 @@ class FtpClient:
         """Starts anywhere: a server answers a request it has seen from our ids lately (same sequence number, same
         bytes) from its retransmission cache, so a client restarted within that window must not repeat its old
         sequence (a second ``surface-queries`` got the first one's closed session back)."""
+        self.session = secrets.randbelow(0x100) if session is None else session & 0xFF
+        """The session number asked for at each open (servers grant it, or say which they gave). Every client used
+        0: a server keeps sessions per sender ids and an open on a number the same ids hold replaces that session,
+        so two tools with the same ids (two ``merlion surface``, or one and ``surface-mark``) cut each other's
+        downloads short, and a spoofer needed no guess to replace our session or inject burst data into it."""
         self._request: tuple[int, bytes, int] | None = None  # (opcode, payload, offset) awaiting its reply
         self._sent_at = 0.0
         self._tries = 0
@@ -260,7 +266,7 @@ class FtpClient:
         opcode = Op.CALC_FILE_CRC32 if self._job.crc_only else Op.OPEN_FILE_RO
         if self._job.upload is not None:
             opcode = Op.CREATE_FILE
-        self._request_op(opcode, data=path + b"\0", size=len(path))
+        self._request_op(opcode, session=self.session, data=path + b"\0", size=len(path))
 
     def _on_reply(self, opcode: int, offset: int, reply: FtpPacket) -> None:
         job = self._job

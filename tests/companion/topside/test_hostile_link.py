@@ -19,6 +19,7 @@ from tests.companion.surface_peer import CompanionPeer, summary_frame
 from tests.conftest import free_udp_port
 from tests.waiting import wait_until
 from vehicle.camera.captures import captured_message
+from vehicle.camera.ftp_server import FtpServer, VirtualTree
 from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, nak
 
 
@@ -38,11 +39,24 @@ def surface(tmp_path):
     assert not thread.is_alive()
 
 
-class HostileFtpServer:
-    """A far side that answers MAVLink FTP requests on a real UDP socket as ``answer`` says (as system 1/100)."""
+class Scripted:
+    """A hostile FTP server: answers each request as ``answer`` says (the real one is ``FtpServer``)."""
 
     def __init__(self, answer: Callable[[FtpPacket], list[FtpPacket]]) -> None:
         self.answer = answer
+
+    def handle(self, payload: bytes, _requester) -> list[bytes]:
+        return [reply.pack() for reply in self.answer(FtpPacket.unpack(payload))]
+
+    def next_burst(self) -> None:
+        return None
+
+
+class FtpFarSide:
+    """A MAVLink FTP server on a real UDP socket (as system 1/100), answering whoever asks at their address."""
+
+    def __init__(self, server: FtpServer | Scripted) -> None:
+        self.server = server
         self.requests: list[FtpPacket] = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
@@ -61,11 +75,13 @@ class HostileFtpServer:
             except TimeoutError:
                 continue
             for msg in parser.parse_buffer(data) or []:
-                request = FtpPacket.unpack(msg.payload)
-                self.requests.append(request)
-                for reply in self.answer(request):
-                    out = mav.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(), msg.get_srcComponent(),
-                                                                     list(reply.pack()))
+                self.requests.append(FtpPacket.unpack(msg.payload))
+                requester = (msg.get_srcSystem(), msg.get_srcComponent())
+                replies = [(requester, r) for r in self.server.handle(bytes(msg.payload), requester)]
+                while (burst := self.server.next_burst()) is not None:
+                    replies.append(burst)
+                for (system, component), reply in replies:
+                    out = mav.MAVLink_file_transfer_protocol_message(0, system, component, list(reply))
                     self.sock.sendto(out.pack(self._mav), who)
 
     def close(self) -> None:
@@ -74,34 +90,62 @@ class HostileFtpServer:
         self.sock.close()
 
 
-def fetch_from(server: HostileFtpServer, path: str, **client_options) -> tuple[bytes | None, str]:
-    """Our FTP client reading ``path`` from ``server`` over a real UDP socket; (data or None, error)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.settimeout(0.02)
-    packer, parser = mav.MAVLink(None, srcSystem=254, srcComponent=190), mav.MAVLink(None)
+class ClientSide:
+    """Our FTP client on its own real UDP socket, talking to the server at ``port``; the test pumps it, and may
+    hold back what it sends (``hold``) to interleave two clients exactly."""
 
-    def send(system: int, component: int, payload: bytes) -> None:
-        msg = mav.MAVLink_file_transfer_protocol_message(0, system, component, list(payload))
-        sock.sendto(msg.pack(packer), ("127.0.0.1", server.port))
+    def __init__(self, port: int, **client_options) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.02)
+        self.port = port
+        self._packer, self._parser = mav.MAVLink(None, srcSystem=254, srcComponent=190), mav.MAVLink(None)
+        self.hold = False
+        self.held: list[bytes] = []
+        self.client = FtpClient(self._send, (1, 100), own=(254, 190), **client_options)
+        self.outcomes: list[tuple[bytes | None, str]] = []
 
-    client = FtpClient(send, (1, 100), own=(254, 190), **client_options)
-    outcome: list[tuple[bytes | None, str]] = []
-    client.fetch(path, lambda _p, data, error: outcome.append((data, error)))
-    end = time.monotonic() + 30
-    try:
-        while not outcome and time.monotonic() < end:
+    def _send(self, system: int, component: int, payload: bytes) -> None:
+        packet = mav.MAVLink_file_transfer_protocol_message(0, system, component, list(payload)).pack(self._packer)
+        if self.hold:
+            self.held.append(packet)
+        else:
+            self.sock.sendto(packet, ("127.0.0.1", self.port))
+
+    def fetch(self, path: str) -> None:
+        self.client.fetch(path, lambda _p, data, error: self.outcomes.append((data, error)))
+
+    def release(self) -> None:
+        self.hold = False
+        for packet in self.held:
+            self.sock.sendto(packet, ("127.0.0.1", self.port))
+        self.held.clear()
+
+    def pump(self, until: Callable[[], bool], timeout: float = 30.0) -> None:
+        end = time.monotonic() + timeout
+        while not until() and time.monotonic() < end:
             try:
-                data = sock.recv(4096)
+                data = self.sock.recv(4096)
             except TimeoutError:
                 data = b""
-            for msg in parser.parse_buffer(data) or []:
-                client.handle(msg)
-            client.tick()
+            for msg in self._parser.parse_buffer(data) or []:
+                self.client.handle(msg)
+            self.client.tick()
+        assert until(), "the client never got there"
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def fetch_from(server: FtpFarSide, path: str, **client_options) -> tuple[bytes | None, str]:
+    """Our FTP client reading ``path`` from ``server``; (data or None, error)."""
+    side = ClientSide(server.port, **client_options)
+    try:
+        side.fetch(path)
+        side.pump(lambda: bool(side.outcomes))
     finally:
-        sock.close()
-    assert outcome, "the client never finished"
-    return outcome[0]
+        side.close()
+    return side.outcomes[0]
 
 
 def meet(peer: CompanionPeer) -> None:
@@ -145,7 +189,7 @@ def test_an_ftp_file_over_16_mib_is_refused_before_a_byte_is_read():
             return [ack(request)]
         return [nak(request, FtpErr.FAIL)]
 
-    server = HostileFtpServer(answer)
+    server = FtpFarSide(Scripted(answer))
     try:
         data, error = fetch_from(server, "/summary/index.json")
     finally:
@@ -165,7 +209,7 @@ def test_a_file_of_unknown_size_that_never_ends_is_cut_at_the_cap():
             return [ack(request, data=b"x" * MAX_DATA)]
         return [ack(request)]
 
-    server = HostileFtpServer(answer)
+    server = FtpFarSide(Scripted(answer))
     try:
         data, error = fetch_from(server, "/summary/index.json", max_file_bytes=20 * MAX_DATA)
     finally:
@@ -281,3 +325,36 @@ def test_status_lines_before_the_companion_are_kept_for_16_sources_at_most(surfa
         for s in senders:
             s.close()
     assert sorted(tool._early_text) == [(100 + i, 100) for i in range(24, 40)]
+
+
+def _two_tools_with_the_same_ids(sessions: tuple[int | None, int | None]) -> tuple[bytes | None, str]:
+    """Tool A opens /a; tool B (same ids 254/190, its own socket) then reads /b whole; then A reads. A's outcome."""
+    tree = VirtualTree()
+    tree.put("/a", b"A" * 3000)
+    tree.put("/b", b"B" * 2000)
+    server = FtpFarSide(FtpServer(tree))  # the companion's own FTP server
+    port = server.port
+    a, b = ClientSide(port, session=sessions[0]), ClientSide(port, session=sessions[1])
+    try:
+        a.fetch("/a")
+        a.hold = True  # what A sends after its open waits
+        a.pump(lambda: bool(a.held))  # A's open is granted; its first read is held back
+        b.fetch("/b")
+        b.pump(lambda: bool(b.outcomes))
+        assert b.outcomes == [(b"B" * 2000, "")]
+        a.release()
+        a.pump(lambda: bool(a.outcomes))
+    finally:
+        a.close()
+        b.close()
+        server.close()
+    return a.outcomes[0]
+
+
+def test_each_tool_opens_ftp_sessions_under_its_own_random_number():
+    """Every client asked for session 0, and a server keeps sessions per sender ids: a second tool with the same
+    ids (another ``merlion surface``, ``surface-mark``) replaced and closed the first one's open file."""
+    assert _two_tools_with_the_same_ids((0, 0))[0] is None  # what any two tools did: A's download failed
+    assert _two_tools_with_the_same_ids((17, 201)) == (b"A" * 3000, "")
+    sessions = {FtpClient(lambda *_: None, (1, 100)).session for _ in range(20)}
+    assert len(sessions) > 1 and all(0 <= n < 256 for n in sessions)  # all 20 alike: one chance in 256**19
