@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import re
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -112,8 +114,14 @@ class Capture:
 class Gallery:
     """Thread-safe: the receive loop writes, the web server reads snapshots."""
 
-    def __init__(self, root: str | os.PathLike[str]) -> None:
+    def __init__(self, root: str | os.PathLike[str], *, clock: Callable[[], float] = time.monotonic) -> None:
         self.root = Path(root)
+        self._clock = clock
+        self.write_every_s = 0.0
+        """gallery.json is rewritten at most this often (0: on every change); see ``defer_writes``."""
+        self._json_due = False
+        self._json_at = -math.inf
+        self.json_writes = 0
         try:
             (self.root / "summary").mkdir(parents=True, exist_ok=True)
             (self.root / "removed").mkdir(parents=True, exist_ok=True)
@@ -196,6 +204,25 @@ class Gallery:
         return self.root / "full" / (safe_dive(dive) if dive else "unknown") / f"{int(image_index)}.jpg"
 
     # --- writing -------------------------------------------------------------------------------------------
+
+    def defer_writes(self, every_s: float) -> None:
+        """Rewrite gallery.json at most every ``every_s`` seconds (log.csv still gets its row at once). Each rewrite
+        is the whole file, fsynced twice: a companion announcing captures as fast as it can had the tool write it
+        once per message, the work growing with every capture. Whoever sets this calls ``flush_due`` often and
+        ``flush`` at the end, so the last state is always written."""
+        self.write_every_s = every_s
+
+    def flush_due(self) -> None:
+        """Write gallery.json if a change waits and the interval has passed."""
+        with self._lock:
+            if self._json_due and self._clock() - self._json_at >= self.write_every_s:
+                self._write_json()
+
+    def flush(self) -> None:
+        """Write gallery.json now if a change waits."""
+        with self._lock:
+            if self._json_due:
+                self._write_json()
 
     def add_full(self, image_index: int, data: bytes, dive: str | None) -> Path:
         path = self.full_path(image_index, dive)
@@ -358,7 +385,15 @@ class Gallery:
             cap.thumbnail = rel
 
     def _persist(self, event: str, cap: Capture) -> None:
-        """Caller holds the lock. JSON first (the state), then the CSV row (the history)."""
+        """Caller holds the lock. JSON first (the state, unless written less than ``write_every_s`` ago: then it
+        waits for ``flush_due``), then the CSV row (the history)."""
+        self._json_due = True
+        if self._clock() - self._json_at >= self.write_every_s:
+            self._write_json()
+        self._log_row(event, cap)
+
+    def _write_json(self) -> None:
+        """Caller holds the lock."""
         doc = {
             "updated": time.time(),
             "dive": self.dive,
@@ -369,6 +404,11 @@ class Gallery:
             "topics": [t.to_dict() for t in self._topics],
         }
         atomic_write(self._json, json.dumps(doc, indent=1))
+        self._json_due, self._json_at = False, self._clock()
+        self.json_writes += 1
+
+    def _log_row(self, event: str, cap: Capture) -> None:
+        """Caller holds the lock."""
         new = not self._csv.exists()
         if new:
             self._columns = list(LOG_COLUMNS)

@@ -50,6 +50,8 @@ class SurfaceOptions:
     """Pull index.json at most this often, and only after the summary changed."""
     ftp: bool = True
     statustext_keep: int = 20
+    gallery_write_every_s: float = 0.25
+    """gallery.json is rewritten at most this often (the last state always; log.csv gets every event at once)."""
     signing_key_file: str | None = None
 
 

@@ -83,6 +83,7 @@ class SurfaceTool:
                           component_id=options.component_id, signing_key_file=options.signing_key_file),
             name="surface", mav_type=MAV_TYPE_GCS,
         )
+        gallery.defer_writes(options.gallery_write_every_s)  # flushed by housekeeping, and when the run ends
         self.ctx = SurfaceContext(options=options, gallery=gallery, clock=clock, send=self._link.send)
         self.ctx.status.statustext = deque(maxlen=options.statustext_keep)
         self.sync = GallerySync(self.ctx)
@@ -142,6 +143,7 @@ class SurfaceTool:
                 self.housekeeping()
         finally:
             self.close()
+            self.gallery.flush()
             self.write_offline_page()
 
     def _receive(self, msg) -> None:
@@ -166,6 +168,7 @@ class SurfaceTool:
         if now - self._offline_at >= OFFLINE_EVERY_S:
             self._offline_at = now
             self.write_offline_page()
+        self.gallery.flush_due()
         if self.ctx.ftp is not None:
             self.ctx.ftp.tick()
         self.pairing.expire(now)

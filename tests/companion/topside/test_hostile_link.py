@@ -358,3 +358,21 @@ def test_each_tool_opens_ftp_sessions_under_its_own_random_number():
     assert _two_tools_with_the_same_ids((17, 201)) == (b"A" * 3000, "")
     sessions = {FtpClient(lambda *_: None, (1, 100)).session for _ in range(20)}
     assert len(sessions) > 1 and all(0 <= n < 256 for n in sessions)  # all 20 alike: one chance in 256**19
+
+
+def test_a_flood_of_captures_rewrites_gallery_json_4_times_a_second_at_most(surface, tmp_path):
+    """Each gallery.json rewrite is the whole file, fsynced: before, 600 captures sent as fast as they go cost
+    600 rewrites (each longer than the last); now at most one per 0.25 s, and the run ends with the last state."""
+    tool, port = surface
+    peer = CompanionPeer(port)
+    try:
+        meet(peer)
+        started = time.monotonic()
+        for i in range(600):
+            peer.send(captured_message(summary_frame(i), 0))
+        assert wait_until(lambda: tool.gallery.get(599) is not None, 30)
+        elapsed = time.monotonic() - started
+    finally:
+        peer.close()
+    assert tool.gallery.json_writes <= 2 + elapsed / 0.25
+    assert wait_until(lambda: len(Gallery(tmp_path / "gallery").captures()) == 600, 5)  # flushed by the loop
