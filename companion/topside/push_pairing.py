@@ -69,14 +69,20 @@ class PushPairing:
         self.ctx.pairing.marker = index
 
     def on_handshake(self, msg) -> None:
-        p = self.ctx.pairing
         self.on_push_result(self.images.handle(msg))
         if msg.size <= 0 or msg.packets <= 0:
             return
-        progress = self.images.in_progress((msg.get_srcSystem(), msg.get_srcComponent()))
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        progress = self.images.in_progress(source)
         if progress is None:
             return
-        handshake_no = progress[0]
+        self._pair_handshake(progress[0], msg.size)
+        # a push over the cap is never assembled: its frame (now paired, or when its capture comes) is fetched by FTP
+        self.on_push_result(self.images.take_oversized(source))
+
+    def _pair_handshake(self, handshake_no: int, size: int) -> None:
+        """The capture this push is for: the one MRL_PUSH named, else the oldest waiting (of matching size)."""
+        p = self.ctx.pairing
         marker, p.marker = p.marker, None
         if marker is not None:
             self._bind_marked(handshake_no, marker)
@@ -87,7 +93,7 @@ class PushPairing:
             if cap is not None and cap.in_summary and cap.thumbnail is None:
                 live.append((index, since))
         # the oldest waiting capture whose thumbnail size (from index.json) matches, else the oldest of unknown size
-        pick = next((i for i, _ in live if p.expected.get(i) == msg.size), None)
+        pick = next((i for i, _ in live if p.expected.get(i) == size), None)
         if pick is None:
             pick = next((i for i, _ in live if i not in p.expected), None)
         p.waiting.clear()
@@ -181,8 +187,12 @@ class PushPairing:
             with ctx.lock:
                 ctx.status.pushed_lost += 1
             index = p.bound.pop(result.handshake_no, None)
-            log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
-                     result.received_packets, result.packets)
+            if result.oversized:
+                log.info("push %d of %d bytes is over the %d-byte push cap: FTP fallback", result.handshake_no,
+                         result.size, self.images.max_image_bytes)
+            else:
+                log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
+                         result.received_packets, result.packets)
             if index is None:
                 self._unpaired(p.lost_push, result)
             else:

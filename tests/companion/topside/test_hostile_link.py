@@ -7,7 +7,10 @@ import json
 import socket
 import threading
 import time
-from collections.abc import Callable
+import tracemalloc
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -20,23 +23,33 @@ from tests.conftest import free_udp_port
 from tests.waiting import wait_until
 from vehicle.camera.captures import captured_message
 from vehicle.camera.ftp_server import FtpServer, VirtualTree
+from vehicle.camera.status import push_marker
 from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op, ack, nak
+from vehicle.protocol.image_push import CHUNK, MAX_PUSH_BYTES, ImageReceiver
 
 
-@pytest.fixture
-def surface(tmp_path):
+@contextmanager
+def running_tool(folder: Path, **options) -> Iterator[tuple[SurfaceTool, int]]:
     """A surface tool listening on a free UDP port, its receive loop on a thread; yields (tool, port)."""
     port = free_udp_port()
-    tool = SurfaceTool(SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", index_refresh_s=0.5),
-                       Gallery(tmp_path / "gallery"))
+    tool = SurfaceTool(SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", index_refresh_s=0.5, **options),
+                       Gallery(folder))
     tool.open()
     stop = threading.Event()
     thread = threading.Thread(target=tool.run, args=(stop,), daemon=True)
     thread.start()
-    yield tool, port
-    stop.set()
-    thread.join(10)
+    try:
+        yield tool, port
+    finally:
+        stop.set()
+        thread.join(10)
     assert not thread.is_alive()
+
+
+@pytest.fixture
+def surface(tmp_path):
+    with running_tool(tmp_path / "gallery") as running:
+        yield running
 
 
 class Scripted:
@@ -376,3 +389,50 @@ def test_a_flood_of_captures_rewrites_gallery_json_4_times_a_second_at_most(surf
         peer.close()
     assert tool.gallery.json_writes <= 2 + elapsed / 0.25
     assert wait_until(lambda: len(Gallery(tmp_path / "gallery").captures()) == 600, 5)  # flushed by the loop
+
+
+def _big_push(size: int, packets: int = 3) -> list:
+    """The handshake of a ``size``-byte JPEG push and its first ``packets`` packets."""
+    count = (size + CHUNK - 1) // CHUNK
+    return [mav.MAVLink_data_transmission_handshake_message(0, size, 4000, 3000, count, CHUNK, 80),
+            *(mav.MAVLink_encapsulated_data_message(n, [n & 0xFF] * CHUNK) for n in range(packets))]
+
+
+def test_a_push_over_2_mib_is_never_assembled_and_its_frame_comes_by_ftp(tmp_path):
+    """A handshake announcing 3 MiB: before, a buffer of that size waited for packets until the push stalled (60 s
+    here); now nothing is allocated and the frame the marker names is fetched by FTP at once."""
+    with running_tool(tmp_path / "gallery", push_stall_s=60.0) as (tool, port):
+        peer = CompanionPeer(port)
+        try:
+            meet(peer)
+            thumbnail = peer.add(summary_frame(1), push=False)  # announced; its thumbnail is served by FTP
+            peer.send(push_marker(1, 0))
+            for msg in _big_push(3 << 20):
+                peer.send(msg)
+            assert wait_until(lambda: tool.gallery.get(1).thumbnail is not None, 10)
+        finally:
+            peer.close()
+    one = tool.gallery.get(1)
+    assert one.thumbnail_via == "ftp" and (tmp_path / "gallery" / one.thumbnail).read_bytes() == thumbnail
+    assert (tool.images.oversized, tool.images.completed, tool.status.pushed_lost) == (1, 0, 1)
+
+
+def test_the_image_receiver_allocates_nothing_for_a_push_over_the_cap():
+    packer, parser = mav.MAVLink(None, srcSystem=1, srcComponent=100), mav.MAVLink(None)
+
+    def peak(size: int) -> tuple[int, object]:
+        receiver = ImageReceiver()
+        messages = [parser.decode(bytearray(m.pack(packer))) for m in _big_push(size)]
+        tracemalloc.start()
+        try:
+            for m in messages:
+                assert receiver.handle(m) is None
+            return tracemalloc.get_traced_memory()[1], receiver.take_oversized((1, 100))
+        finally:
+            tracemalloc.stop()
+
+    allowed, gone = peak(MAX_PUSH_BYTES)
+    assert allowed >= MAX_PUSH_BYTES and gone is None  # what a push at the cap costs, and it is assembled
+    refused, gone = peak(MAX_PUSH_BYTES + 1)
+    assert refused < 64 * 1024
+    assert gone.oversized and (gone.handshake_no, gone.received_packets, gone.chunks) == (1, 0, {})
