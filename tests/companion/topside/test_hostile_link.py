@@ -436,3 +436,24 @@ def test_the_image_receiver_allocates_nothing_for_a_push_over_the_cap():
     refused, gone = peak(MAX_PUSH_BYTES + 1)
     assert refused < 64 * 1024
     assert gone.oversized and (gone.handshake_no, gone.received_packets, gone.chunks) == (1, 0, {})
+
+
+@pytest.mark.parametrize("index", [b'{"frames": [{"image_index": 1e400}]}', b'{"frames": [{"image_index": [1]}]}',
+                                   b'{"frames": [{"index": 2, "q": [[1], 0, 0, 0]}]}', b'{"frames": {"4": 5}}'])
+def test_an_index_with_values_of_the_wrong_kind_is_one_log_line(surface, caplog, index):
+    tool, port = surface
+    peer = CompanionPeer(port)
+    peer.tree.put("/summary/index.json", index)
+    try:
+        meet(peer)
+        peer.add(summary_frame(1), push=False)
+
+        def ignored() -> list:
+            return [r for r in caplog.records if "/summary/index.json ignored" in r.getMessage()]
+
+        assert wait_until(lambda: ignored() or [r for r in caplog.records if r.exc_info], 10)
+    finally:
+        peer.close()
+    assert len(ignored()) == 1 and ignored()[0].levelname == "WARNING"
+    assert not [r for r in caplog.records if r.exc_info]  # no traceback
+    assert tool.status.index_pulls == 0 and [c.image_index for c in tool.gallery.summary()] == [1]
