@@ -28,6 +28,10 @@ DoneFn = Callable[[str, "bytes | None", str], None]
 """done(path, data or None, error text) is called once per fetch."""
 crc32_mavftp = crc32_ardupilot
 """The CRC-32 a server answers CalcFileCRC32 with, so a file we hold is checked with one small request."""
+MAX_FILE_BYTES = 16 * 1024 * 1024
+"""The largest file read: a thumbnail, index.json or a full frame is kilobytes to a few MB. The size comes from
+the server's open ACK (a u32): a hostile one announcing 4 GiB made the client allocate two buffers of that size
+before it read a byte."""
 
 
 @dataclass
@@ -98,8 +102,11 @@ class FtpClient:
 
     def __init__(self, send: SendFn, target: tuple[int, int], *, own: tuple[int, int] | None = None,
                  clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 0.5,
-                 max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True) -> None:
+                 max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True,
+                 max_file_bytes: int = MAX_FILE_BYTES, session: int | None = None) -> None:
+        """``session``: the session number this client opens its files with (default: a random one)."""
         self._send = send
+        self.max_file_bytes = max_file_bytes
         self.target = target
         self._own = own
         self._clock = clock
@@ -111,6 +118,11 @@ class FtpClient:
         """Starts anywhere: a server answers a request it has seen from our ids lately (same sequence number, same
         bytes) from its retransmission cache, so a client restarted within that window must not repeat its old
         sequence (a second ``surface-queries`` got the first one's closed session back)."""
+        self.session = secrets.randbelow(0x100) if session is None else session & 0xFF
+        """The session number asked for at each open (servers grant it, or say which they gave). Every client used
+        0: a server keeps sessions per sender ids and an open on a number the same ids hold replaces that session,
+        so two tools with the same ids (two ``merlion surface``, or one and ``surface-mark``) cut each other's
+        downloads short, and a spoofer needed no guess to replace our session or inject burst data into it."""
         self._request: tuple[int, bytes, int] | None = None  # (opcode, payload, offset) awaiting its reply
         self._sent_at = 0.0
         self._tries = 0
@@ -254,7 +266,7 @@ class FtpClient:
         opcode = Op.CALC_FILE_CRC32 if self._job.crc_only else Op.OPEN_FILE_RO
         if self._job.upload is not None:
             opcode = Op.CREATE_FILE
-        self._request_op(opcode, data=path + b"\0", size=len(path))
+        self._request_op(opcode, session=self.session, data=path + b"\0", size=len(path))
 
     def _on_reply(self, opcode: int, offset: int, reply: FtpPacket) -> None:
         job = self._job
@@ -282,7 +294,11 @@ class FtpClient:
                 self._finish(None, f"open failed: {reply.error_text()}", terminate=False)
                 return
             job.session = reply.session
-            job.start(struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None)  # 0: read to EOF
+            size = struct.unpack_from("<I", reply.data.ljust(4, b"\0"))[0] or None  # 0: read to EOF
+            if size is not None and size > self.max_file_bytes:
+                self._finish(None, f"file of {size} bytes refused: over the {self._cap_text()} cap")
+                return
+            job.start(size)
             self._continue()
         elif opcode == Op.READ_FILE:
             if reply.opcode == Op.NAK:
@@ -297,11 +313,18 @@ class FtpClient:
                     self._finish(None, f"read failed at {offset}: {reply.error_text()}")
                 return
             self._store(offset, reply.data)
+            if len(job.buf) > self.max_file_bytes:  # a file of unknown size that never ends
+                self._finish(None, f"file refused: over the {self._cap_text()} cap at offset {offset}")
+                return
             self._continue()
         elif opcode == Op.TERMINATE_SESSION:
             if job.upload is not None and reply.opcode == Op.NAK and not job.error:
                 job.error = f"refused: {reply.error_text()}"
             self._complete()
+
+    def _cap_text(self) -> str:
+        cap = self.max_file_bytes
+        return f"{cap // (1 << 20)} MiB" if cap % (1 << 20) == 0 else f"{cap}-byte"
 
     def _write_next(self) -> None:
         """The next piece of an upload, or the closing request (the server takes the file then) after the last."""

@@ -21,14 +21,29 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
+import re
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
+
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+
+
+def safe_dive(dive: str) -> str:
+    """``dive`` when it may name a folder in DIR, else ValueError. A dive id comes from the wire (a capture's
+    ``file_url``, index.json) and becomes ``dives/<dive>/`` and ``full/<dive>/``: ``..`` or ``/tmp/x`` there would
+    move thumbnails, or write a full frame the page asked for, outside DIR. The companion makes 8 hex digits."""
+    if not isinstance(dive, str) or not _SAFE_NAME.fullmatch(dive):
+        raise ValueError(f"dive id {str(dive)[:80]!r} is not a safe name (letters, digits, _ and -, at most 64)")
+    return dive
+
 
 LOG_COLUMNS = [
     "event", "wall_time", "dive", "image_index", "in_summary", "time_utc", "depth_m", "heading_deg", "score",
@@ -99,8 +114,14 @@ class Capture:
 class Gallery:
     """Thread-safe: the receive loop writes, the web server reads snapshots."""
 
-    def __init__(self, root: str | os.PathLike[str]) -> None:
+    def __init__(self, root: str | os.PathLike[str], *, clock: Callable[[], float] = time.monotonic) -> None:
         self.root = Path(root)
+        self._clock = clock
+        self.write_every_s = 0.0
+        """gallery.json is rewritten at most this often (0: on every change); see ``defer_writes``."""
+        self._json_due = False
+        self._json_at = -math.inf
+        self.json_writes = 0
         try:
             (self.root / "summary").mkdir(parents=True, exist_ok=True)
             (self.root / "removed").mkdir(parents=True, exist_ok=True)
@@ -127,7 +148,7 @@ class Gallery:
                 cap = Capture.from_dict(item)
                 self._captures[cap.image_index] = cap
             self._archived = [Capture.from_dict(item) for item in data.get("archived", [])]
-            self.dive = data.get("dive")
+            self.dive = safe_dive(data["dive"]) if data.get("dive") else None  # a folder name, see safe_dive
             self._dives = [str(d) for d in data.get("dives", [])]
             self._topics = [Topic.from_dict(t) for t in data.get("topics", [])]
         except (OSError, ValueError, TypeError, AttributeError, KeyError) as err:
@@ -180,9 +201,28 @@ class Gallery:
 
     def full_path(self, image_index: int, dive: str | None) -> Path:
         """Where a full-resolution frame fetched on demand is kept: ``full/<dive>/<n>.jpg``."""
-        return self.root / "full" / (dive or "unknown") / f"{image_index}.jpg"
+        return self.root / "full" / (safe_dive(dive) if dive else "unknown") / f"{int(image_index)}.jpg"
 
     # --- writing -------------------------------------------------------------------------------------------
+
+    def defer_writes(self, every_s: float) -> None:
+        """Rewrite gallery.json at most every ``every_s`` seconds (log.csv still gets its row at once). Each rewrite
+        is the whole file, fsynced twice: a companion announcing captures as fast as it can had the tool write it
+        once per message, the work growing with every capture. Whoever sets this calls ``flush_due`` often and
+        ``flush`` at the end, so the last state is always written."""
+        self.write_every_s = every_s
+
+    def flush_due(self) -> None:
+        """Write gallery.json if a change waits and the interval has passed."""
+        with self._lock:
+            if self._json_due and self._clock() - self._json_at >= self.write_every_s:
+                self._write_json()
+
+    def flush(self) -> None:
+        """Write gallery.json now if a change waits."""
+        with self._lock:
+            if self._json_due:
+                self._write_json()
 
     def add_full(self, image_index: int, data: bytes, dive: str | None) -> Path:
         path = self.full_path(image_index, dive)
@@ -193,9 +233,11 @@ class Gallery:
     def use_dive(self, dive: str | None) -> str:
         """What a message of ``dive`` means here: ``"current"`` (file it), ``"new"`` (the vehicle's store was reset:
         the gallery now shows that dive, the old one is filed under ``dives/``) or ``"old"`` (a late message of an
-        earlier dive: ignore it). A companion that names no dive is always current."""
+        earlier dive: ignore it). A companion that names no dive is always current; a dive id that is not a safe
+        name (``safe_dive``) is a ValueError."""
         if not dive:
             return "current"
+        safe_dive(dive)
         with self._lock:
             if dive == self.dive:
                 return "current"
@@ -343,7 +385,15 @@ class Gallery:
             cap.thumbnail = rel
 
     def _persist(self, event: str, cap: Capture) -> None:
-        """Caller holds the lock. JSON first (the state), then the CSV row (the history)."""
+        """Caller holds the lock. JSON first (the state, unless written less than ``write_every_s`` ago: then it
+        waits for ``flush_due``), then the CSV row (the history)."""
+        self._json_due = True
+        if self._clock() - self._json_at >= self.write_every_s:
+            self._write_json()
+        self._log_row(event, cap)
+
+    def _write_json(self) -> None:
+        """Caller holds the lock."""
         doc = {
             "updated": time.time(),
             "dive": self.dive,
@@ -354,6 +404,11 @@ class Gallery:
             "topics": [t.to_dict() for t in self._topics],
         }
         atomic_write(self._json, json.dumps(doc, indent=1))
+        self._json_due, self._json_at = False, self._clock()
+        self.json_writes += 1
+
+    def _log_row(self, event: str, cap: Capture) -> None:
+        """Caller holds the lock."""
         new = not self._csv.exists()
         if new:
             self._columns = list(LOG_COLUMNS)

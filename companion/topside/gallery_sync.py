@@ -61,8 +61,10 @@ class GallerySync:
             captures = parse_index(data)
             dive = index_dive(data)
             topics = index_topics(data)
-        except (ValueError, UnicodeDecodeError) as err:
-            log.warning("%s: not JSON this tool understands (%s)", INDEX_PATH, err)
+        except (ValueError, TypeError, OverflowError, AttributeError) as err:
+            # not JSON, a dive id that is not a safe name, or values of the wrong kind ({"image_index": [1]},
+            # 1e400): one line, not the traceback the FTP client logs for a callback that raised
+            log.warning("%s ignored: %s", INDEX_PATH, err)
             return
         if not self.dive_ok(dive):
             return  # asked for before the store was reset: it lists the earlier dive

@@ -4,12 +4,14 @@ whole request, a per-read socket timeout, and a bounded request head.
 ``http.server.ThreadingHTTPServer`` starts one thread per connection and waits forever for a request's head and
 body: 300 clients that send a Content-Length and then nothing keep 300 threads. Here at most ``max_threads``
 requests are served at once (the others get a 503 at once), and a request not read in full within
-``read_deadline_s`` is cut (one reaper thread for all of them), so the slots come back.
+``read_deadline_s`` is cut (one reaper thread for all of them), so the slots come back; one client address holds
+at most ``max_per_address`` of them, so it cannot lock everyone else out.
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import socket
 import threading
 import time
@@ -18,14 +20,47 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 log = logging.getLogger("merlion.surface.web")
 
 MAX_THREADS = 32
+MAX_PER_ADDRESS = 16
+"""Requests served at once for one client address: one address cannot take every slot and lock the page out for
+everyone else (behind a reverse proxy every request comes from the proxy's address: it gets these 16)."""
 READ_DEADLINE_S = 10.0
 """Time to send a request's head and body (at most 16 kB + 64 kB): ample on a tether, short for a slow-loris."""
 SOCKET_TIMEOUT_S = 5.0
 MAX_HEAD = 16 * 1024
 """The request line and headers together."""
 MAX_REQUEST_LINE = 4096
+MAX_JSON_DEPTH = 32
+"""How deep a request's JSON may nest (the page's actions send flat objects)."""
+_JSON_SIGNIFICANT = re.compile(rb'[\[\]{}"\\]')
 _BUSY = (b"HTTP/1.0 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: 5\r\n"
          b"Retry-After: 1\r\nConnection: close\r\n\r\nbusy\n")
+
+
+def json_too_deep(raw: bytes, limit: int = MAX_JSON_DEPTH) -> bool:
+    """Whether ``raw`` nests arrays and objects deeper than ``limit``, found without parsing it: Python's JSON
+    parser recurses once per level, and 30,000 ``[`` (within the 64 kB a body may have) ended the request in a
+    RecursionError with no answer. One pass over the brackets, quotes and backslashes (a regular expression for
+    whole strings backtracks: 64 kB of ``\\"`` took it 16 s). Brackets inside strings are text; where the body
+    stops being JSON, the parser stops too, so what follows cannot make it recurse."""
+    depth, in_string, escaped_at = 0, False, -1
+    for match in _JSON_SIGNIFICANT.finditer(raw):
+        at, char = match.start(), raw[match.start()]
+        if at == escaped_at:
+            continue
+        if in_string:
+            if char == 0x5C:  # backslash: the next byte is escaped
+                escaped_at = at + 1
+            elif char == 0x22:
+                in_string = False
+        elif char == 0x22:
+            in_string = True
+        elif char in b"[{":
+            depth += 1
+            if depth > limit:
+                return True
+        elif char in b"]}":
+            depth -= 1
+    return False
 
 
 class HeadTooLarge(Exception):
@@ -101,9 +136,11 @@ class BoundedHTTPServer(ThreadingHTTPServer):
     for SYN retries of a second and more before the accept loop could even answer them busy."""
 
     def __init__(self, address, handler: type[BoundedHandler], *, max_threads: int = MAX_THREADS,
-                 read_deadline_s: float = READ_DEADLINE_S) -> None:
+                 max_per_address: int = MAX_PER_ADDRESS, read_deadline_s: float = READ_DEADLINE_S) -> None:
         super().__init__(address, handler)
         self.max_threads = max_threads
+        self.max_per_address = max_per_address
+        self._by_address: dict[str, int] = {}
         self.read_deadline_s = read_deadline_s
         self.refused_busy = 0
         self.cut_slow = 0
@@ -116,7 +153,11 @@ class BoundedHTTPServer(ThreadingHTTPServer):
         self._reaper.start()
 
     def process_request(self, request, client_address) -> None:
-        if not self._slots.acquire(blocking=False):
+        """On the accept thread (the only one that takes slots): a slot for this request, or a 503 at once."""
+        address = client_address[0]
+        with self._watch_lock:
+            mine = self._by_address.get(address, 0)
+        if mine >= self.max_per_address or not self._slots.acquire(blocking=False):
             self.refused_busy += 1
             try:
                 request.settimeout(1.0)
@@ -128,6 +169,7 @@ class BoundedHTTPServer(ThreadingHTTPServer):
         with self._watch_lock:
             self._deadlines[request] = time.monotonic() + self.read_deadline_s
             self._serving += 1
+            self._by_address[address] = self._by_address.get(address, 0) + 1
         threading.Thread(target=self._serve_one, args=(request, client_address), daemon=True).start()
 
     def _serve_one(self, request, client_address) -> None:
@@ -140,6 +182,9 @@ class BoundedHTTPServer(ThreadingHTTPServer):
             self.shutdown_request(request)
             with self._watch_lock:
                 self._serving -= 1
+                left = self._by_address.pop(client_address[0]) - 1
+                if left:
+                    self._by_address[client_address[0]] = left
             self._slots.release()
 
     def unwatch(self, request) -> None:

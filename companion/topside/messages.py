@@ -12,7 +12,7 @@ import math
 import re
 from dataclasses import dataclass, field
 
-from companion.topside.gallery import Capture, Topic
+from companion.topside.gallery import Capture, Topic, safe_dive
 
 
 def heading_from_q(q: list[float] | tuple[float, ...]) -> float | None:
@@ -43,9 +43,10 @@ _DIVE = re.compile(r"/summary/([^/]+)/\d+\.\w+$")
 
 
 def dive_of(url: str | None) -> str | None:
-    """The dive id in a thumbnail URL (``mftp://summary/<dive>/<n>.jpg``); None when it names none."""
+    """The dive id in a thumbnail URL (``mftp://summary/<dive>/<n>.jpg``); None when it names none; ValueError
+    when what stands there is not a safe name (``gallery.safe_dive``: it becomes a folder in DIR)."""
     match = _DIVE.search(url or "")
-    return match.group(1) if match and match.group(1) not in ("full", "raw") else None
+    return safe_dive(match.group(1)) if match and match.group(1) not in ("full", "raw") else None
 
 
 def capture_from_message(msg) -> Capture:
@@ -149,10 +150,10 @@ def _epoch_s(value) -> float | None:
 
 
 def index_dive(data: bytes) -> str | None:
-    """The dive id an index.json names (top-level ``dive``), else None."""
+    """The dive id an index.json names (top-level ``dive``), else None; ValueError when it is not a safe name."""
     doc = json.loads(data.decode("utf-8"))
     dive = doc.get("dive") if isinstance(doc, dict) else None
-    return str(dive) if dive else None
+    return safe_dive(str(dive)) if dive else None
 
 
 def index_topics(data: bytes) -> list[Topic] | None:
@@ -202,7 +203,7 @@ def parse_index(data: bytes) -> list[Capture]:
         size = _first(tags, "thumbnail_bytes", "thumb_bytes", "bytes")
         cap = Capture(
             image_index=int(index),
-            dive=str(dive) if dive else dive_of(url if isinstance(url, str) else None),
+            dive=safe_dive(str(dive)) if dive else dive_of(url if isinstance(url, str) else None),
             time_utc=_epoch_s(_first(tags, "time_utc", "capture_time", "time", "timestamp")),
             depth_m=depth, heading_deg=heading,
             q=[float(v) for v in q] if isinstance(q, list) and len(q) == 4 else None,

@@ -40,10 +40,12 @@ class PageState:
                 "lost_packets": s.lost_packets,
                 "autopilot": list(s.autopilot) if s.autopilot else None,
                 "autopilot_heartbeat_age_s": _age(now, s.autopilot_heartbeat),
+                "foreign_autopilot_heartbeats": s.foreign_autopilot_heartbeats,
                 "pushed_ok": s.pushed_ok, "pushed_lost": s.pushed_lost,
                 "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
                 "verified": s.verified, "mismatched": s.mismatched,
-                "unsigned_ignored": s.unsigned_ignored,
+                "unsigned_ignored": s.unsigned_ignored, "unpaired_dropped": s.unpaired_dropped,
+                "inbox_dropped": s.inbox_dropped, "values_dropped": s.values_dropped,
                 "unsigned_sources": {f"{a}/{b}": n for (a, b), n in sorted(s.unsigned_sources.items())},
             }
             companion = {

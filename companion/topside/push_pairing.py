@@ -18,7 +18,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.topside.gallery import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
-from companion.topside.surface_state import SurfaceContext
+from companion.topside.surface_state import MAX_UNPAIRED, SurfaceContext
+from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
 log = logging.getLogger("merlion.surface")
@@ -31,10 +32,16 @@ class PushPairing:
         self.ctx = ctx
         self.sync = sync
         self.images = ImageReceiver(clock=ctx.clock)
+        self._refusal_log = WarningBucket()  # a flood of refused captures is a few lines, not one per message
 
     def on_capture(self, msg) -> None:
         ctx, p = self.ctx, self.ctx.pairing
-        cap = capture_from_message(msg)
+        try:
+            cap = capture_from_message(msg)
+        except ValueError as err:  # a dive id that is not a safe name: nothing of it goes near DIR
+            if self._refusal_log.take():
+                log.warning("capture %d ignored: %s", msg.image_index, err)
+            return
         if not self.sync.dive_ok(cap.dive):
             return
         known = ctx.gallery.get(cap.image_index)
@@ -62,14 +69,20 @@ class PushPairing:
         self.ctx.pairing.marker = index
 
     def on_handshake(self, msg) -> None:
-        p = self.ctx.pairing
         self.on_push_result(self.images.handle(msg))
         if msg.size <= 0 or msg.packets <= 0:
             return
-        progress = self.images.in_progress((msg.get_srcSystem(), msg.get_srcComponent()))
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        progress = self.images.in_progress(source)
         if progress is None:
             return
-        handshake_no = progress[0]
+        self._pair_handshake(progress[0], msg.size)
+        # a push over the cap is never assembled: its frame (now paired, or when its capture comes) is fetched by FTP
+        self.on_push_result(self.images.take_oversized(source))
+
+    def _pair_handshake(self, handshake_no: int, size: int) -> None:
+        """The capture this push is for: the one MRL_PUSH named, else the oldest waiting (of matching size)."""
+        p = self.ctx.pairing
         marker, p.marker = p.marker, None
         if marker is not None:
             self._bind_marked(handshake_no, marker)
@@ -80,7 +93,7 @@ class PushPairing:
             if cap is not None and cap.in_summary and cap.thumbnail is None:
                 live.append((index, since))
         # the oldest waiting capture whose thumbnail size (from index.json) matches, else the oldest of unknown size
-        pick = next((i for i, _ in live if p.expected.get(i) == msg.size), None)
+        pick = next((i for i, _ in live if p.expected.get(i) == size), None)
         if pick is None:
             pick = next((i for i, _ in live if i not in p.expected), None)
         p.waiting.clear()
@@ -167,19 +180,33 @@ class PushPairing:
         elif isinstance(result, PushedImage):
             index = p.bound.pop(result.handshake_no, None)
             if index is None:
-                p.orphans[result.handshake_no] = result
+                self._unpaired(p.orphans, result)
             else:
                 self._store_push(index, result)
         elif isinstance(result, Abandoned):
             with ctx.lock:
                 ctx.status.pushed_lost += 1
             index = p.bound.pop(result.handshake_no, None)
-            log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
-                     result.received_packets, result.packets)
+            if result.oversized:
+                log.info("push %d of %d bytes is over the %d-byte push cap: FTP fallback", result.handshake_no,
+                         result.size, self.images.max_image_bytes)
+            else:
+                log.info("push %d stalled (%d of %d packets): FTP fallback", result.handshake_no,
+                         result.received_packets, result.packets)
             if index is None:
-                p.lost_push[result.handshake_no] = result
+                self._unpaired(p.lost_push, result)
             else:
                 self.sync.fetch_thumbnail(index, partial=result)
+
+    def _unpaired(self, pending: dict, push: PushedImage | Abandoned) -> None:
+        dropped = self.ctx.pairing.keep_unpaired(pending, push.handshake_no, push)
+        if dropped:
+            with self.ctx.lock:
+                self.ctx.status.unpaired_dropped += dropped
+                first = self.ctx.status.unpaired_dropped == dropped
+            if first:
+                log.warning("more than %d pushes no capture claims: the oldest are dropped (a sender pushing "
+                            "images it never announced)", MAX_UNPAIRED)
 
     def _store_push(self, index: int, image: PushedImage) -> None:
         expected = self.ctx.pairing.expected.get(index)

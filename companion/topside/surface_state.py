@@ -28,6 +28,10 @@ FULL_FRAME_TIMEOUT_S = 120.0
 MARKS_TIMEOUT_S = 30.0
 """A marks upload is a few hundred bytes: a page's request waits this long for the companion's answer."""
 OFFLINE_EVERY_S = 2.0
+MAX_UNPAIRED = 16
+"""Pushes kept while no capture claims them (finished or abandoned): the companion announces a frame before it
+pushes it, so a handful covers a reordering; more are a sender pushing images nobody announced, which grew without
+bound (each up to the push cap). The oldest go first, as ``early`` handshakes do."""
 
 
 @dataclass
@@ -46,6 +50,8 @@ class SurfaceOptions:
     """Pull index.json at most this often, and only after the summary changed."""
     ftp: bool = True
     statustext_keep: int = 20
+    gallery_write_every_s: float = 0.25
+    """gallery.json is rewritten at most this often (the last state always; log.csv gets every event at once)."""
     signing_key_file: str | None = None
 
 
@@ -60,6 +66,8 @@ class LinkStatus:
     companion_heartbeat: float | None = None
     autopilot: tuple[int, int] | None = None
     autopilot_heartbeat: float | None = None
+    foreign_autopilot_heartbeats: int = 0
+    """Autopilot heartbeats from another system or component than the first autopilot: ignored."""
     values: dict[str, float] = field(default_factory=dict)
     values_at: float | None = None
     statustext: deque = field(default_factory=lambda: deque(maxlen=20))
@@ -79,6 +87,12 @@ class LinkStatus:
     unsigned_ignored: int = 0
     """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
     unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)
+    inbox_dropped: int = 0
+    """Messages dropped because the receive loop was ``tool.INBOX_MAX`` behind."""
+    values_dropped: int = 0
+    """Values under a new name once ``tool.MAX_VALUES`` names are shown: ignored."""
+    unpaired_dropped: int = 0
+    """Pushes no capture claimed, dropped beyond ``MAX_UNPAIRED``."""
 
 
 @dataclass
@@ -87,7 +101,7 @@ class PairingState:
 
     waiting: deque = field(default_factory=deque)
     """Captures waiting for a push: (image index, since)."""
-    early: deque = field(default_factory=lambda: deque(maxlen=16))
+    early: deque = field(default_factory=lambda: deque(maxlen=MAX_UNPAIRED))
     """Handshakes that came before their capture (their numbers)."""
     expected: dict[int, int] = field(default_factory=dict)
     """Thumbnail bytes by image index, from index.json (JPEG only)."""
@@ -115,6 +129,16 @@ class PairingState:
                         self.unverified):
             pending.clear()
         self.last_announced = None
+
+    def keep_unpaired(self, pending: dict, handshake_no: int, push) -> int:
+        """Keep a push no capture claims yet in ``pending`` (``orphans`` or ``lost_push``), the oldest going when
+        there are more than ``MAX_UNPAIRED``; how many went."""
+        pending[handshake_no] = push
+        dropped = 0
+        while len(pending) > MAX_UNPAIRED:
+            del pending[next(iter(pending))]
+            dropped += 1
+        return dropped
 
     def drop_waiting(self, gone) -> None:
         """Take the captures in ``gone`` (a container of image indices) out of the pairing queue."""

@@ -53,6 +53,17 @@ log = logging.getLogger("merlion.surface")
 
 MAV_TYPE_CAMERA = mav.MAV_TYPE_CAMERA
 MAV_TYPE_GCS = mav.MAV_TYPE_GCS
+INBOX_MAX = 4096
+"""Messages waiting for the receive loop. The link's thread only parses; when the loop is held up (a slow disk, a
+flood) a longer queue would only grow memory without bound: past this, messages are dropped and counted, as the
+socket would drop them (what matters is re-sent or re-read: captures, index.json, FTP)."""
+HANDLE_AT_ONCE = 256
+"""Messages handled before the loop's housekeeping runs again (FTP retries, expiries, the page's requests): a
+flood cannot starve them."""
+MAX_VALUES = 64
+"""Value names kept (the companion sends a handful); a sender making up new names is ignored past this."""
+EARLY_TEXT_SOURCES = 16
+"""Sources whose status lines are kept before the companion is known (the newest sources)."""
 
 
 def verified(msg) -> bool:
@@ -72,13 +83,14 @@ class SurfaceTool:
                           component_id=options.component_id, signing_key_file=options.signing_key_file),
             name="surface", mav_type=MAV_TYPE_GCS,
         )
+        gallery.defer_writes(options.gallery_write_every_s)  # flushed by housekeeping, and when the run ends
         self.ctx = SurfaceContext(options=options, gallery=gallery, clock=clock, send=self._link.send)
         self.ctx.status.statustext = deque(maxlen=options.statustext_keep)
         self.sync = GallerySync(self.ctx)
         self.pairing = PushPairing(self.ctx, self.sync)
         self.page = PageState(self.ctx)
         self.actions = SurfaceActions(self.ctx)
-        self._inbox: queue.Queue = queue.Queue()
+        self._inbox: queue.Queue = queue.Queue(maxsize=INBOX_MAX)
         self._opened = False
         self._early_text: dict[tuple[int, int], deque] = {}
         self._last_seq: dict[tuple[int, int], int] = {}
@@ -102,7 +114,7 @@ class SurfaceTool:
         if self._opened:
             return
         self._opened = True
-        self._link.subscribe(self._inbox.put)
+        self._link.subscribe(self._receive)
         self._link.start()
         self._link.wait_open(timeout)
 
@@ -120,16 +132,31 @@ class SurfaceTool:
                     msg = self._inbox.get(timeout=0.05)
                 except queue.Empty:
                     msg = None
+                handled = 0
                 while msg is not None:
                     self.handle(msg)
+                    handled += 1
                     try:
-                        msg = self._inbox.get_nowait()
+                        msg = self._inbox.get_nowait() if handled < HANDLE_AT_ONCE else None
                     except queue.Empty:
                         msg = None
                 self.housekeeping()
         finally:
             self.close()
+            self.gallery.flush()
             self.write_offline_page()
+
+    def _receive(self, msg) -> None:
+        """On the link's receive thread: queue for the loop, or drop when the queue is full."""
+        try:
+            self._inbox.put_nowait(msg)
+        except queue.Full:
+            with self.ctx.lock:
+                self.ctx.status.inbox_dropped += 1
+                first = self.ctx.status.inbox_dropped == 1
+            if first:
+                log.warning("the receive loop is %d messages behind: dropping what arrives until it catches up",
+                            INBOX_MAX)
 
     def housekeeping(self) -> None:
         now = self.ctx.clock()
@@ -141,6 +168,7 @@ class SurfaceTool:
         if now - self._offline_at >= OFFLINE_EVERY_S:
             self._offline_at = now
             self.write_offline_page()
+        self.gallery.flush_due()
         if self.ctx.ftp is not None:
             self.ctx.ftp.tick()
         self.pairing.expire(now)
@@ -176,7 +204,11 @@ class SurfaceTool:
             self._adopt(source)
         if status.companion is None and kind == "STATUSTEXT":
             # the companion's first lines ("started") may come before its heartbeat: keep a few for later
-            self._early_text.setdefault(source, deque(maxlen=5)).append((msg, now))
+            early = self._early_text.pop(source, None) or deque(maxlen=5)
+            early.append((msg, now))
+            self._early_text[source] = early  # newest source last: the oldest goes past EARLY_TEXT_SOURCES
+            while len(self._early_text) > EARLY_TEXT_SOURCES:
+                del self._early_text[next(iter(self._early_text))]
         if status.companion is None or source != status.companion:
             return
         if kind == "CAMERA_IMAGE_CAPTURED":
@@ -217,6 +249,9 @@ class SurfaceTool:
         measured = self._boot_clock.local(int(msg.time_boot_ms), now)  # not its arrival: see boot_clock
         with self.ctx.lock:
             status = self.ctx.status
+            if name not in status.values and len(status.values) >= MAX_VALUES:
+                status.values_dropped += 1
+                return
             status.values[name] = float(msg.value)
             status.values_at = now
             if name == DEPTH_VALUE and math.isfinite(float(msg.value)):
@@ -230,8 +265,13 @@ class SurfaceTool:
                 if source == status.companion:
                     status.companion_heartbeat = now
             elif is_autopilot_heartbeat(msg) and source[0] != 255:
-                status.autopilot = source
-                status.autopilot_heartbeat = now
+                # the first autopilot is the vehicle's (as the link's AutopilotWatch settles it): a stranger's
+                # heartbeat neither replaces it on the page nor keeps a lost one looking alive
+                status.autopilot = status.autopilot or source
+                if source == status.autopilot:
+                    status.autopilot_heartbeat = now
+                else:
+                    status.foreign_autopilot_heartbeats += 1
         if self.ctx.options.companion == source:
             self._adopt(source)
 

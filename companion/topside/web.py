@@ -26,7 +26,7 @@ from importlib import resources
 from pathlib import Path
 
 from companion.errors import MerlionError
-from companion.topside.http_bounds import BoundedHandler, BoundedHTTPServer
+from companion.topside.http_bounds import MAX_JSON_DEPTH, BoundedHandler, BoundedHTTPServer, json_too_deep
 from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal, trusted_origin
 
 __all__ = ["TOKEN_HEADER", "Pages", "WebServer"]
@@ -191,6 +191,9 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
             if len(raw) < length:
                 self.close_connection = True
                 return  # the client went away, or was cut for being too slow: nobody to answer
+            if json_too_deep(raw):
+                self._json({"error": f"JSON nested deeper than {MAX_JSON_DEPTH} levels"}, HTTPStatus.BAD_REQUEST)
+                return
             try:
                 body = json.loads(raw or b"{}")
                 if not isinstance(body, dict):

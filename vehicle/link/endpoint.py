@@ -2,7 +2,8 @@
 
 pymavlink's ``mavutil`` opens every transport; this module adds what it lacks for a connection that must stay up
 for hours: a typo is a one-line error before any thread starts, a stalled serial port cannot hold up a sender,
-and a UDP socket has room for a burst while its reader is descheduled.
+a UDP socket has room for a burst while its reader is descheduled, and a UDP server answers a bounded number of
+peers (``udp_peers``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 
 from vehicle.errors import UsageError
+from vehicle.link.udp_peers import BoundedUdpServer
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +78,10 @@ def open_transport(endpoint: Endpoint, system_id: int, component_id: int, name: 
         return conn
     if endpoint.scheme == "tcp":
         return mavutil.mavlink_connection(f"tcp:{endpoint.address}", retries=0, **kwargs)
-    conn = mavutil.mavlink_connection(f"{endpoint.scheme}:{endpoint.address}", **kwargs)
+    if endpoint.scheme == "udpin":  # pymavlink's learns every address that sends a datagram, and answers all
+        conn = BoundedUdpServer(endpoint.address, **kwargs)
+    else:
+        conn = mavutil.mavlink_connection(f"{endpoint.scheme}:{endpoint.address}", **kwargs)
     if endpoint.is_udp:
         kept = ask_receive_buffer(conn.port, _UDP_RCVBUF)
         log.debug("%s: UDP receive buffer %d KB", name, kept // 1024)

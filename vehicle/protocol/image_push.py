@@ -20,6 +20,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 CHUNK = 253
 """ENCAPSULATED_DATA.data length."""
+MAX_PUSH_BYTES = 2 * 1024 * 1024
+"""The largest image ``ImageReceiver`` assembles in memory: a thumbnail is kilobytes, while a handshake may announce
+up to 65,535 packets of 255 bytes (16.7 MB), a buffer allocated before one packet arrived. A larger push is
+ignored and reported as abandoned, so the caller fetches that image another way (FTP)."""
 TYPE_JPEG = mav.MAVLINK_DATA_STREAM_IMG_JPEG
 
 
@@ -72,6 +76,8 @@ class _Transfer:
     last_progress: float = 0.0
     buffer: bytearray = field(default_factory=bytearray)
     received: set[int] = field(default_factory=set)
+    oversized: bool = False
+    """Over the receiver's cap: no buffer, its packets ignored (``take_oversized``)."""
 
     def abandoned(self, source: tuple[int, int]) -> Abandoned:
         chunks = {}
@@ -80,7 +86,8 @@ class _Transfer:
             piece = bytes(self.buffer[start : min(start + self.payload, self.size)])
             if piece:
                 chunks[start] = piece
-        return Abandoned(source, self.handshake_no, len(self.received), self.packets, self.size, self.kind, chunks)
+        return Abandoned(source, self.handshake_no, len(self.received), self.packets, self.size, self.kind, chunks,
+                         oversized=self.oversized)
 
 
 @dataclass
@@ -97,6 +104,8 @@ class Abandoned:
     """What did arrive, by byte offset: a pull of the same file needs only the rest."""
     next_headless: bool = False
     """The next image's packets came without its handshake (so that image is lost too)."""
+    oversized: bool = False
+    """Never assembled: its handshake announced more than the receiver's cap."""
 
 
 @dataclass
@@ -109,13 +118,16 @@ class LostHandshake:
 class ImageReceiver:
     """Feeds on MAVLink messages; ``handle`` returns a finished image, an abandoned transfer, or None."""
 
-    def __init__(self, clock=time.monotonic) -> None:
+    def __init__(self, clock=time.monotonic, max_image_bytes: int = MAX_PUSH_BYTES) -> None:
         self._clock = clock
+        self.max_image_bytes = max_image_bytes
         self._transfers: dict[tuple[int, int], _Transfer] = {}
         self._handshakes: dict[tuple[int, int], int] = {}
         self._headless: set[tuple[int, int]] = set()  # sources sending packets of an image we saw no handshake of
         self.completed = 0
         self.abandoned = 0
+        self.oversized = 0
+        """Handshakes over ``max_image_bytes``: not assembled."""
         self.bytes_received = 0
 
     def feed(self, msg) -> bytes | None:
@@ -136,6 +148,17 @@ class ImageReceiver:
         """(handshake number, packets received, packets expected) of the image arriving from ``source``."""
         t = self._transfers.get(source)
         return None if t is None else (t.handshake_no, len(t.received), t.packets)
+
+    def take_oversized(self, source: tuple[int, int]) -> Abandoned | None:
+        """The push arriving from ``source`` when its handshake was over the cap: given up now (its packets are
+        ignored until the next handshake), so the caller can fetch the image another way at once."""
+        t = self._transfers.get(source)
+        if t is None or not t.oversized:
+            return None
+        del self._transfers[source]
+        self._headless.add(source)  # its packets are no next image whose handshake was lost
+        self.abandoned += 1
+        return t.abandoned(source)
 
     def expire(self, idle_s: float) -> list[Abandoned]:
         """Give up on images that made no progress for ``idle_s``, or for four times the usual gap between
@@ -167,11 +190,13 @@ class ImageReceiver:
             return gone  # cannot hold the announced size: not a transfer we can reassemble
         number = self._handshakes.get(source, 0) + 1
         self._handshakes[source] = number
+        oversized = msg.size > self.max_image_bytes or msg.packets * msg.payload > self.max_image_bytes + msg.payload
+        self.oversized += oversized
         self._transfers[source] = _Transfer(
             size=msg.size, packets=msg.packets, payload=msg.payload, kind=IMAGE_TYPES.get(msg.type, "bin"),
             width=msg.width, height=msg.height, started=self._clock(), handshake_no=number,
             last_progress=self._clock(),
-            buffer=bytearray(msg.packets * msg.payload),
+            buffer=bytearray(0 if oversized else msg.packets * msg.payload), oversized=oversized,
         )
         return gone
 
@@ -185,7 +210,7 @@ class ImageReceiver:
                 self.abandoned += 1
                 return LostHandshake(source)
             return None
-        if not 0 <= msg.seqnr < t.packets:
+        if t.oversized or not 0 <= msg.seqnr < t.packets:
             return None
         if msg.seqnr <= 1 and t.received and max(t.received) > msg.seqnr + 1:
             # packets start again from the top (MAVLink links keep their order): the next image began and its

@@ -49,3 +49,34 @@ def test_a_restarted_companion_starts_the_estimate_afresh():
     assert abs(boot.local(102_000, BOOT_AT + 103.0) - (BOOT_AT + 102.1)) < 1e-6  # a slow one keeps the best
     restarted = boot.local(2_000, BOOT_AT + 300.0)  # boot time went back: a new boot, a new offset
     assert restarted == BOOT_AT + 300.0
+
+
+def _window_minimum(events: list[tuple[int, float]], window_s: float = 120.0) -> list[float]:
+    """What BootClock must answer: each boot time plus the least offset of the messages of the last window."""
+    out, kept = [], []
+    for ms, arrival in events:
+        kept = [(a, o) for a, o in kept if a >= arrival - window_s] + [(arrival, arrival - ms / 1000.0)]
+        out.append(ms / 1000.0 + min(o for _, o in kept))
+    return out
+
+
+def test_the_window_minimum_is_kept_without_scanning_every_message():
+    rng = np.random.default_rng(7)
+    events, ms, arrival = [], 0, BOOT_AT
+    for _ in range(3000):  # 25 minutes of values, each delayed 0-2 s on the way
+        ms += int(rng.integers(100, 1000))
+        arrival = max(arrival, BOOT_AT + ms / 1000.0 + float(rng.uniform(0.0, 2.0)))
+        events.append((ms, arrival))
+    boot = BootClock()
+    assert [boot.local(ms, a) for ms, a in events] == _window_minimum(events)
+
+
+def test_a_flood_of_values_keeps_a_bounded_number_of_offsets():
+    """Offsets that rise with every message (each delayed a little more) are all candidates for the minimum once
+    the older ones age out: at most MAX_KEPT are kept, however fast they come."""
+    from companion.topside.boot_clock import MAX_KEPT
+
+    boot = BootClock()
+    for i in range(50_000):
+        boot.local(i, BOOT_AT + i / 1000.0 + i * 1e-6)  # within one window: 50 s
+    assert len(boot._offsets) == MAX_KEPT

@@ -138,3 +138,28 @@ def test_a_gallery_folder_from_before_topics_still_opens_and_its_log_stays_align
     assert rows[0] == old_columns and all(len(r) == len(old_columns) for r in rows)  # no column slipped
     assert [r[0] for r in rows[1:]] == ["added", "tags", "topics"]
     assert Gallery(tmp_path).get(4).topic == "fish"
+
+
+def test_a_gallery_file_whose_dive_is_a_path_is_a_one_line_error(tmp_path):
+    (tmp_path / "gallery.json").write_text(json.dumps({"dive": "../../elsewhere", "captures": []}))
+    with pytest.raises(MerlionError, match="gallery.json: .*not a safe name"):
+        Gallery(tmp_path)
+
+
+def test_deferred_writes_rewrite_gallery_json_once_per_interval_and_always_the_last_state(tmp_path):
+    now = [100.0]
+    g = Gallery(tmp_path, clock=lambda: now[0])
+    g.defer_writes(0.25)
+    for i in range(50):
+        g.announce(Capture(image_index=i))
+    assert g.json_writes == 1 and json.loads((tmp_path / "gallery.json").read_text())["summary"] == [0]
+    assert len(list(csv.DictReader((tmp_path / "log.csv").open()))) == 50  # the history still has every event
+    g.flush_due()
+    assert g.json_writes == 1  # not yet: the interval has not passed
+    now[0] += 0.25
+    g.flush_due()
+    assert g.json_writes == 2 and len(Gallery(tmp_path).captures()) == 50
+    g.remove(3)
+    g.flush()  # the end of a run: the last state, at once
+    g.flush()
+    assert g.json_writes == 3 and Gallery(tmp_path).get(3).in_summary is False

@@ -1,0 +1,72 @@
+"""The live page's server against a hostile web client: real TCP sockets on 127.0.0.x, the real ``WebServer``."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+
+import pytest
+
+from companion.topside.http_bounds import MAX_PER_ADDRESS, MAX_THREADS
+from companion.topside.web import TOKEN_HEADER, WebServer
+from tests.waiting import wait_until
+
+
+@pytest.fixture
+def web(tmp_path):
+    server = WebServer(lambda: {"summary": []}, tmp_path, 0, actions={"mark": lambda body: {"got": body}})
+    server.start()
+    yield server
+    server.close()
+
+
+def _get(port: int, path: str, *, source: str = "127.0.0.1") -> tuple[int, bytes]:
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=15, source_address=(source, 0))
+    try:
+        conn.request("GET", path, headers={"Host": f"127.0.0.1:{port}"})
+        reply = conn.getresponse()
+        return reply.status, reply.read()
+    finally:
+        conn.close()
+
+
+def _post(web: WebServer, body: bytes) -> tuple[int, dict]:
+    conn = http.client.HTTPConnection("127.0.0.1", web.port, timeout=15)
+    try:
+        conn.request("POST", "/api/mark", body=body, headers={
+            "Host": f"127.0.0.1:{web.port}", TOKEN_HEADER: web.token, "Content-Type": "application/json"})
+        reply = conn.getresponse()
+        return reply.status, json.loads(reply.read())
+    finally:
+        conn.close()
+
+
+def test_one_address_holds_16_of_the_32_slots_and_the_page_still_answers_others(web):
+    """40 connections from one address that send half a request: before, 32 of them held every slot until the
+    read deadline and everyone got a 503; now 16 are held and the rest of that address is refused at once."""
+    slow = []
+    try:
+        for _ in range(40):
+            s = socket.create_connection(("127.0.0.1", web.port), timeout=15)
+            s.sendall(b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1")  # and then nothing: a slow-loris
+            slow.append(s)
+        assert wait_until(lambda: web._server.refused_busy == 40 - MAX_PER_ADDRESS, 10)
+        assert web.serving() == MAX_PER_ADDRESS < MAX_THREADS
+        assert _get(web.port, "/api/state")[0] == 503  # that address: busy
+        status, body = _get(web.port, "/api/state", source="127.0.0.2")  # another machine: served
+        assert status == 200 and json.loads(body) == {"summary": []}
+    finally:
+        for s in slow:
+            s.close()
+    assert wait_until(lambda: web.serving() == 0, 10)
+    assert _get(web.port, "/api/state")[0] == 200  # the address's slots came back
+
+
+def test_deeply_nested_json_is_a_400_not_a_recursion(web):
+    status, answer = _post(web, b"[" * 30_000 + b"]" * 30_000)  # within the 64 kB a body may have
+    assert (status, answer) == (400, {"error": "JSON nested deeper than 32 levels"})
+    status, answer = _post(web, b'{"a": ' * 40 + b"1" + b"}" * 40)
+    assert status == 400
+    status, answer = _post(web, json.dumps({"index": 3, "kind": "like", "note": "[[[[" * 100}).encode())
+    assert status == 200 and answer["got"]["index"] == 3  # brackets inside a string are text
