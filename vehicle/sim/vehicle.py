@@ -115,9 +115,12 @@ class SimVehicle:
         self.gcs_failsafe = gcs_failsafe
         self.clock = clock
         self.wall_clock = wall_clock
+        # with a key, ArduSub (on SERIAL1 and up, where a router or companion sits) drops every unsigned or badly
+        # signed packet, reads included, and says nothing about it
         self.link = MavLink(connection, MavlinkConfig(system_id=system_id, component_id=1,
-                                                      signing_key_file=signing_key_file),
+                                                      signing_key_file=signing_key_file, accept_unsigned_reads=False),
                             clock=clock, name="sim-ardusub", heartbeat=False)
+        self.link.signing.announce_refusals = False
         self.link.subscribe(self._on_setup_signing, ["SETUP_SIGNING"])
         self.link.subscribe(self._on_message, ["COMMAND_LONG", "REQUEST_DATA_STREAM", "HEARTBEAT", "MANUAL_CONTROL",
                                                "SET_MODE", "SET_GPS_GLOBAL_ORIGIN"])
