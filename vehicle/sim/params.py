@@ -43,10 +43,10 @@ class Param:
 
 ARDUSUB_PARAMS: tuple[Param, ...] = (
     Param("FS_GCS_ENABLE", INT8, 2, "GCS failsafe action: 0 off, 1 warn, 2 disarm, 3 depth hold, 4 surface"),
-    Param("FS_GCS_TIMEOUT", REAL32, 5.0, "s without a heartbeat from MAV_GCS_SYSID"),
+    Param("FS_GCS_TIMEOUT", REAL32, 5.0, "s without a heartbeat (or MANUAL_CONTROL) from MAV_GCS_SYSID"),
     Param("FS_PILOT_INPUT", INT8, 2, "pilot-input failsafe action: 0 off, 1 warn, 2 disarm"),
     Param("FS_PILOT_TIMEOUT", REAL32, 3.0, "s without MANUAL_CONTROL before the pilot-input failsafe"),
-    Param("MAV_GCS_SYSID", INT16, 255, "the ground station: its heartbeats arm the GCS failsafe"),
+    Param("MAV_GCS_SYSID", INT16, 255, "the ground station: its heartbeats and MANUAL_CONTROL count, no one else's"),
     Param("PILOT_SPEED_DN", INT16, 0, "cm/s descent at full stick; 0: PILOT_SPEED_UP"),
     Param("PILOT_SPEED_UP", INT16, 100, "cm/s ascent at full stick"),
 )
@@ -82,7 +82,7 @@ class SimParams:
             return self._values[name]
 
     def gcs_sysid(self) -> int:
-        """MAV_GCS_SYSID: the one system whose heartbeats arm the GCS failsafe."""
+        """MAV_GCS_SYSID: the one system whose heartbeats and MANUAL_CONTROL count."""
         return int(self.value("MAV_GCS_SYSID"))
 
     def pilot_speed_up_mps(self) -> float:

@@ -13,9 +13,11 @@ It speaks through the same ``MavLink`` as the companion (system 1, component 1),
   station sends SET_GPS_GLOBAL_ORIGIN);
 - the parameters it acts on, served with the parameter protocol (``vehicle.sim.params``): FS_PILOT_INPUT,
   FS_PILOT_TIMEOUT, FS_GCS_ENABLE, FS_GCS_TIMEOUT, MAV_GCS_SYSID, PILOT_SPEED_UP/DN, with the firmware's defaults;
+- MANUAL_CONTROL counts only from system ``MAV_GCS_SYSID`` (255) and with ``target`` = this vehicle, and it counts
+  as that ground station's heartbeat too; anyone else's is ignored (but recorded);
 - pilot-input failsafe: armed and MANUAL_CONTROL stopping for ``FS_PILOT_TIMEOUT`` (3 s) -> "Lost manual control",
-  neutral controls, and with ``FS_PILOT_INPUT`` 2 a disarm; GCS failsafe: once a heartbeat from ``MAV_GCS_SYSID`` was
-  seen, those stopping for ``FS_GCS_TIMEOUT`` (5 s) -> "MYGCS: 255, heartbeat lost" (again
+  neutral controls, and with ``FS_PILOT_INPUT`` 2 a disarm; GCS failsafe: once a heartbeat (or MANUAL_CONTROL) from
+  ``MAV_GCS_SYSID`` was seen, those stopping for ``FS_GCS_TIMEOUT`` (5 s) -> "MYGCS: 255, heartbeat lost" (again
   every 30 s while lost) and, if armed, the ``FS_GCS_ENABLE`` action (default 2: disarm). Each failsafe that acts
   is reported by STATUSTEXT and recorded in ``failsafes``, and every peer's heartbeat ids and MANUAL_CONTROL
   senders are recorded, so that tests can prove the companion never takes part in either;
@@ -140,6 +142,7 @@ class SimVehicle:
         self.heartbeat_senders: set[tuple[int, int, int]] = set()
         """(system, component, MAV_TYPE) of every peer heartbeat seen."""
         self.manual_control_senders: set[tuple[int, int]] = set()
+        """(system, component) of every MANUAL_CONTROL sender, whether the firmware would take its input or not."""
         self._lock = threading.Lock()
         self._armed: bool | None = None  # None: as the dive profile says
         self._mode: str | None = None
@@ -147,7 +150,7 @@ class SimVehicle:
         self._pilot: tuple[float, float, float, float, float] | None = None
         """Flown, not scripted, since t0: (depth at t0, t0 in profile time, rate down m/s, north, east)."""
         self._pilot_seen: float | None = None  # clock of the last MANUAL_CONTROL while armed
-        self._gcs_seen: float | None = None  # clock of the last heartbeat from MAV_GCS_SYSID
+        self._gcs_seen: float | None = None  # clock of the last heartbeat or MANUAL_CONTROL from MAV_GCS_SYSID
         self._gcs_warned: float | None = None  # clock of the last "heartbeat lost" warning
         self._in_failsafe: set[str] = set()
         self._start = clock()
@@ -319,9 +322,10 @@ class SimVehicle:
                     self._gcs_heard()
             return
         if mtype == "MANUAL_CONTROL":
-            if msg.target in (0, self.link.system_id):
-                self.manual_control_senders.add(src)
+            self.manual_control_senders.add(src)
+            if src[0] == self.params.gcs_sysid() and msg.target == self.link.system_id:  # the GCS's, aimed at us
                 self._manual_control(msg)
+                self._gcs_heard()  # "considered to be a 'heartbeat' from the ground station"
             return
         if mtype == "SET_MODE":
             if msg.target_system in (0, self.link.system_id):

@@ -1,9 +1,11 @@
 """The simulator's parameters, read and changed over the wire as a ground station does (pymavlink over loopback UDP),
-with ArduSub 4.7's names, types and defaults, and the failsafes and pilot response following what was set."""
+with ArduSub 4.7's names, types and defaults, and the failsafes and pilot response following what was set; and
+MANUAL_CONTROL taken only from MAV_GCS_SYSID, aimed at this vehicle, as a GCS heartbeat too."""
 
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
@@ -105,3 +107,22 @@ def test_failsafes_and_pilot_speed_follow_the_parameters_set_over_the_wire():
         assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
         assert sim.state().mode == "SURFACE" and sim.state().vd == pytest.approx(-1.0)
         assert any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT"))
+
+
+def test_manual_control_counts_only_from_the_ground_station_and_aimed_at_this_vehicle():
+    with sim_and_peer(profile=_dive(), pilot_timeout_s=0.4, gcs_timeout_s=0.4) as (sim, peer):
+        assert wait_until(lambda: sim.state().vd == 0.0, 3)  # the scripted descent is over: holding at 5 m
+        peer.conn.mav.srcSystem = 1  # a companion computer of the vehicle
+        peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 0, 0, 0))
+        peer.conn.mav.srcSystem = 255  # the ground station
+        peer.send(mav2.MAVLink_manual_control_message(0, 0, 0, 0, 0, 0))  # broadcast target: not "aimed at us"
+        peer.send(mav2.MAVLink_manual_control_message(2, 0, 0, 0, 0, 0))  # another vehicle's
+        _read(peer, "FS_PILOT_INPUT")
+        assert wait_until(lambda: peer.of_type("PARAM_VALUE"), 5)  # everything above was handled by now
+        assert sim.manual_control_senders == {(1, 190), (255, 190)}
+        assert sim.state().vd == 0.0
+        time.sleep(0.6)  # past both timeouts: none of those inputs started either failsafe
+        assert sim.failsafes == [] and sim.state().armed
+        peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 0, 0, 0))
+        assert wait_until(lambda: sim.state().vd == pytest.approx(1.0), 3)
+        assert wait_until(lambda: sorted(kind for _t, kind in sim.failsafes) == ["gcs", "pilot_input"], 3)
