@@ -302,7 +302,7 @@ class SimVehicle:
         now = self.clock()
         at = Moment(boot_ms=self.time_boot_ms(), wall_s=self.wall_clock(), since_start_s=now - self._start,
                     origin=self.origin(), surface_pressure_hpa=self.surface_pressure_hpa,
-                    fluid_density=self.fluid_density)
+                    fluid_density=self.fluid_density, failsafe=bool(self._in_failsafe))
         return build_message(name, self.state(), at)
 
     # ------------------------------------------------------------------------------------------ commands

@@ -99,7 +99,9 @@ def test_pilot_input_failsafe_disarms_when_manual_control_stops_and_reports_it()
                                       for m in peer.of_type("STATUSTEXT")), 2)
         since = time.monotonic()
         assert wait_until(lambda: peer.of_type("HEARTBEAT", since), 3)
-        assert not peer.of_type("HEARTBEAT", since)[-1].base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
+        after = peer.of_type("HEARTBEAT", since)[-1]
+        assert not after.base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
+        assert after.system_status == mav2.MAV_STATE_CRITICAL  # a failsafe is on until the pilot is back
         assert sim.manual_control_senders == {(255, 190)}
         held = sim.state().depth  # disarmed: the scripted descent no longer moves it
         time.sleep(0.3)
