@@ -49,6 +49,9 @@ class TelemetryConfig(_Section):
     rate_grace_s: float = Field(3.0, ge=0.2, le=60)
     """How long an asked-for message may take to arrive at half its rate before it is asked for again (the wait
     then doubles); after three unanswered asks it is declared missing (no DVL or USBL, or a signing autopilot)."""
+    rate_listen_s: float = Field(1.0, ge=0, le=10)
+    """When the autopilot is found, listen this long first: a message already arriving at 80% of its rate or more
+    (a ground station may have set it) is not asked for, so the companion never lowers it."""
 
 
 class SurfaceConfig(_Section):

@@ -32,9 +32,10 @@ def register(add_command) -> None:
     p.add_argument("--pilot-timeout", type=float, default=3.0, metavar="S",
                    help="FS_PILOT_TIMEOUT: disarm when MANUAL_CONTROL stops this long while armed (default 3)")
     p.add_argument("--gcs-timeout", type=float, default=5.0, metavar="S",
-                   help="FS_GCS_TIMEOUT: GCS failsafe when system 255's heartbeats stop this long (default 5)")
-    p.add_argument("--gcs-failsafe", choices=["warn", "disarm", "depth_hold", "surface"], default="depth_hold",
-                   help="FS_GCS_ENABLE action (default depth_hold)")
+                   help="FS_GCS_TIMEOUT: GCS failsafe when MAV_GCS_SYSID's (255) heartbeats stop this long (default 5)")
+    p.add_argument("--gcs-failsafe", choices=["off", "warn", "disarm", "depth_hold", "surface"], default="disarm",
+                   help="FS_GCS_ENABLE action, 0-4 (default disarm, the firmware's 2); a ground station may also "
+                   "change it, and the timeouts, with PARAM_SET")
     p.add_argument("--json", action="store_true", help="print the final counters as JSON")
     p.add_argument("--signing-key", metavar="FILE", help="sign like ArduSub with this key (32 raw bytes or a "
                    "passphrase): unsigned parameter writes and commands are then ignored (docs/security.md)")

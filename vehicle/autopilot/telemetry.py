@@ -89,7 +89,8 @@ class VehicleTelemetry:
         self.boot_clock = BootClock()
         self.history = PoseHistory(cfg.stale_after_s, cfg.history_s)
         self.rates = RateKeeper(link, self.wanted_rates(cfg), clock=rate_clock, on_missing=self._on_missing,
-                                **{"grace_s": cfg.rate_grace_s, **(rate_options or {})}) if request_rates else None
+                                **{"grace_s": cfg.rate_grace_s, "listen_s": cfg.rate_listen_s,
+                                   **(rate_options or {})}) if request_rates else None
         self._notices: list[Callable[[str, int], None]] = []
         self.messages = 0
         self._lock = threading.Lock()

@@ -1,8 +1,12 @@
 """Ask the autopilot for the telemetry rates the companion needs, and keep them.
 
-MAV_CMD_SET_MESSAGE_INTERVAL (ArduPilot 4.0+) is sent per message and its COMMAND_ACK checked; an autopilot that
-answers UNSUPPORTED (or never answers) gets the legacy REQUEST_DATA_STREAM for the stream holding that message.
-The ground station may change the same rates later, so the rates that actually arrive are watched, and a message
+When the autopilot is found (and again after it was lost) the keeper first listens ``listen_s`` (1 s): a message
+already arriving at 80 % or more of the wanted rate is left as it is, never asked for, so the companion neither
+lowers a rate a ground station raised (the last request wins for every listener on the router) nor adds requests
+that change nothing. The others get MAV_CMD_SET_MESSAGE_INTERVAL (ArduPilot 4.0+), per message, with its
+COMMAND_ACK checked; an autopilot that answers UNSUPPORTED (or never answers) gets the legacy REQUEST_DATA_STREAM
+for the stream holding that message. The ground station may change the same rates later, so the rates that
+actually arrive are watched, and a message
 arriving at less than half the asked rate is asked for again, with exponential back-off (grace_s, then 2, 4, 8, ...
 times it, capped at backoff_max_s), so a message the vehicle cannot produce costs a few bytes a minute, not a
 flood. A message that has not arrived once after ``missing_after`` requests is declared missing, once: logged and
@@ -43,8 +47,10 @@ STREAM_OF: dict[str, int] = {
     "SYSTEM_TIME": mav2.MAV_DATA_STREAM_EXTRA3,
     "BATTERY_STATUS": mav2.MAV_DATA_STREAM_EXTRA3,
 }
+LEAVE_SHARE = 0.8
+"""A message already arriving at this share of the wanted rate or more when the autopilot is found is not asked for."""
 _RESET = None
-"""In the inbox: the autopilot was found (again); ask for everything anew."""
+"""In the inbox: the autopilot was found (again); listen, then ask anew for what falls short."""
 
 
 class RateKeeper:
@@ -61,6 +67,7 @@ class RateKeeper:
         grace_s: float = 3.0,
         backoff_max_s: float = 60.0,
         missing_after: int = 3,
+        listen_s: float = 1.0,
         on_missing: Callable[[str], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -75,13 +82,15 @@ class RateKeeper:
         self.grace_s = grace_s
         self.backoff_max_s = backoff_max_s
         self.missing_after = missing_after
+        self.listen_s = listen_s
         self.on_missing = on_missing
         self.clock = clock
         self.missing: set[str] = set()
         """Messages asked for ``missing_after`` times that never arrived."""
         self._arrived: set[str] = set()
         self.method: dict[str, str] = {}
-        """How each message was last asked for: interval | data_stream."""
+        """How each message was last asked for: interval | data_stream, or as_found (it already arrived at
+        LEAVE_SHARE of the wanted rate or more when the autopilot was found, so it was not asked for)."""
         self.requests: dict[str, int] = dict.fromkeys(self.wanted, 0)
         self.acks: dict[str, int] = {}
         """The last COMMAND_ACK result per message (MAV_RESULT_*)."""
@@ -93,6 +102,7 @@ class RateKeeper:
         self._asked_at: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
         self._check_at: dict[str, float] = {}  # when each asked-for message is next looked at
+        self._listen_from: float | None = None  # when the autopilot was last found: what arrives since is judged
         self._ack_cv = threading.Condition()
         self._last_ack: tuple[int, int] | None = None
         self._ack_serial = 0
@@ -110,7 +120,8 @@ class RateKeeper:
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="mavlink-rates", daemon=True)
         self._thread.start()
-        if self.link.autopilot_alive:
+        if self.link.autopilot_alive:  # found before we listened: listen now
+            self._inbox.put(_RESET)
             self._wake.set()
 
     def stop(self) -> None:
@@ -122,6 +133,14 @@ class RateKeeper:
             self._thread.join(timeout=5)
             if not self._thread.is_alive():  # its owner is gone: what came last is taken in here
                 self._drain()
+
+    def heard_hz(self, name: str, since: float) -> float:
+        """Messages per second since ``since`` (at most ``window_s`` back), from what the rates thread last took in."""
+        now = self.clock()
+        since = max(since, now - self.window_s)
+        if now <= since:
+            return 0.0
+        return sum(1 for t in self._windows.get(name, ()) if t >= since) / (now - since)
 
     def observed_hz(self, name: str) -> float:
         """Messages per second over the last ``window_s`` seconds, from the arrivals the rates thread took in at its
@@ -157,6 +176,7 @@ class RateKeeper:
             except queue.Empty:
                 break
             if item is _RESET:
+                self._listen_from = self.clock()
                 self._asked_at.clear()
                 self._backoff.clear()
                 self._check_at.clear()
@@ -188,11 +208,15 @@ class RateKeeper:
             if not self.link.autopilot_alive or self.link.autopilot is None:
                 continue
             now = self.clock()
+            if self._listen_from is not None and now < self._listen_from + self.listen_s:
+                continue  # still listening to what arrives unasked
             for name, hz in self.wanted.items():
                 if self._stop.is_set() or not self.link.autopilot_alive:
                     break
                 self._drain()  # a pass may wait for several acks: judge each rate on what came until now
                 asked = self._asked_at.get(name)
+                if asked is None and self._listen_from is not None and self._as_found(name, hz):
+                    continue
                 if asked is not None:
                     if now < self._check_at.get(name, 0.0):
                         continue
@@ -208,12 +232,29 @@ class RateKeeper:
                 self._check_at[name] = self._asked_at[name] + max(self.grace_s, self._backoff.get(name, 0.0))
                 self._check_missing(name)
 
+    def _as_found(self, name: str, hz: float) -> bool:
+        """After listening: leave ``name`` alone (checked like an asked one from now on) if it already arrives at
+        LEAVE_SHARE of ``hz`` or more, whoever set that rate."""
+        heard = self.heard_hz(name, self._listen_from)
+        if heard < LEAVE_SHARE * hz:
+            return False
+        now = self.clock()
+        log.info("rates: %s already arrives at %.1f Hz (wanted %.1f Hz): not asked for", name, heard, hz)
+        self.method[name] = "as_found"
+        self._asked_at[name] = now
+        self._check_at[name] = now + self.grace_s
+        return True
+
     def _until_next_check(self) -> float:
-        """Seconds until the next message is due to be checked (at most 1 s, so a short back-off is kept)."""
+        """Seconds until the next message is due to be checked, or the listening ends (at most 1 s, so a short
+        back-off is kept)."""
         if not self.link.autopilot_alive:
             return 1.0  # nothing to ask a lost autopilot; finding it again sets _wake
         now = self.clock()
-        return max(0.01, min([1.0, *(t - now for t in list(self._check_at.values()))]))
+        due = list(self._check_at.values())
+        if self._listen_from is not None and self._listen_from + self.listen_s > now:
+            due.append(self._listen_from + self.listen_s)
+        return max(0.01, min([1.0, *(t - now for t in due)]))
 
     def _check_missing(self, name: str) -> None:
         if name in self._arrived or name in self.missing or self.requests[name] < self.missing_after:

@@ -217,6 +217,9 @@ class LinkSigning:
     ) -> None:
         self.name = name
         self.accept_unsigned_reads = accept_unsigned_reads
+        self.announce_refusals = True
+        """Say on the wire (one STATUSTEXT per source) that a refused message was ignored; an ArduSub autopilot
+        never does: it drops what it refuses silently (the simulator turns this off)."""
         self.link_id = link_id
         self.wall_clock = wall_clock
         self._store = TimestampFile(timestamp_file) if timestamp_file is not None else None
@@ -361,9 +364,9 @@ class LinkSigning:
             name = "FTP write" if msg.get_type() == "FILE_TRANSFER_PROTOCOL" else msg.get_type()
             text = f"{reason} {name} from {source[0]}/{source[1]} ignored"  # fits STATUSTEXT's 50 characters
             log.warning("%s: %s (further ones from it are only counted)", self.name, text)
-            if self._warnings.take():
+            if self.announce_refusals and self._warnings.take():
                 send(mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text[:50].encode()))
-            else:
+            elif self.announce_refusals:
                 self.warnings_withheld += 1
         return False
 

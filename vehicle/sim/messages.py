@@ -17,6 +17,8 @@ from vehicle.autopilot.telemetry import GRAVITY
 from vehicle.sim.dive_profile import Origin, VehicleState, geodetic
 
 MODE_NUMBERS = {name: number for number, name in mavutil.mode_mapping_sub.items()}
+GUIDED_MODES = frozenset({"AUTO", "GUIDED", "CIRCLE", "POSHOLD"})
+"""Modes whose heartbeat carries MAV_MODE_FLAG_GUIDED_ENABLED (GCS_MAVLINK_Sub::base_mode)."""
 
 
 @dataclass(frozen=True)
@@ -29,18 +31,25 @@ class Moment:
     origin: Origin | None
     surface_pressure_hpa: float
     fluid_density: float
+    failsafe: bool = False
+    """A failsafe has triggered (and not cleared): the heartbeat says MAV_STATE_CRITICAL."""
 
 
 def build_message(name: str, s: VehicleState, at: Moment) -> mav2.MAVLink_message:
     """One message of the kind ``name`` describing the vehicle in state ``s``."""
     boot_ms, origin = at.boot_ms, at.origin
     heading = math.degrees(s.yaw) % 360.0
-    if name == "HEARTBEAT":
-        base = mav2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav2.MAV_MODE_FLAG_STABILIZE_ENABLED
+    if name == "HEARTBEAT":  # as GCS_MAVLINK_Sub::base_mode and vehicle_system_status
+        base = (mav2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav2.MAV_MODE_FLAG_STABILIZE_ENABLED
+                | mav2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
+        if s.mode in GUIDED_MODES:
+            base |= mav2.MAV_MODE_FLAG_GUIDED_ENABLED
         if s.armed:
             base |= mav2.MAV_MODE_FLAG_SAFETY_ARMED
+        status = (mav2.MAV_STATE_CRITICAL if at.failsafe else mav2.MAV_STATE_ACTIVE if s.armed
+                  else mav2.MAV_STATE_STANDBY)
         return mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_SUBMARINE, mav2.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
-                                              MODE_NUMBERS.get(s.mode, 19), mav2.MAV_STATE_ACTIVE, 3)
+                                              MODE_NUMBERS.get(s.mode, 19), status, 3)
     if name == "SYSTEM_TIME":
         return mav2.MAVLink_system_time_message(int(at.wall_s * 1e6), boot_ms)
     if name == "ATTITUDE":

@@ -11,13 +11,19 @@ It speaks through the same ``MavLink`` as the companion (system 1, component 1),
 - ``relative_alt`` valid from boot; VFR_HUD.alt, GLOBAL_POSITION_INT lat/lon/alt and LOCAL_POSITION_NED only
   once the EKF has an origin (``origin.after_s`` after boot, never without a position source unless a ground
   station sends SET_GPS_GLOBAL_ORIGIN);
+- the parameters it acts on, served with the parameter protocol (``vehicle.sim.params``): FS_PILOT_INPUT,
+  FS_PILOT_TIMEOUT, FS_GCS_ENABLE, FS_GCS_TIMEOUT, MAV_GCS_SYSID, PILOT_SPEED_UP/DN, with the firmware's defaults;
+- MANUAL_CONTROL counts only from system ``MAV_GCS_SYSID`` (255) and with ``target`` = this vehicle, and it counts
+  as that ground station's heartbeat too; anyone else's is ignored (but recorded);
 - pilot-input failsafe: armed and MANUAL_CONTROL stopping for ``FS_PILOT_TIMEOUT`` (3 s) -> "Lost manual control",
-  neutral controls, disarm; GCS failsafe: once a heartbeat from system 255 was seen, those stopping for
-  ``FS_GCS_TIMEOUT`` (5 s) -> "MYGCS: 255, heartbeat lost" and the ``FS_GCS_ENABLE`` action. Each failsafe is
-  reported by STATUSTEXT and recorded in ``failsafes``, and every peer's heartbeat ids and MANUAL_CONTROL senders
-  are recorded, so that tests can prove the companion never takes part in either;
-- MANUAL_CONTROL flies the vehicle (the pilot takes over from the script): ``z`` below 500 descends, above
-  ascends (up to ``PILOT_SPEED`` 0.5 m/s), 500 holds depth (ALT_HOLD). Arm/disarm and mode changes by command.
+  neutral controls, and with ``FS_PILOT_INPUT`` 2 a disarm; GCS failsafe: once a heartbeat (or MANUAL_CONTROL) from
+  ``MAV_GCS_SYSID`` was seen, those stopping for ``FS_GCS_TIMEOUT`` (5 s) -> "MYGCS: 255, heartbeat lost" (again
+  every 30 s while lost) and, if armed, the ``FS_GCS_ENABLE`` action (default 2: disarm). Each failsafe that acts
+  is reported by STATUSTEXT and recorded in ``failsafes``, and every peer's heartbeat ids and MANUAL_CONTROL
+  senders are recorded, so that tests can prove the companion never takes part in either;
+- MANUAL_CONTROL flies the vehicle (the pilot takes over from the script): ``z`` below 500 descends (up to
+  PILOT_SPEED_DN, or PILOT_SPEED_UP when that is 0), above ascends (up to PILOT_SPEED_UP, 1 m/s), 500 holds depth
+  (ALT_HOLD). Arm/disarm and mode changes by command.
 
 It can also go silent or reboot (its boot time restarts) so that loss handling can be exercised. ``SimVehicle``
 runs in-thread for tests; ``merlion sim-vehicle`` runs it as a separate process.
@@ -39,17 +45,16 @@ from vehicle.link.connection import MavLink
 from vehicle.settings import MavlinkConfig
 from vehicle.sim.dive_profile import DiveProfile, Origin, VehicleState, load_profile
 from vehicle.sim.messages import MODE_NUMBERS, Moment, build_message
+from vehicle.sim.params import GCS_FAILSAFE_ACTIONS, SimParams
 
 log = logging.getLogger(__name__)
 
 GCS_SYSID = 255
-"""MAV_GCS_SYSID: the ground station whose heartbeats arm the GCS failsafe."""
+"""MAV_GCS_SYSID's default: the ground station whose heartbeats arm the GCS failsafe."""
 FS_PILOT_TIMEOUT_S = 3.0
 FS_GCS_TIMEOUT_S = 5.0
-PILOT_SPEED_MPS = 0.5
-"""PILOT_SPEED_UP / PILOT_SPEED_DN (50 cm/s): the climb or descent rate at full MANUAL_CONTROL z."""
-GCS_FAILSAFE_ACTIONS = ("warn", "disarm", "depth_hold", "surface")
-"""FS_GCS_ENABLE 1-4."""
+GCS_WARN_EVERY_S = 30.0
+"""While the GCS stays lost the firmware repeats its warning this often."""
 
 # Messages the simulator can produce, and the real ArduSub's default rates in Hz (0: only when asked for).
 DEFAULT_RATES: dict[str, float] = {
@@ -94,7 +99,7 @@ class SimVehicle:
         reboot_s: float = 2.0,
         pilot_timeout_s: float = FS_PILOT_TIMEOUT_S,
         gcs_timeout_s: float = FS_GCS_TIMEOUT_S,
-        gcs_failsafe: str = "depth_hold",
+        gcs_failsafe: str = "disarm",
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
         signing_key_file: str | None = None,
@@ -110,17 +115,21 @@ class SimVehicle:
         self.fluid_density = fluid_density
         self.surface_pressure_hpa = surface_pressure_hpa
         self.reboot_s = reboot_s
-        self.pilot_timeout_s = pilot_timeout_s
-        self.gcs_timeout_s = gcs_timeout_s
-        self.gcs_failsafe = gcs_failsafe
+        self.params = SimParams({"FS_PILOT_TIMEOUT": pilot_timeout_s, "FS_GCS_TIMEOUT": gcs_timeout_s,
+                                 "FS_GCS_ENABLE": GCS_FAILSAFE_ACTIONS.index(gcs_failsafe)})
+        """What the firmware keeps in its parameters (kept across a reboot, as on the vehicle's storage)."""
         self.clock = clock
         self.wall_clock = wall_clock
+        # with a key, ArduSub (on SERIAL1 and up, where a router or companion sits) drops every unsigned or badly
+        # signed packet, reads included, and says nothing about it
         self.link = MavLink(connection, MavlinkConfig(system_id=system_id, component_id=1,
-                                                      signing_key_file=signing_key_file),
+                                                      signing_key_file=signing_key_file, accept_unsigned_reads=False),
                             clock=clock, name="sim-ardusub", heartbeat=False)
+        self.link.signing.announce_refusals = False
         self.link.subscribe(self._on_setup_signing, ["SETUP_SIGNING"])
         self.link.subscribe(self._on_message, ["COMMAND_LONG", "REQUEST_DATA_STREAM", "HEARTBEAT", "MANUAL_CONTROL",
-                                               "SET_MODE", "SET_GPS_GLOBAL_ORIGIN"])
+                                               "SET_MODE", "SET_GPS_GLOBAL_ORIGIN", "PARAM_REQUEST_LIST",
+                                               "PARAM_REQUEST_READ", "PARAM_SET"])
         self.sent: dict[str, int] = dict.fromkeys(DEFAULT_RATES, 0)
         self.reboots = 0
         self.commands: list[tuple[int, float, float, int]] = []
@@ -133,6 +142,7 @@ class SimVehicle:
         self.heartbeat_senders: set[tuple[int, int, int]] = set()
         """(system, component, MAV_TYPE) of every peer heartbeat seen."""
         self.manual_control_senders: set[tuple[int, int]] = set()
+        """(system, component) of every MANUAL_CONTROL sender, whether the firmware would take its input or not."""
         self._lock = threading.Lock()
         self._armed: bool | None = None  # None: as the dive profile says
         self._mode: str | None = None
@@ -140,7 +150,8 @@ class SimVehicle:
         self._pilot: tuple[float, float, float, float, float] | None = None
         """Flown, not scripted, since t0: (depth at t0, t0 in profile time, rate down m/s, north, east)."""
         self._pilot_seen: float | None = None  # clock of the last MANUAL_CONTROL while armed
-        self._gcs_seen: float | None = None  # clock of the last heartbeat from GCS_SYSID
+        self._gcs_seen: float | None = None  # clock of the last heartbeat or MANUAL_CONTROL from MAV_GCS_SYSID
+        self._gcs_warned: float | None = None  # clock of the last "heartbeat lost" warning
         self._in_failsafe: set[str] = set()
         self._start = clock()
         self._boot = self._start
@@ -197,7 +208,7 @@ class SimVehicle:
             self.reboots += 1
             self._reset_rates(start=now + self.reboot_s)
             self._armed = self._mode = self._gcs_origin = self._pilot = None
-            self._pilot_seen = self._gcs_seen = None
+            self._pilot_seen = self._gcs_seen = self._gcs_warned = None
             self._in_failsafe.clear()
         log.info("sim-ardusub: rebooting (back in %.1f s)", self.reboot_s)
 
@@ -291,7 +302,7 @@ class SimVehicle:
         now = self.clock()
         at = Moment(boot_ms=self.time_boot_ms(), wall_s=self.wall_clock(), since_start_s=now - self._start,
                     origin=self.origin(), surface_pressure_hpa=self.surface_pressure_hpa,
-                    fluid_density=self.fluid_density)
+                    fluid_density=self.fluid_density, failsafe=bool(self._in_failsafe))
         return build_message(name, self.state(), at)
 
     # ------------------------------------------------------------------------------------------ commands
@@ -307,15 +318,14 @@ class SimVehicle:
         if mtype == "HEARTBEAT":
             if src != (self.link.system_id, self.link.component_id):
                 self.heartbeat_senders.add((*src, msg.type))
-                if src[0] == GCS_SYSID:
-                    with self._lock:
-                        self._gcs_seen = self.clock()
-                        self._in_failsafe.discard("gcs")
+                if src[0] == self.params.gcs_sysid():
+                    self._gcs_heard()
             return
         if mtype == "MANUAL_CONTROL":
-            if msg.target in (0, self.link.system_id):
-                self.manual_control_senders.add(src)
+            self.manual_control_senders.add(src)
+            if src[0] == self.params.gcs_sysid() and msg.target == self.link.system_id:  # the GCS's, aimed at us
                 self._manual_control(msg)
+                self._gcs_heard()  # "considered to be a 'heartbeat' from the ground station"
             return
         if mtype == "SET_MODE":
             if msg.target_system in (0, self.link.system_id):
@@ -330,6 +340,9 @@ class SimVehicle:
             return
         if mtype == "REQUEST_DATA_STREAM":
             self._data_stream(msg)
+            return
+        if mtype.startswith("PARAM_"):
+            self.params.handle(msg, self.link.send, self.statustext)
             return
         result = self._command(msg)
         self.commands.append((msg.command, msg.param1, msg.param2, result))
@@ -399,41 +412,62 @@ class SimVehicle:
         now = self.clock()
         t = now - self._start
         armed = self.state_at(t).armed
-        rate = 0.0 if not armed else max(-1.0, min(1.0, (500 - msg.z) / 500.0)) * PILOT_SPEED_MPS
+        stick = max(-1.0, min(1.0, (500 - msg.z) / 500.0))  # > 0: down
+        speed = self.params.pilot_speed_dn_mps() if stick > 0 else self.params.pilot_speed_up_mps()
+        rate = stick * speed if armed else 0.0
         self._fly(now, rate)
         with self._lock:
             if armed:
                 self._pilot_seen = now
                 self._in_failsafe.discard("pilot_input")
 
+    def _gcs_heard(self) -> None:
+        with self._lock:
+            self._gcs_seen = self.clock()
+            self._in_failsafe.discard("gcs")
+
     def _check_failsafes(self, now: float) -> None:
         """ArduSub's failsafe checks (its scheduler runs them at 1-10 Hz; this tick is finer, which is harmless)."""
         armed = self.state_at(now - self._start).armed
+        value = self.params.value
+        pilot_action, gcs_action = int(value("FS_PILOT_INPUT")), int(value("FS_GCS_ENABLE"))
         with self._lock:
-            pilot_lost = (armed and self._pilot_seen is not None and now - self._pilot_seen > self.pilot_timeout_s
+            pilot_lost = (pilot_action != 0 and armed and self._pilot_seen is not None
+                          and now - self._pilot_seen > value("FS_PILOT_TIMEOUT")
                           and "pilot_input" not in self._in_failsafe)
-            gcs_lost = (self._gcs_seen is not None and now - self._gcs_seen > self.gcs_timeout_s
-                        and "gcs" not in self._in_failsafe)
+            gcs_lost = (gcs_action != 0 and self._gcs_seen is not None
+                        and now - self._gcs_seen > value("FS_GCS_TIMEOUT"))
+            gcs_warn = gcs_lost and (self._gcs_warned is None or now - self._gcs_warned > GCS_WARN_EVERY_S)
+            gcs_act = gcs_lost and armed and "gcs" not in self._in_failsafe  # once per loss, and only armed
             if pilot_lost:
                 self._in_failsafe.add("pilot_input")
-            if gcs_lost:
+            if gcs_warn:
+                self._gcs_warned = now
+            if gcs_act:
                 self._in_failsafe.add("gcs")
         # each action first, then the record and the message: whoever sees a failsafe sees what it did
         if pilot_lost:
-            self._set_armed(False)  # after set_neutral_controls()
+            self._fly(now, 0.0)  # set_neutral_controls()
+            if pilot_action == 2:
+                self._set_armed(False)
             self.failsafes.append((now - self._start, "pilot_input"))
             self.statustext(mav2.MAV_SEVERITY_CRITICAL, "Lost manual control")
-        if gcs_lost:
-            if armed and self.gcs_failsafe == "disarm":
-                self._set_armed(False)
-            elif armed and self.gcs_failsafe == "depth_hold":
-                self._set_mode(MODE_NUMBERS["ALT_HOLD"])
-                self._fly(now, 0.0)
-            elif armed and self.gcs_failsafe == "surface":
-                self._set_mode(MODE_NUMBERS["SURFACE"])
-                self._fly(now, -PILOT_SPEED_MPS)
+        if gcs_act:
+            self._gcs_failsafe_action(now, gcs_action)
             self.failsafes.append((now - self._start, "gcs"))
-            self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {GCS_SYSID}, heartbeat lost")
+        if gcs_warn:
+            self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {self.params.gcs_sysid()}, heartbeat lost")
+
+    def _gcs_failsafe_action(self, now: float, action: int) -> None:
+        """FS_GCS_ENABLE 2: disarm, 3: depth hold (ALT_HOLD), 4: surface; 1 (and any other value) only warns."""
+        if action == 2:
+            self._set_armed(False)
+        elif action == 3:
+            self._set_mode(MODE_NUMBERS["ALT_HOLD"])
+            self._fly(now, 0.0)
+        elif action == 4:  # SURFACE climbs at its own rate; PILOT_SPEED_UP stands in for it
+            self._set_mode(MODE_NUMBERS["SURFACE"])
+            self._fly(now, -self.params.pilot_speed_up_mps())
 
     def _fly(self, now: float, rate_mps: float) -> None:
         """From now on the vehicle stays where it is and moves vertically at ``rate_mps`` (down positive)."""

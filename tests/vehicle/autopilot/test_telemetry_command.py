@@ -1,6 +1,6 @@
 """`merlion telemetry` (a real process) against the simulated ArduSub without a position source: it sees depth
 from GLOBAL_POSITION_INT at the rate it asked for, and reports LOCAL_POSITION_NED as missing, asked for only a
-few times (0, 3 and 9 s) in 10 s."""
+few times (0, 3 and 9 s after listening 0.2 s) in 10.5 s."""
 
 from __future__ import annotations
 
@@ -11,11 +11,14 @@ from vehicle.sim.dive_profile import compile_profile
 from vehicle.sim.vehicle import SimVehicle
 
 
-def test_telemetry_command_reports_depth_rates_and_no_position_source():
+def test_telemetry_command_reports_depth_rates_and_no_position_source(tmp_path):
     port = free_udp_port()
+    cfg = tmp_path / "merlion.yaml"
+    cfg.write_text("telemetry:\n  rate_listen_s: 0.2\n")  # the first second of listening, shortened
     dive = compile_profile({"legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20.0, "rate_mps": 0.5}}]})
     with SimVehicle(f"udpin:127.0.0.1:{port}", dive) as sim:
         done = run_merlion("telemetry", "--connect", f"udpout:127.0.0.1:{port}", "--duration", "10.5", "--json",
+                           "--config", str(cfg),
                            timeout=60)
         commands = list(sim.commands)
     assert done.returncode == 0, done.stderr

@@ -91,3 +91,57 @@ def test_setup_signing_from_a_ground_station_turns_signing_on(tmp_path):
     finally:
         gcs.close()
         sim.stop()
+
+
+def _until_ack(gcs: socket.socket, command: int) -> list[mav2.MAVLink_message]:
+    """Everything the sim sent to ``gcs`` up to and including the COMMAND_ACK of ``command``."""
+    parser = mav2.MAVLink(None)
+    heard: list[mav2.MAVLink_message] = []
+    while not any(m.get_type() == "COMMAND_ACK" and m.command == command for m in heard):
+        data, _ = gcs.recvfrom(4096)
+        heard.extend(parser.parse_buffer(data) or [])
+    return heard
+
+
+def test_a_signed_sim_drops_unsigned_packets_silently_as_ardusub_does(tmp_path):
+    """ArduSub with a key drops every unsigned packet on SERIAL1+ (heartbeats and MANUAL_CONTROL too) and says
+    nothing: no refusal STATUSTEXT, no ACK, no parameter. The unsigned packets go first; the signed request after them is
+    answered, so by its ACK anything the sim had to say about them would have arrived (one sender, one order)."""
+    key_file = tmp_path / "key"
+    key_file.write_text("reef survey\n")
+    port = free_udp_port()
+    sim = SimVehicle(f"udpin:127.0.0.1:{port}", quick_dive(), rates={"HEARTBEAT": 5.0},
+                     signing_key_file=str(key_file))
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(5)
+    plain = mav2.MAVLink(None, 255, 190)
+    signed = mav2.MAVLink(None, 255, 190)
+    signed.signing.secret_key = hashlib.sha256(b"reef survey").digest()
+    signed.signing.sign_outgoing, signed.signing.timestamp = True, now_timestamp()
+    unsigned = [
+        mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3),
+        mav2.MAVLink_command_long_message(1, 1, SET_MESSAGE_INTERVAL, 0, 30, 50_000, 0, 0, 0, 0, 0),
+        mav2.MAVLink_manual_control_message(1, 0, 0, 0, 0, 0),
+        mav2.MAVLink_request_data_stream_message(1, 1, mav2.MAV_DATA_STREAM_ALL, 50, 1),
+        mav2.MAVLink_param_request_list_message(1, 1),
+        mav2.MAVLink_param_set_message(1, 1, b"FS_GCS_ENABLE", 0, mav2.MAV_PARAM_TYPE_INT8),
+    ]
+    sim.start()
+    try:
+        assert sim.link.wait_open(5)
+        for msg in unsigned:
+            gcs.sendto(msg.pack(plain), ("127.0.0.1", port))
+        ask = mav2.MAVLink_command_long_message(1, 1, mav2.MAV_CMD_GET_MESSAGE_INTERVAL, 0, 30, 0, 0, 0, 0, 0, 0)
+        gcs.sendto(ask.pack(signed), ("127.0.0.1", port))
+        heard = _until_ack(gcs, mav2.MAV_CMD_GET_MESSAGE_INTERVAL)
+        assert [m.get_type() for m in heard if m.get_type() in ("STATUSTEXT", "PARAM_VALUE")] == []
+        assert [m.command for m in heard if m.get_type() == "COMMAND_ACK"] == [mav2.MAV_CMD_GET_MESSAGE_INTERVAL]
+        assert [c[0] for c in sim.commands] == [mav2.MAV_CMD_GET_MESSAGE_INTERVAL]
+        assert sim.heartbeat_senders == set() and sim.manual_control_senders == set()
+        assert sim.data_stream_requests == [] and sim.interval("ATTITUDE") == 0.1
+        assert sim.params.sets == [] and sim.params.value("FS_GCS_ENABLE") == 2
+        assert sum(sim.link.signing.rejected.values()) == len(unsigned)  # counted on board, never announced
+    finally:
+        gcs.close()
+        sim.stop()

@@ -5,67 +5,16 @@ plain pymavlink connections on loopback UDP, as a ground station or a joystick b
 from __future__ import annotations
 
 import collections
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import pytest
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from tests.conftest import free_udp_port
+from tests.vehicle.sim_env import sim_and_peer
 from tests.waiting import wait_until
 from vehicle.errors import UserError as MerlionError
 from vehicle.sim.dive_profile import compile_profile
-from vehicle.sim.vehicle import FS_GCS_TIMEOUT_S, FS_PILOT_TIMEOUT_S, SimVehicle
-
-
-class Peer:
-    """A pymavlink peer of the simulator (ground station, joystick bridge) that records all it hears."""
-
-    def __init__(self, port: int, system: int, component: int = 190) -> None:
-        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=system,
-                                               source_component=component, dialect="ardupilotmega")
-        self.messages: list[tuple[float, mav2.MAVLink_message]] = []
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            msg = self.conn.recv_match(blocking=True, timeout=0.1)
-            if msg is not None and msg.get_type() != "BAD_DATA":
-                with self._lock:
-                    self.messages.append((time.monotonic(), msg))
-
-    def of_type(self, kind: str, since: float = 0.0) -> list[mav2.MAVLink_message]:
-        with self._lock:
-            return [m for t, m in self.messages if t >= since and m.get_type() == kind]
-
-    def send(self, msg: mav2.MAVLink_message) -> None:
-        with self._lock:  # pymavlink's writer is not thread-safe; only this test thread sends
-            self.conn.mav.send(msg)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
-        self.conn.close()
-
-
-@contextmanager
-def sim_and_peer(system: int = 255, **sim_kwargs) -> Iterator[tuple[SimVehicle, Peer]]:
-    port = free_udp_port()
-    peer = Peer(port, system)
-    sim = SimVehicle(f"udpout:127.0.0.1:{port}", **sim_kwargs)
-    sim.start()
-    try:
-        assert wait_until(lambda: peer.of_type("HEARTBEAT"), 5)
-        yield sim, peer
-    finally:
-        sim.stop()
-        peer.close()
+from vehicle.sim.vehicle import FS_GCS_TIMEOUT_S, FS_PILOT_TIMEOUT_S
 
 
 def _profile(origin: dict | None = None, armed: bool = True):
@@ -150,7 +99,9 @@ def test_pilot_input_failsafe_disarms_when_manual_control_stops_and_reports_it()
                                       for m in peer.of_type("STATUSTEXT")), 2)
         since = time.monotonic()
         assert wait_until(lambda: peer.of_type("HEARTBEAT", since), 3)
-        assert not peer.of_type("HEARTBEAT", since)[-1].base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
+        after = peer.of_type("HEARTBEAT", since)[-1]
+        assert not after.base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
+        assert after.system_status == mav2.MAV_STATE_CRITICAL  # a failsafe is on until the pilot is back
         assert sim.manual_control_senders == {(255, 190)}
         held = sim.state().depth  # disarmed: the scripted descent no longer moves it
         time.sleep(0.3)
@@ -159,7 +110,7 @@ def test_pilot_input_failsafe_disarms_when_manual_control_stops_and_reports_it()
 
 def test_gcs_failsafe_after_system_255_heartbeats_stop():
     assert FS_GCS_TIMEOUT_S == 5.0
-    with sim_and_peer(profile=_profile(None), gcs_timeout_s=0.8) as (sim, peer):
+    with sim_and_peer(profile=_profile(None), gcs_timeout_s=0.8, gcs_failsafe="depth_hold") as (sim, peer):
         time.sleep(1.0)
         assert sim.failsafes == [], "no GCS seen yet: no GCS failsafe"
         for _ in range(3):
@@ -168,10 +119,15 @@ def test_gcs_failsafe_after_system_255_heartbeats_stop():
         assert (255, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders and sim.failsafes == []
         assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
         assert wait_until(lambda: any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT")), 2)
-        assert sim.state().mode == "ALT_HOLD"  # FS_GCS_ENABLE = depth hold: it stops descending
+        assert sim.state().mode == "ALT_HOLD"  # FS_GCS_ENABLE 3 = depth hold: it stops descending
         held = sim.state().depth
         time.sleep(0.3)
         assert sim.state().depth == held > 0 and sim.state().armed
+    # the firmware's default action (FS_GCS_ENABLE 2) disarms
+    with sim_and_peer(profile=_profile(None), gcs_timeout_s=0.5) as (sim, peer):
+        peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+        assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
+        assert not sim.state().armed
         # heartbeats from another system (a companion computer) never arm it
     with sim_and_peer(system=1, profile=_profile(None), gcs_timeout_s=0.5) as (sim, peer):
         peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_INVALID,
@@ -187,7 +143,7 @@ def test_depth_hold_in_alt_hold_and_manual_control_z_below_500_descends():
             peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 0, 0, 0))  # full down
             time.sleep(0.1)
         assert wait_until(lambda: sim.state().depth > 0.5, 3)
-        assert sim.state().vd == pytest.approx(0.5)
+        assert sim.state().vd == pytest.approx(1.0)  # PILOT_SPEED_DN 0: PILOT_SPEED_UP's 100 cm/s
         peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))  # neutral: hold
         assert wait_until(lambda: sim.state().vd == 0.0, 2)
         held, since = sim.state().depth, sim.time_boot_ms()

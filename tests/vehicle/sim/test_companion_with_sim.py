@@ -23,7 +23,7 @@ from vehicle.sim.vehicle import GCS_SYSID, SimVehicle
 class GroundStation:
     """QGroundControl with a joystick, the parts that matter here: a 1 Hz heartbeat as system 255 (it arms the GCS
     failsafe) and MANUAL_CONTROL at 10 Hz with the stick full down (it arms the pilot-input failsafe and dives the
-    vehicle at 0.5 m/s)."""
+    vehicle at PILOT_SPEED_UP's 1 m/s, PILOT_SPEED_DN being 0)."""
 
     def __init__(self, hub: UdpHub) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -89,7 +89,7 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
         assert companion.terminate() == 0, companion.output
         assert sum(t.startswith("No position source") for t in listener.texts()) == 1
         frames = [f for f in _tagged_frames(store) if f["capture_time"] > descending]
-        assert sim.state().vd == 0.5 and sim.state().depth > 2.0 and sim.state().armed
+        assert sim.state().vd == 1.0 and sim.state().depth > 2.0 and sim.state().armed
         errors = [abs(f["pose"]["depth_m"] - sim.state_at(f["capture_time"] - sim._start).depth) for f in frames]
         assert max(errors) <= 0.05, sorted(errors)
         assert {f["pose"]["depth_source"] for f in frames} == {"global_position_int"}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
@@ -40,6 +41,24 @@ def test_depth_pressure_and_position_mean_what_the_companion_reads_from_them():
     assert attitude.yaw == pytest.approx(math.radians(-10.0), abs=1e-6) and attitude.time_boot_ms == 5000
     heartbeat = _wire(build_message("HEARTBEAT", STATE, without))
     assert heartbeat.custom_mode == 2 and heartbeat.base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
+
+
+def test_the_heartbeat_says_what_ardusub_says_of_its_mode_arming_and_failsafes():
+    flags = {name: getattr(mav2, f"MAV_MODE_FLAG_{name}") for name in
+             ("CUSTOM_MODE_ENABLED", "STABILIZE_ENABLED", "MANUAL_INPUT_ENABLED", "GUIDED_ENABLED", "SAFETY_ARMED")}
+
+    def heartbeat(state: VehicleState, failsafe: bool = False) -> tuple[set[str], int]:
+        at = Moment(boot_ms=1, wall_s=1.7e9, since_start_s=1.0, origin=None, surface_pressure_hpa=1013.25,
+                    fluid_density=1025.0, failsafe=failsafe)
+        hb = _wire(build_message("HEARTBEAT", state, at))
+        return {name for name, bit in flags.items() if hb.base_mode & bit}, hb.system_status
+
+    base = {"CUSTOM_MODE_ENABLED", "STABILIZE_ENABLED", "MANUAL_INPUT_ENABLED"}
+    assert heartbeat(STATE) == (base | {"SAFETY_ARMED"}, mav2.MAV_STATE_ACTIVE)
+    disarmed = replace(STATE, armed=False)
+    assert heartbeat(disarmed) == (base, mav2.MAV_STATE_STANDBY)
+    assert heartbeat(replace(disarmed, mode="POSHOLD"), failsafe=True) == (base | {"GUIDED_ENABLED"},
+                                                                          mav2.MAV_STATE_CRITICAL)
 
 
 def test_a_message_the_simulator_cannot_send_is_refused_by_name():
