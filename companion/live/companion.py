@@ -46,6 +46,7 @@ from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
 from companion.storage.queries_file import QueriesFile
 from companion.storage.store import ResumeState, Store
+from companion.storage.store_lock import StoreLock
 from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.factory import make_encoder
 from companion.vision.encoders.query_words import UnknownWord
@@ -93,6 +94,7 @@ class LiveCompanion:
         self.stop_event = threading.Event()
         self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
         self.started_at = time.monotonic()
+        self.store_lock = StoreLock(cfg.store.dir)
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
@@ -120,6 +122,7 @@ class LiveCompanion:
 
     # ---- start-up -----------------------------------------------------------------------------------------------
     def start(self) -> None:
+        self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
         self.store = Store(self.cfg.store)
@@ -410,5 +413,6 @@ class LiveCompanion:
             self.telemetry.stop()
         if self.link is not None:
             self.link.stop()
+        self.store_lock.release()  # after the keeper: its last change is on disk
         self.notifier.close()
 

@@ -9,6 +9,7 @@ Layout of the store directory::
     summary.json             the current summary (image indices), the next image index and the dive id
     changes.jsonl            append-only log of every change (one JSON object a line)
     next_index               the next image index, persisted in place before an index is announced
+    lock                     flock'ed by the one live process writing the store (``store_lock``), with its pid
 
 Every file is written atomically (temp file, fsync, rename, fsync of the directory), so a crash leaves either the
 old file or the new one, never half of one. When the disk is full or read-only the store keeps going in memory
