@@ -7,7 +7,7 @@ Layout of the store directory::
     frames/000042.npy        the sampler feature, so a restart resumes with the same summary
     frames/000042.json       the sidecar: tags, pose, score, times; written last, so it marks a complete frame
     summary.json             the current summary (image indices), the next image index and the dive id
-    changes.jsonl            append-only log of every change (one JSON object a line)
+    changes.jsonl            append-only log of every change (one JSON object a line, ``change_log``)
     next_index               the next image index, persisted in place before an index is announced
     lock                     flock'ed by the one live process writing the store (``store_lock``), with its pid
 
@@ -34,6 +34,7 @@ from typing import Any
 
 from companion.atomic_write import TMP_PREFIX, atomic_write
 from companion.config import StoreConfig
+from companion.storage.change_log import ChangeLog
 from companion.storage.frame_files import (
     FORMAT_VERSION,
     HeldFrame,
@@ -81,6 +82,7 @@ class Store:
         self.stats = StoreStats()
         self.health = StoreHealth(self.dir)
         self._reservation = IndexReservation(self.dir / NEXT_INDEX_FILE)
+        self._changes = ChangeLog(self.dir / CHANGES_FILE)
         self._lock = threading.RLock()
         self._held: dict[int, HeldFrame] = {}
         self._summary: list[int] = []
@@ -115,7 +117,7 @@ class Store:
         try:
             self._clean_temp_files()
             self._check_writable()
-            self._end_torn_change()
+            self._changes.end_torn_tail()
         except OSError as err:
             self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
@@ -129,23 +131,6 @@ class Store:
             return  # absent or damaged: _load rebuilds from the change log
         if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
             upgrade(path, data, current=FORMAT_VERSION, migrations={})
-
-    def _end_torn_change(self) -> None:
-        """A kill in the middle of a change-log line leaves it without its newline: cut it off, or the next run's
-        first line would be glued to it and lost as well."""
-        path = self.dir / CHANGES_FILE
-        try:
-            with open(path, "rb+") as fh:
-                size = fh.seek(0, os.SEEK_END)
-                start = max(0, size - 65536)  # a line is far shorter; the log itself may be long
-                fh.seek(start)
-                tail = fh.read()
-                if tail and not tail.endswith(b"\n"):
-                    cut = tail.rfind(b"\n")
-                    fh.truncate(start + cut + 1 if cut >= 0 else start)
-                    os.fsync(fh.fileno())
-        except FileNotFoundError:
-            return
 
     def _check_writable(self) -> None:
         probe = self.dir / f"{TMP_PREFIX}probe.{os.getpid()}"
@@ -175,7 +160,7 @@ class Store:
                 dive = str(data.get("dive") or "")
             except (OSError, ValueError, TypeError, AttributeError) as err:  # AttributeError: JSON but not an object
                 log.warning("store %s: %s unreadable (%s); rebuilding from the change log", self.dir, SUMMARY_FILE, err)
-                indices = self._summary_from_changes()
+                indices = self._changes.last_summary()
         highest = self._highest_index_on_disk()
         self._next_index = max(next_index, highest + 1, self._reservation.load())
         for index in indices:
@@ -197,23 +182,6 @@ class Store:
         if not dive:
             self._write_summary()  # the new dive id is fixed now, not at the first frame
         self.stats.bytes_on_disk = self._disk_usage()
-
-    def _summary_from_changes(self) -> list[int]:
-        path = self.dir / CHANGES_FILE
-        held: list[int] = []
-        if not path.exists():
-            return held
-        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-            try:
-                entry = json.loads(line)
-            except ValueError:
-                continue  # a line cut short by a crash
-            if isinstance(entry, dict) and isinstance(entry.get("summary"), list):
-                try:
-                    held = [int(i) for i in entry["summary"]]
-                except (TypeError, ValueError):
-                    continue  # a damaged entry: the one before it stands
-        return held
 
     def _highest_index_on_disk(self) -> int:
         highest = -1
@@ -337,7 +305,7 @@ class Store:
             for held in pending:
                 write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
             self._write_summary_file()
-            self._append_change_line({"t": time.time(), "kind": "back_on_disk", "summary": list(self._summary)})
+            self._changes.append({"t": time.time(), "kind": "back_on_disk", "summary": list(self._summary)})
         except OSError as err:
             self.health.write_errors += 1
             log.debug("store %s: still not writable (%s)", self.dir, err)
@@ -374,15 +342,9 @@ class Store:
         if self.memory_only:
             return
         try:
-            self._append_change_line(entry)
+            self._changes.append(entry)
         except OSError as err:
             self._degrade(err)
-
-    def _append_change_line(self, entry: dict[str, Any]) -> None:
-        with open(self.dir / CHANGES_FILE, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(entry) + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
 
     # ---- disk budget ------------------------------------------------------------------------------------------
     def _disk_usage(self) -> int:
