@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,21 +83,57 @@ class HeldFrame:
     on_disk: bool = False
 
 
+class DamagedFrame(ValueError):
+    """A frame's files are missing or damaged; the message names the file and what is wrong with it."""
+
+
 def read_frame(store_dir: Path, index: int) -> HeldFrame | None:
     """A complete frame from disk (its sidecar, written last, marks it complete); None when absent or damaged."""
+    try:
+        return load_frame(store_dir, index)
+    except DamagedFrame:
+        return None
+
+
+def load_frame(store_dir: Path, index: int) -> HeldFrame:
+    """A complete frame from disk, or DamagedFrame saying which of its files is missing or damaged."""
     base = store_dir / "frames" / frame_name(index)
+    sidecar = _read_part(base.with_suffix(".json"), lambda p: json.loads(p.read_text(encoding="utf-8")))
+    feature = _read_part(base.with_suffix(".npy"), lambda p: np.load(p, allow_pickle=False))
+    image = _read_part(base.with_suffix(".jpg"), lambda p: cv2.imread(str(p), cv2.IMREAD_COLOR))
+    if image is None:
+        raise DamagedFrame(f"{base.with_suffix('.jpg').name}: missing or not an image")
+    if not isinstance(sidecar, dict):
+        raise DamagedFrame(f"{base.with_suffix('.json').name}: not a JSON object")
+    why = feature_problem(feature)
+    if why:
+        raise DamagedFrame(f"{base.with_suffix('.npy').name}: {why}")
     try:
-        sidecar = json.loads((base.with_suffix(".json")).read_text(encoding="utf-8"))
-        feature = np.load(base.with_suffix(".npy"), allow_pickle=False)
-        image = cv2.imread(str(base.with_suffix(".jpg")), cv2.IMREAD_COLOR)
-    except (OSError, ValueError):
-        return None
-    if image is None or not isinstance(sidecar, dict):
-        return None
+        return _held_from(store_dir, sidecar, image, feature.astype(np.float32))
+    except (KeyError, TypeError, ValueError) as err:  # a sidecar edited by hand or damaged: that frame is dropped
+        raise DamagedFrame(f"{base.with_suffix('.json').name}: {type(err).__name__} {err}") from None
+
+
+def _read_part(path: Path, read: Callable[[Path], Any]) -> Any:
     try:
-        return _held_from(store_dir, sidecar, image, feature)
-    except (KeyError, TypeError, ValueError):  # a sidecar edited by hand or damaged: that frame is dropped
-        return None
+        return read(path)
+    except FileNotFoundError:
+        raise DamagedFrame(f"{path.name}: missing") from None
+    except (OSError, ValueError, EOFError) as err:  # EOFError: an empty or cut .npy
+        raise DamagedFrame(f"{path.name}: {err}") from None
+
+
+def feature_problem(feature: Any) -> str:
+    """Why ``feature`` cannot be a stored sampler feature ("" when it can): one finite real vector."""
+    if not isinstance(feature, np.ndarray):
+        return "not an array"
+    if feature.ndim != 1 or feature.size == 0:
+        return f"shape {feature.shape}, not a vector"
+    if not (np.issubdtype(feature.dtype, np.floating) or np.issubdtype(feature.dtype, np.integer)):
+        return f"{feature.dtype} values, not numbers"
+    if not np.isfinite(feature).all():
+        return "values that are not finite"
+    return ""
 
 
 def _held_from(store_dir: Path, sidecar: dict[str, Any], image: np.ndarray, feature: np.ndarray) -> HeldFrame:

@@ -37,14 +37,17 @@ from companion.config import StoreConfig
 from companion.storage.change_log import ChangeLog
 from companion.storage.frame_files import (
     FORMAT_VERSION,
+    DamagedFrame,
     HeldFrame,
     frame_name,
+    load_frame,
     read_frame,
     sidecar_for,
     write_frame_files,
 )
-from companion.storage.index_reservation import IndexReservation
+from companion.storage.index_reservation import IndexReservation, valid_index
 from companion.storage.store_health import Listener, StoreHealth
+from companion.storage.summary_file import read_summary_file
 from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
 
@@ -148,25 +151,16 @@ class Store:
                     pass
 
     def _load(self) -> None:
-        summary_path = self.dir / SUMMARY_FILE
-        indices: list[int] = []
-        next_index = 0
-        dive = ""
-        if summary_path.exists():
-            try:
-                data = json.loads(summary_path.read_text(encoding="utf-8"))
-                indices = [int(i) for i in data.get("summary", [])]
-                next_index = int(data.get("next_image_index", 0))
-                dive = str(data.get("dive") or "")
-            except (OSError, ValueError, TypeError, AttributeError) as err:  # AttributeError: JSON but not an object
-                log.warning("store %s: %s unreadable (%s); rebuilding from the change log", self.dir, SUMMARY_FILE, err)
-                indices = self._changes.last_summary()
+        saved = read_summary_file(self.dir / SUMMARY_FILE)  # a damaged field is dropped alone, with a warning
+        indices = saved.summary if saved.summary is not None else self._changes.last_summary()
+        next_index, dive = saved.next_index, saved.dive
         highest = self._highest_index_on_disk()
         self._next_index = max(next_index, highest + 1, self._reservation.load())
         for index in indices:
-            held = read_frame(self.dir, index)
-            if held is None:
-                log.warning("store %s: summary frame %d is missing on disk; dropped from the summary", self.dir, index)
+            try:
+                held = load_frame(self.dir, index)
+            except DamagedFrame as err:  # that frame alone: the rest of the summary resumes
+                log.warning("store %s: summary frame %d dropped from the summary: %s", self.dir, index, err)
                 continue
             self._held[index] = held
             self._summary.append(index)
@@ -179,17 +173,15 @@ class Store:
                 self.dive = secrets.token_hex(4)
                 log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
                             err.strerror or err, self.dive)
-        if not dive:
-            self._write_summary()  # the new dive id is fixed now, not at the first frame
+        if not dive or saved.dropped:
+            self._write_summary()  # the new dive id is fixed now, not at the first frame; a dropped field goes
         self.stats.bytes_on_disk = self._disk_usage()
 
     def _highest_index_on_disk(self) -> int:
         highest = -1
         for path in self.frames_dir.glob("*.json"):
-            try:
+            if path.stem.isascii() and path.stem.isdigit() and valid_index(int(path.stem)):
                 highest = max(highest, int(path.stem))
-            except ValueError:
-                continue
         return highest
 
     # ---- what the rest of the companion asks ----------------------------------------------------------------
