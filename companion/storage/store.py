@@ -90,6 +90,8 @@ class Store:
         self._held: dict[int, HeldFrame] = {}
         self._summary: list[int] = []
         self._next_index = 0
+        self._index_refused = False
+        """The last write of the next image index failed (a read-only disk): said once, not at every frame."""
         self.dive = ""
         """This store's dive id: made when the store is created (or its summary file is gone), kept across
         restarts, so the surface can tell a new dive's image 0 from the last dive's."""
@@ -115,7 +117,8 @@ class Store:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             if not self.frames_dir.is_dir():
-                self._degrade(err)
+                self._degrade(err)  # says it; nothing (the next image index neither) can be written here
+                self._index_refused = True
                 return
         try:
             self._clean_temp_files()
@@ -169,6 +172,7 @@ class Store:
             self._reservation.save(self._next_index, force=True)
         except OSError as err:
             self.health.degrade(err)
+            self._index_refused = True  # said here (or by the line above): not again at the first frame
             if dive:  # the last run may have announced indices past what it could save: never reuse them
                 self.dive = secrets.token_hex(4)
                 log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
@@ -276,8 +280,12 @@ class Store:
             self._reservation.save(self._next_index)
         except OSError as err:
             self._degrade(err)
-            log.warning("store %s: next image index %d not persisted (%s)", self.dir, self._next_index,
-                        err.strerror or err)
+            if not self._index_refused:  # said once until the disk takes it again, not once per frame
+                log.warning("store %s: image indices from %d on not persisted (%s)", self.dir, self._next_index - 1,
+                            err.strerror or err)
+            self._index_refused = True
+            return
+        self._index_refused = False
 
     def retry(self) -> bool:
         """Try the disk again if the store is memory-only and a retry is due (the companion calls this once a
@@ -294,6 +302,7 @@ class Store:
         try:
             self._check_writable()
             self._reservation.save(self._next_index, force=True)
+            self._index_refused = False
             for held in pending:
                 write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
             self._write_summary_file()

@@ -1,11 +1,13 @@
 """Damaged files on resume: a bad feature file costs its frame alone, a next image index no MAVLink message can
-carry is ignored, a bad field of summary.json costs that field alone; each with one warning line."""
+carry is ignored, a bad field of summary.json costs that field alone; each with one warning line. A read-only
+store says so once, not once per frame."""
 
 from __future__ import annotations
 
 import json
 import logging
 import pickle
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,7 @@ import pytest
 from companion.config import StoreConfig
 from companion.storage.index_reservation import MAX_INDEX
 from companion.storage.store import NEXT_INDEX_FILE, SUMMARY_FILE, Store
+from tests.companion.conftest import tiny_tmpfs
 from tests.companion.storage.test_store import added, make_frame
 
 LOGGER = "companion.storage"
@@ -102,3 +105,24 @@ def test_a_damaged_summary_list_is_rebuilt_and_the_dive_kept(tmp_path: Path, cap
         again = Store(StoreConfig(dir=str(tmp_path)))
     assert (again.summary, again.dive) == ([0, 1, 2, 3], first.dive)  # from the change log
     assert len(_warnings(caplog)) == 1
+
+
+def test_a_read_only_store_says_so_once_however_many_frames_follow(tmp_path: Path, caplog) -> None:
+    with tiny_tmpfs(tmp_path / "ro", "size=1m") as mnt:
+        _store(mnt / "store", count=2)
+        assert subprocess.run(["mount", "-o", "remount,ro", str(mnt)], capture_output=True).returncode == 0
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger=LOGGER):
+            store = Store(StoreConfig(dir=str(mnt / "store")))
+            opened = len(_warnings(caplog))
+            for i in range(2, 12):
+                store.apply(added(make_frame(i), list(range(i + 1))[-6:]))
+        assert store.memory_only and store.summary == list(range(6, 12))
+        assert len(_warnings(caplog)) == opened == 2, _warnings(caplog)  # read-only; the run's own dive id
+    with tiny_tmpfs(tmp_path / "ro-new", "size=1m,ro") as mnt:
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger=LOGGER):
+            store = Store(StoreConfig(dir=str(mnt / "store")))
+            for i in range(10):
+                store.apply(added(make_frame(i), [i]))
+        assert len(_warnings(caplog)) == 1, _warnings(caplog)
