@@ -37,6 +37,7 @@ from companion.live.notify import Notifier
 from companion.live.queues import DropOldestQueue
 from companion.live.quiet_notice import QuietNotice
 from companion.live.raw_gate import RawGate
+from companion.live.resume_features import refresh_features
 from companion.live.summary_keeper import SummaryKeeper
 from companion.live.watchdog import Watchdog
 from companion.sources.factory import open_source
@@ -187,7 +188,9 @@ class LiveCompanion:
             self.keeper = self._make_keeper()
 
         def restore() -> list[SummaryEvent]:
-            removed = self.pipeline.restore(resume.frames)  # a smaller K than before the restart trims at once
+            # features another encoder made are made again by this one first (the store keeps the new ones)
+            frames = refresh_features(resume, self.encoder, self.pipeline.prepare, self.store).frames
+            removed = self.pipeline.restore(frames)  # a smaller K than before the restart trims at once
             self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
             return removed
 

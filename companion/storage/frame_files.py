@@ -168,5 +168,18 @@ def write_frame_files(store_dir: Path, held: HeldFrame, *, keep_raw: bool) -> No
         raw_path = frames_dir / f"{frame_name(frame.image_index)}.raw.jpg"
         atomic_write(raw_path, _encode_jpeg(frame.raw_image))
         held.sidecar["raw_file"] = f"frames/{raw_path.name}"
-    atomic_write(base.with_suffix(".npy"), _npy_bytes(frame.feature))
+    write_feature_files(store_dir, held)
+
+
+def write_feature_files(store_dir: Path, held: HeldFrame) -> None:
+    """The frame's feature, then its sidecar (which names the encoder that made the feature), each atomically."""
+    base = store_dir / "frames" / frame_name(held.frame.image_index)
+    atomic_write(base.with_suffix(".npy"), _npy_bytes(held.frame.feature))
     atomic_write(base.with_suffix(".json"), json.dumps(held.sidecar, indent=1).encode())
+
+
+def encoder_of(sidecar: dict[str, Any]) -> str:
+    """The encoder a stored frame's feature was made with ("" when its sidecar does not say)."""
+    tags = sidecar.get("tags")
+    name = tags.get("encoder") if isinstance(tags, dict) else None
+    return name if isinstance(name, str) else ""

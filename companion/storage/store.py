@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from companion.atomic_write import TMP_PREFIX, atomic_write
 from companion.config import StoreConfig
 from companion.storage.change_log import ChangeLog
@@ -39,10 +41,12 @@ from companion.storage.frame_files import (
     FORMAT_VERSION,
     DamagedFrame,
     HeldFrame,
+    encoder_of,
     frame_name,
     load_frame,
     read_frame,
     sidecar_for,
+    write_feature_files,
     write_frame_files,
 )
 from companion.storage.index_reservation import IndexReservation, valid_index
@@ -72,6 +76,8 @@ class ResumeState:
 
     frames: list[SummaryFrame] = field(default_factory=list)
     next_image_index: int = 0
+    encoders: dict[int, str] = field(default_factory=dict)
+    """The encoder each frame's feature was made with, by image index ("": not recorded, an older store)."""
 
 
 class Store:
@@ -192,7 +198,25 @@ class Store:
     def resume_state(self) -> ResumeState:
         """The summary to restore into the sampler (in summary order) and the next image index to hand out."""
         with self._lock:
-            return ResumeState([self._held[i].frame for i in self._summary], self._next_index)
+            held = [self._held[i] for i in self._summary]
+            return ResumeState([h.frame for h in held], self._next_index,
+                               {h.frame.image_index: encoder_of(h.sidecar) for h in held})
+
+    def replace_feature(self, index: int, feature: np.ndarray, encoder: str) -> None:
+        """A held frame's sampler feature made again by ``encoder`` (a resume under another encoder): in memory,
+        and on disk unless memory-only (the .npy, then the sidecar naming the encoder)."""
+        with self._lock:
+            held = self._held[index]
+            held.frame.feature = feature
+            if not isinstance(held.sidecar.get("tags"), dict):
+                held.sidecar["tags"] = {}
+            held.sidecar["tags"]["encoder"] = encoder
+            if self.memory_only or not held.on_disk:
+                return
+            try:
+                write_feature_files(self.dir, held)
+            except OSError as err:
+                self._degrade(err)
 
     @property
     def next_image_index(self) -> int:
