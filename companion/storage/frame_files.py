@@ -99,7 +99,7 @@ def load_frame(store_dir: Path, index: int) -> HeldFrame:
     """A complete frame from disk, or DamagedFrame saying which of its files is missing or damaged."""
     base = store_dir / "frames" / frame_name(index)
     sidecar = _read_part(base.with_suffix(".json"), lambda p: json.loads(p.read_text(encoding="utf-8")))
-    feature = _read_part(base.with_suffix(".npy"), lambda p: np.load(p, allow_pickle=False))
+    feature = _read_part(base.with_suffix(".npy"), _load_npy)
     image = _read_part(base.with_suffix(".jpg"), lambda p: cv2.imread(str(p), cv2.IMREAD_COLOR))
     if image is None:
         raise DamagedFrame(f"{base.with_suffix('.jpg').name}: missing or not an image")
@@ -109,9 +109,12 @@ def load_frame(store_dir: Path, index: int) -> HeldFrame:
     if why:
         raise DamagedFrame(f"{base.with_suffix('.npy').name}: {why}")
     try:
-        return _held_from(store_dir, sidecar, image, feature.astype(np.float32))
+        held = _held_from(store_dir, sidecar, image, feature.astype(np.float32))
     except (KeyError, TypeError, ValueError) as err:  # a sidecar edited by hand or damaged: that frame is dropped
         raise DamagedFrame(f"{base.with_suffix('.json').name}: {type(err).__name__} {err}") from None
+    if held.frame.image_index != index:  # resumed under its file's index, it would be announced twice
+        raise DamagedFrame(f"{base.with_suffix('.json').name}: names image {held.frame.image_index}")
+    return held
 
 
 def _read_part(path: Path, read: Callable[[Path], Any]) -> Any:
@@ -123,10 +126,16 @@ def _read_part(path: Path, read: Callable[[Path], Any]) -> Any:
         raise DamagedFrame(f"{path.name}: {err}") from None
 
 
-def feature_problem(feature: Any) -> str:
+def _load_npy(path: Path) -> np.ndarray:
+    value = np.load(path, allow_pickle=False)
+    if not isinstance(value, np.ndarray):  # a file that starts like a zip: np.load opens it as an .npz archive
+        value.close()
+        raise ValueError("an .npz archive, not an array")
+    return value
+
+
+def feature_problem(feature: np.ndarray) -> str:
     """Why ``feature`` cannot be a stored sampler feature ("" when it can): one finite real vector."""
-    if not isinstance(feature, np.ndarray):
-        return "not an array"
     if feature.ndim != 1 or feature.size == 0:
         return f"shape {feature.shape}, not a vector"
     if not (np.issubdtype(feature.dtype, np.floating) or np.issubdtype(feature.dtype, np.integer)):

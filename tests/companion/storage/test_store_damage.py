@@ -65,6 +65,16 @@ def test_a_damaged_feature_file_costs_its_frame_alone(tmp_path: Path, caplog, da
         assert frame.feature.shape == (32,) and frame.feature.dtype == np.float32
 
 
+def test_a_sidecar_naming_another_image_costs_its_frame_alone(tmp_path: Path, caplog) -> None:
+    _store(tmp_path)
+    sidecar = tmp_path / "frames" / "000001.json"
+    sidecar.write_text(sidecar.read_text().replace('"image_index": 1,', '"image_index": 3,'))
+    with caplog.at_level(logging.WARNING, logger=LOGGER):
+        again = Store(StoreConfig(dir=str(tmp_path)))
+    assert again.summary == [0, 2, 3]
+    assert [w for w in _warnings(caplog) if "000001.json: names image 3" in w]
+
+
 @pytest.mark.parametrize("claim", [10**40, 1e40, 2**31, -5, "abc", True, None])
 def test_a_next_image_index_no_capture_can_carry_is_ignored_and_the_rest_kept(tmp_path: Path, caplog,
                                                                               claim) -> None:
