@@ -46,7 +46,7 @@ from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
 from companion.storage.queries_file import QueriesFile
-from companion.storage.store import ResumeState, Store
+from companion.storage.store import ResumeState, Store, refuse_newer
 from companion.storage.store_lock import StoreLock
 from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.factory import make_encoder
@@ -123,9 +123,10 @@ class LiveCompanion:
 
     # ---- start-up -----------------------------------------------------------------------------------------------
     def start(self) -> None:
-        self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
+        refuse_newer(Path(self.cfg.store.dir))
+        self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
         self.store = Store(self.cfg.store)
         queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__)
         own = self.cfg

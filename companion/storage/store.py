@@ -80,6 +80,18 @@ class ResumeState:
     """The encoder each frame's feature was made with, by image index ("": not recorded, an older store)."""
 
 
+def refuse_newer(directory: Path) -> None:
+    """A store written by a newer merlion is neither read as ours nor touched: stop (NewerFileError). Only reads,
+    so the companion asks it before it takes the store's lock (which writes the lock file)."""
+    path = directory / SUMMARY_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return  # absent or damaged: _load rebuilds from the change log
+    if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
+        upgrade(path, data, current=FORMAT_VERSION, migrations={})
+
+
 class Store:
     """The summary on disk, kept in step with SummaryEvents; thread-safe."""
 
@@ -118,7 +130,7 @@ class Store:
 
     # ---- start-up -------------------------------------------------------------------------------------------
     def _open(self) -> None:
-        self._refuse_newer()
+        refuse_newer(self.dir)
         try:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -133,16 +145,6 @@ class Store:
         except OSError as err:
             self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
-
-    def _refuse_newer(self) -> None:
-        """A store written by a newer merlion is neither read as ours nor touched: stop (NewerFileError)."""
-        path = self.dir / SUMMARY_FILE
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return  # absent or damaged: _load rebuilds from the change log
-        if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
-            upgrade(path, data, current=FORMAT_VERSION, migrations={})
 
     def _check_writable(self) -> None:
         probe = self.dir / f"{TMP_PREFIX}probe.{os.getpid()}"
