@@ -19,6 +19,7 @@ from typing import Any
 import cv2
 
 from companion.errors import UsageError
+from companion.export.frame_entry import FrameEntry
 
 
 @dataclass(frozen=True)
@@ -116,17 +117,16 @@ def _image_size(path: Path) -> tuple[int, int]:
 def _store_records(folder: Path, doc: dict) -> list[FrameRecord]:
     dive = str(doc.get("dive") or folder.name)
     out = []
-    for side in doc.get("frames") or []:
-        if not isinstance(side, dict) or "file" not in side:
-            raise UsageError(f"{folder / 'summary.json'}: a frame entry without 'file'")
-        image = folder / str(side["file"])
-        if not image.is_file():
-            raise UsageError(f"{image}: frame image missing")
+    for position, side in enumerate(doc.get("frames") or []):
+        entry = FrameEntry(folder / "summary.json", position, side)
+        image = entry.image(folder)
         tags = side.get("tags") if isinstance(side.get("tags"), dict) else {}
-        width, height = (int(side["width"]), int(side["height"])) if side.get("width") else _image_size(image)
+        width, height = entry.size("width"), entry.size("height")
+        if width is None or height is None:
+            width, height = _image_size(image)
         out.append(FrameRecord(
-            image=image, dive=dive, frame=int(side.get("image_index", len(out))), width=width, height=height,
-            score=float(side.get("score", 0.0)), topic=str(side.get("topic") or ""), query=str(tags.get("query", "")),
+            image=image, dive=dive, frame=entry.whole("image_index", position), width=width, height=height,
+            score=entry.number("score", 0.0), topic=entry.text("topic"), query=entry.text("query", tags),
             time_s=_number(side.get("time_s")), capture_utc=iso_utc(_number(side.get("capture_time"))),
             **_pose_fields(side.get("pose"))))
     return out
@@ -141,17 +141,16 @@ def _summary_records(folder: Path, doc: dict, dive: str) -> list[FrameRecord]:
     by_index = {f.get("index"): f for f in tags.get("frames", []) if isinstance(f, dict)} \
         if isinstance(tags, dict) else {}
     out = []
-    for entry in doc.get("frames") or []:
-        if not isinstance(entry, dict) or "file" not in entry:
-            raise UsageError(f"{folder / 'summary.json'}: a frame entry without 'file'")
-        image = folder / str(entry["file"])
+    for position, data in enumerate(doc.get("frames") or []):
+        entry = FrameEntry(folder / "summary.json", position, data)
+        image = entry.image(folder)
         width, height = _image_size(image)
-        tag = by_index.get(entry.get("index"), {})
-        topic = str(entry.get("topic") or "")
+        tag = by_index.get(data.get("index"), {})
+        topic = entry.text("topic")
         out.append(FrameRecord(
-            image=image, dive=dive, frame=int(entry.get("index", len(out))), width=width, height=height,
-            score=float(entry.get("score", 0.0)), topic=topic,
-            query=queries.get(topic, str(params.get("query", ""))), time_s=_number(entry.get("time_s")),
+            image=image, dive=dive, frame=entry.whole("index", position), width=width, height=height,
+            score=entry.number("score", 0.0), topic=topic,
+            query=queries.get(topic, str(params.get("query", ""))), time_s=_number(data.get("time_s")),
             capture_utc=iso_utc(_number(tag.get("wall_time"))), **_pose_fields(tag.get("pose"))))
     return out
 

@@ -17,7 +17,7 @@ FORMATS: dict[str, Callable[[list[FrameRecord], Path], str]] = {
 }
 SUFFIX = {"fathomnet": ".json", "coco": ".json", "csv": ".csv"}
 PROTECTED = {"summary.json", "tags.json", "manifest.json", "changes.jsonl", "params.json", "queries.json",
-             "marks.json", "scores.csv"}
+             "marks.json", "scores.csv", "next_index", "lock"}
 """Files a store or summary folder is made of: an export never overwrites one."""
 
 

@@ -37,6 +37,7 @@ from companion.live.notify import Notifier
 from companion.live.queues import DropOldestQueue
 from companion.live.quiet_notice import QuietNotice
 from companion.live.raw_gate import RawGate
+from companion.live.resume_features import refresh_features
 from companion.live.summary_keeper import SummaryKeeper
 from companion.live.watchdog import Watchdog
 from companion.sources.factory import open_source
@@ -45,7 +46,8 @@ from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
 from companion.storage.queries_file import QueriesFile
-from companion.storage.store import ResumeState, Store
+from companion.storage.store import ResumeState, Store, refuse_newer
+from companion.storage.store_lock import StoreLock
 from companion.vision.encoders.counted import CountedEncoder
 from companion.vision.encoders.factory import make_encoder
 from companion.vision.encoders.query_words import UnknownWord
@@ -93,6 +95,7 @@ class LiveCompanion:
         self.stop_event = threading.Event()
         self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
         self.started_at = time.monotonic()
+        self.store_lock = StoreLock(cfg.store.dir)
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
@@ -122,6 +125,8 @@ class LiveCompanion:
     def start(self) -> None:
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
+        refuse_newer(Path(self.cfg.store.dir))
+        self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
         self.store = Store(self.cfg.store)
         queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__)
         own = self.cfg
@@ -184,7 +189,9 @@ class LiveCompanion:
             self.keeper = self._make_keeper()
 
         def restore() -> list[SummaryEvent]:
-            removed = self.pipeline.restore(resume.frames)  # a smaller K than before the restart trims at once
+            # features another encoder made are made again by this one first (the store keeps the new ones)
+            frames = refresh_features(resume, self.encoder, self.pipeline.prepare, self.store).frames
+            removed = self.pipeline.restore(frames)  # a smaller K than before the restart trims at once
             self.pipeline.next_image_index = max(self.pipeline.next_image_index, resume.next_image_index)
             return removed
 
@@ -410,5 +417,6 @@ class LiveCompanion:
             self.telemetry.stop()
         if self.link is not None:
             self.link.stop()
+        self.store_lock.release()  # after the keeper: its last change is on disk
         self.notifier.close()
 

@@ -39,6 +39,7 @@ from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
 from companion.storage.store import Store
+from companion.storage.store_lock import check_free
 from companion.vision.contact_sheet import Tile, contact_sheet
 
 log = logging.getLogger(__name__)
@@ -302,6 +303,7 @@ def main(opts: DemoOptions) -> int:
         raise UsageError(f"--web {opts.web_port}: not a port (0-65535; 0 picks a free one)")
     if opts.out.exists() and not opts.out.is_dir():
         raise UsageError(f"--out {opts.out}: exists and is not a folder")
+    check_free(opts.out / "store")  # a demo running there: neither moved aside nor written over (exit 2)
     if opts.resume:
         if opts.out.is_dir() and any(opts.out.iterdir()):
             _say(opts, f"merlion demo: resuming the earlier run in {opts.out} (its store and gallery go on)")

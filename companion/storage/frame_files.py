@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,21 +83,66 @@ class HeldFrame:
     on_disk: bool = False
 
 
+class DamagedFrame(ValueError):
+    """A frame's files are missing or damaged; the message names the file and what is wrong with it."""
+
+
 def read_frame(store_dir: Path, index: int) -> HeldFrame | None:
     """A complete frame from disk (its sidecar, written last, marks it complete); None when absent or damaged."""
+    try:
+        return load_frame(store_dir, index)
+    except DamagedFrame:
+        return None
+
+
+def load_frame(store_dir: Path, index: int) -> HeldFrame:
+    """A complete frame from disk, or DamagedFrame saying which of its files is missing or damaged."""
     base = store_dir / "frames" / frame_name(index)
+    sidecar = _read_part(base.with_suffix(".json"), lambda p: json.loads(p.read_text(encoding="utf-8")))
+    feature = _read_part(base.with_suffix(".npy"), _load_npy)
+    image = _read_part(base.with_suffix(".jpg"), lambda p: cv2.imread(str(p), cv2.IMREAD_COLOR))
+    if image is None:
+        raise DamagedFrame(f"{base.with_suffix('.jpg').name}: missing or not an image")
+    if not isinstance(sidecar, dict):
+        raise DamagedFrame(f"{base.with_suffix('.json').name}: not a JSON object")
+    why = feature_problem(feature)
+    if why:
+        raise DamagedFrame(f"{base.with_suffix('.npy').name}: {why}")
     try:
-        sidecar = json.loads((base.with_suffix(".json")).read_text(encoding="utf-8"))
-        feature = np.load(base.with_suffix(".npy"), allow_pickle=False)
-        image = cv2.imread(str(base.with_suffix(".jpg")), cv2.IMREAD_COLOR)
-    except (OSError, ValueError):
-        return None
-    if image is None or not isinstance(sidecar, dict):
-        return None
+        held = _held_from(store_dir, sidecar, image, feature.astype(np.float32))
+    except (KeyError, TypeError, ValueError) as err:  # a sidecar edited by hand or damaged: that frame is dropped
+        raise DamagedFrame(f"{base.with_suffix('.json').name}: {type(err).__name__} {err}") from None
+    if held.frame.image_index != index:  # resumed under its file's index, it would be announced twice
+        raise DamagedFrame(f"{base.with_suffix('.json').name}: names image {held.frame.image_index}")
+    return held
+
+
+def _read_part(path: Path, read: Callable[[Path], Any]) -> Any:
     try:
-        return _held_from(store_dir, sidecar, image, feature)
-    except (KeyError, TypeError, ValueError):  # a sidecar edited by hand or damaged: that frame is dropped
-        return None
+        return read(path)
+    except FileNotFoundError:
+        raise DamagedFrame(f"{path.name}: missing") from None
+    except (OSError, ValueError, EOFError) as err:  # EOFError: an empty or cut .npy
+        raise DamagedFrame(f"{path.name}: {err}") from None
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    value = np.load(path, allow_pickle=False)
+    if not isinstance(value, np.ndarray):  # a file that starts like a zip: np.load opens it as an .npz archive
+        value.close()
+        raise ValueError("an .npz archive, not an array")
+    return value
+
+
+def feature_problem(feature: np.ndarray) -> str:
+    """Why ``feature`` cannot be a stored sampler feature ("" when it can): one finite real vector."""
+    if feature.ndim != 1 or feature.size == 0:
+        return f"shape {feature.shape}, not a vector"
+    if not (np.issubdtype(feature.dtype, np.floating) or np.issubdtype(feature.dtype, np.integer)):
+        return f"{feature.dtype} values, not numbers"
+    if not np.isfinite(feature).all():
+        return "values that are not finite"
+    return ""
 
 
 def _held_from(store_dir: Path, sidecar: dict[str, Any], image: np.ndarray, feature: np.ndarray) -> HeldFrame:
@@ -131,5 +177,18 @@ def write_frame_files(store_dir: Path, held: HeldFrame, *, keep_raw: bool) -> No
         raw_path = frames_dir / f"{frame_name(frame.image_index)}.raw.jpg"
         atomic_write(raw_path, _encode_jpeg(frame.raw_image))
         held.sidecar["raw_file"] = f"frames/{raw_path.name}"
-    atomic_write(base.with_suffix(".npy"), _npy_bytes(frame.feature))
+    write_feature_files(store_dir, held)
+
+
+def write_feature_files(store_dir: Path, held: HeldFrame) -> None:
+    """The frame's feature, then its sidecar (which names the encoder that made the feature), each atomically."""
+    base = store_dir / "frames" / frame_name(held.frame.image_index)
+    atomic_write(base.with_suffix(".npy"), _npy_bytes(held.frame.feature))
     atomic_write(base.with_suffix(".json"), json.dumps(held.sidecar, indent=1).encode())
+
+
+def encoder_of(sidecar: dict[str, Any]) -> str:
+    """The encoder a stored frame's feature was made with ("" when its sidecar does not say)."""
+    tags = sidecar.get("tags")
+    name = tags.get("encoder") if isinstance(tags, dict) else None
+    return name if isinstance(name, str) else ""

@@ -9,10 +9,21 @@ on a full disk. Only a read-only or failing disk refuses it; the store then give
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
+log = logging.getLogger(__name__)
+
 RECORD_BYTES = 32
+MAX_INDEX = 2**31 - 1
+"""The highest image index there can be: CAMERA_IMAGE_CAPTURED carries it as an int32. A next index beyond it
+(a damaged file, a hand edit) was never handed out, so a store drops such a claim instead of trusting it."""
+
+
+def valid_index(value: object) -> bool:
+    """A whole number an image index (or the next one) can be; not a bool, a float or a string."""
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= MAX_INDEX
 
 
 class IndexReservation:
@@ -28,6 +39,10 @@ class IndexReservation:
             self.saved = int(text or 0)
         except (OSError, ValueError, UnicodeDecodeError):
             self.saved = 0  # absent or damaged: summary.json and the frames on disk still give a floor
+        if not valid_index(self.saved):
+            log.warning("%s: next image index %s is not one MAVLink can announce (0-%d); ignored", self.path,
+                        self.saved, MAX_INDEX)
+            self.saved = 0
         return self.saved
 
     def save(self, value: int, *, force: bool = False) -> None:

@@ -7,8 +7,9 @@ Layout of the store directory::
     frames/000042.npy        the sampler feature, so a restart resumes with the same summary
     frames/000042.json       the sidecar: tags, pose, score, times; written last, so it marks a complete frame
     summary.json             the current summary (image indices), the next image index and the dive id
-    changes.jsonl            append-only log of every change (one JSON object a line)
+    changes.jsonl            append-only log of every change (one JSON object a line, ``change_log``)
     next_index               the next image index, persisted in place before an index is announced
+    lock                     flock'ed by the one live process writing the store (``store_lock``), with its pid
 
 Every file is written atomically (temp file, fsync, rename, fsync of the directory), so a crash leaves either the
 old file or the new one, never half of one. When the disk is full or read-only the store keeps going in memory
@@ -31,18 +32,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from companion.atomic_write import TMP_PREFIX, atomic_write
 from companion.config import StoreConfig
+from companion.storage.change_log import ChangeLog
 from companion.storage.frame_files import (
     FORMAT_VERSION,
+    DamagedFrame,
     HeldFrame,
+    encoder_of,
     frame_name,
+    load_frame,
     read_frame,
     sidecar_for,
+    write_feature_files,
     write_frame_files,
 )
-from companion.storage.index_reservation import IndexReservation
+from companion.storage.index_reservation import IndexReservation, valid_index
 from companion.storage.store_health import Listener, StoreHealth
+from companion.storage.summary_file import read_summary_file
 from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
 
@@ -67,6 +76,20 @@ class ResumeState:
 
     frames: list[SummaryFrame] = field(default_factory=list)
     next_image_index: int = 0
+    encoders: dict[int, str] = field(default_factory=dict)
+    """The encoder each frame's feature was made with, by image index ("": not recorded, an older store)."""
+
+
+def refuse_newer(directory: Path) -> None:
+    """A store written by a newer merlion is neither read as ours nor touched: stop (NewerFileError). Only reads,
+    so the companion asks it before it takes the store's lock (which writes the lock file)."""
+    path = directory / SUMMARY_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return  # absent or damaged: _load rebuilds from the change log
+    if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
+        upgrade(path, data, current=FORMAT_VERSION, migrations={})
 
 
 class Store:
@@ -80,10 +103,13 @@ class Store:
         self.stats = StoreStats()
         self.health = StoreHealth(self.dir)
         self._reservation = IndexReservation(self.dir / NEXT_INDEX_FILE)
+        self._changes = ChangeLog(self.dir / CHANGES_FILE)
         self._lock = threading.RLock()
         self._held: dict[int, HeldFrame] = {}
         self._summary: list[int] = []
         self._next_index = 0
+        self._index_refused = False
+        """The last write of the next image index failed (a read-only disk): said once, not at every frame."""
         self.dive = ""
         """This store's dive id: made when the store is created (or its summary file is gone), kept across
         restarts, so the surface can tell a new dive's image 0 from the last dive's."""
@@ -104,47 +130,21 @@ class Store:
 
     # ---- start-up -------------------------------------------------------------------------------------------
     def _open(self) -> None:
-        self._refuse_newer()
+        refuse_newer(self.dir)
         try:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             if not self.frames_dir.is_dir():
-                self._degrade(err)
+                self._degrade(err)  # says it; nothing (the next image index neither) can be written here
+                self._index_refused = True
                 return
         try:
             self._clean_temp_files()
             self._check_writable()
-            self._end_torn_change()
+            self._changes.end_torn_tail()
         except OSError as err:
             self._degrade(err)  # a full or read-only disk: what is there is still resumed, in memory
         self._load()
-
-    def _refuse_newer(self) -> None:
-        """A store written by a newer merlion is neither read as ours nor touched: stop (NewerFileError)."""
-        path = self.dir / SUMMARY_FILE
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return  # absent or damaged: _load rebuilds from the change log
-        if isinstance(data, dict) and isinstance(data.get("version"), int) and data["version"] > FORMAT_VERSION:
-            upgrade(path, data, current=FORMAT_VERSION, migrations={})
-
-    def _end_torn_change(self) -> None:
-        """A kill in the middle of a change-log line leaves it without its newline: cut it off, or the next run's
-        first line would be glued to it and lost as well."""
-        path = self.dir / CHANGES_FILE
-        try:
-            with open(path, "rb+") as fh:
-                size = fh.seek(0, os.SEEK_END)
-                start = max(0, size - 65536)  # a line is far shorter; the log itself may be long
-                fh.seek(start)
-                tail = fh.read()
-                if tail and not tail.endswith(b"\n"):
-                    cut = tail.rfind(b"\n")
-                    fh.truncate(start + cut + 1 if cut >= 0 else start)
-                    os.fsync(fh.fileno())
-        except FileNotFoundError:
-            return
 
     def _check_writable(self) -> None:
         probe = self.dir / f"{TMP_PREFIX}probe.{os.getpid()}"
@@ -162,25 +162,16 @@ class Store:
                     pass
 
     def _load(self) -> None:
-        summary_path = self.dir / SUMMARY_FILE
-        indices: list[int] = []
-        next_index = 0
-        dive = ""
-        if summary_path.exists():
-            try:
-                data = json.loads(summary_path.read_text(encoding="utf-8"))
-                indices = [int(i) for i in data.get("summary", [])]
-                next_index = int(data.get("next_image_index", 0))
-                dive = str(data.get("dive") or "")
-            except (OSError, ValueError, TypeError, AttributeError) as err:  # AttributeError: JSON but not an object
-                log.warning("store %s: %s unreadable (%s); rebuilding from the change log", self.dir, SUMMARY_FILE, err)
-                indices = self._summary_from_changes()
+        saved = read_summary_file(self.dir / SUMMARY_FILE)  # a damaged field is dropped alone, with a warning
+        indices = saved.summary if saved.summary is not None else self._changes.last_summary()
+        next_index, dive = saved.next_index, saved.dive
         highest = self._highest_index_on_disk()
         self._next_index = max(next_index, highest + 1, self._reservation.load())
         for index in indices:
-            held = read_frame(self.dir, index)
-            if held is None:
-                log.warning("store %s: summary frame %d is missing on disk; dropped from the summary", self.dir, index)
+            try:
+                held = load_frame(self.dir, index)
+            except DamagedFrame as err:  # that frame alone: the rest of the summary resumes
+                log.warning("store %s: summary frame %d dropped from the summary: %s", self.dir, index, err)
                 continue
             self._held[index] = held
             self._summary.append(index)
@@ -189,45 +180,45 @@ class Store:
             self._reservation.save(self._next_index, force=True)
         except OSError as err:
             self.health.degrade(err)
+            self._index_refused = True  # said here (or by the line above): not again at the first frame
             if dive:  # the last run may have announced indices past what it could save: never reuse them
                 self.dive = secrets.token_hex(4)
                 log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
                             err.strerror or err, self.dive)
-        if not dive:
-            self._write_summary()  # the new dive id is fixed now, not at the first frame
+        if not dive or saved.dropped:
+            self._write_summary()  # the new dive id is fixed now, not at the first frame; a dropped field goes
         self.stats.bytes_on_disk = self._disk_usage()
-
-    def _summary_from_changes(self) -> list[int]:
-        path = self.dir / CHANGES_FILE
-        held: list[int] = []
-        if not path.exists():
-            return held
-        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-            try:
-                entry = json.loads(line)
-            except ValueError:
-                continue  # a line cut short by a crash
-            if isinstance(entry, dict) and isinstance(entry.get("summary"), list):
-                try:
-                    held = [int(i) for i in entry["summary"]]
-                except (TypeError, ValueError):
-                    continue  # a damaged entry: the one before it stands
-        return held
 
     def _highest_index_on_disk(self) -> int:
         highest = -1
         for path in self.frames_dir.glob("*.json"):
-            try:
+            if path.stem.isascii() and path.stem.isdigit() and valid_index(int(path.stem)):
                 highest = max(highest, int(path.stem))
-            except ValueError:
-                continue
         return highest
 
     # ---- what the rest of the companion asks ----------------------------------------------------------------
     def resume_state(self) -> ResumeState:
         """The summary to restore into the sampler (in summary order) and the next image index to hand out."""
         with self._lock:
-            return ResumeState([self._held[i].frame for i in self._summary], self._next_index)
+            held = [self._held[i] for i in self._summary]
+            return ResumeState([h.frame for h in held], self._next_index,
+                               {h.frame.image_index: encoder_of(h.sidecar) for h in held})
+
+    def replace_feature(self, index: int, feature: np.ndarray, encoder: str) -> None:
+        """A held frame's sampler feature made again by ``encoder`` (a resume under another encoder): in memory,
+        and on disk unless memory-only (the .npy, then the sidecar naming the encoder)."""
+        with self._lock:
+            held = self._held[index]
+            held.frame.feature = feature
+            if not isinstance(held.sidecar.get("tags"), dict):
+                held.sidecar["tags"] = {}
+            held.sidecar["tags"]["encoder"] = encoder
+            if self.memory_only or not held.on_disk:
+                return
+            try:
+                write_feature_files(self.dir, held)
+            except OSError as err:
+                self._degrade(err)
 
     @property
     def next_image_index(self) -> int:
@@ -315,8 +306,12 @@ class Store:
             self._reservation.save(self._next_index)
         except OSError as err:
             self._degrade(err)
-            log.warning("store %s: next image index %d not persisted (%s)", self.dir, self._next_index,
-                        err.strerror or err)
+            if not self._index_refused:  # said once until the disk takes it again, not once per frame
+                log.warning("store %s: image indices from %d on not persisted (%s)", self.dir, self._next_index - 1,
+                            err.strerror or err)
+            self._index_refused = True
+            return
+        self._index_refused = False
 
     def retry(self) -> bool:
         """Try the disk again if the store is memory-only and a retry is due (the companion calls this once a
@@ -333,10 +328,11 @@ class Store:
         try:
             self._check_writable()
             self._reservation.save(self._next_index, force=True)
+            self._index_refused = False
             for held in pending:
                 write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
             self._write_summary_file()
-            self._append_change_line({"t": time.time(), "kind": "back_on_disk", "summary": list(self._summary)})
+            self._changes.append({"t": time.time(), "kind": "back_on_disk", "summary": list(self._summary)})
         except OSError as err:
             self.health.write_errors += 1
             log.debug("store %s: still not writable (%s)", self.dir, err)
@@ -373,15 +369,9 @@ class Store:
         if self.memory_only:
             return
         try:
-            self._append_change_line(entry)
+            self._changes.append(entry)
         except OSError as err:
             self._degrade(err)
-
-    def _append_change_line(self, entry: dict[str, Any]) -> None:
-        with open(self.dir / CHANGES_FILE, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(entry) + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
 
     # ---- disk budget ------------------------------------------------------------------------------------------
     def _disk_usage(self) -> int:

@@ -211,6 +211,7 @@ def test_bad_input_is_one_line_and_exit_2_and_never_overwrites_the_store(store, 
         ((str(store), "--format", "yaml", "--out", str(tmp_path / "x.json")), "--format yaml: not one of"),
         ((str(store), "--format", "coco", "--out", str(tmp_path / "no" / "x.json")), "does not exist"),
         ((str(store), "--format", "coco", "--out", str(store / "summary.json")), "would overwrite"),
+        ((str(store), "--format", "csv", "--out", str(store / "lock")), "would overwrite"),
         ((str(tmp_path), "--format", "coco", "--out", str(tmp_path / "x.json")), "no summary.json"),
     ]
     before = (store / "summary.json").read_bytes()
