@@ -102,20 +102,15 @@ def auroc_by_source(args: argparse.Namespace) -> int:
     print(f"encoder {encoder.name}, {len(frames)} frames")
     for source, value in result["auroc"].items():
         print(f"  {source:24s} AUROC {value:.3f}")
-    for name in ("deepfish_habitats",):
-        d = result[name]
-        if d:
-            print(f"DeepFish habitats: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
-                  f"spread {d['spread']:.3f} ({d['groups']} habitats)")
+    if d := result["deepfish_habitats"]:
+        print(f"DeepFish habitats: {_spread_text(d)} ({d['groups']} habitats)")
     if "holdout" in result:
         h = result["holdout"]
         print(f"held out ({h['method']}):")
         for group, value in h["by_group"].items():
             print(f"  {group:24s} AUROC {value:.3f}")
-        d = h["deepfish_habitats"]
-        if d:
-            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
-                  f"spread {d['spread']:.3f}")
+        if d := h["deepfish_habitats"]:
+            print(f"  DeepFish habitats held out: {_spread_text(d)}")
     if "dive_centred" in result:
         c = result["dive_centred"]
         print(f"held out, dive-centred ({c['method']}):")
@@ -123,10 +118,8 @@ def auroc_by_source(args: argparse.Namespace) -> int:
             choice = c["chosen"].get(group)
             note = f"  (lambda {choice['lambda']:g}, prior weight {choice['prior_weight']})" if choice else ""
             print(f"  {group:24s} AUROC {value:.3f}{note}")
-        d = c["deepfish_habitats"]
-        if d:
-            print(f"  DeepFish habitats held out: mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} "
-                  f"spread {d['spread']:.3f}; DeepFish pooled {c['deepfish_pooled']:.3f}")
+        if d := c["deepfish_habitats"]:
+            print(f"  DeepFish habitats held out: {_spread_text(d)}; DeepFish pooled {c['deepfish_pooled']:.3f}")
     for key in ("scene", "scene_by_clip"):
         if key in result:
             _print_scene(result[key])
@@ -148,6 +141,11 @@ def auroc_by_source(args: argparse.Namespace) -> int:
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
     return 0
+
+
+def _spread_text(d: dict) -> str:
+    """A ``holdout.spread`` summary as printed."""
+    return f"mean {d['mean']:.3f} min {d['min']:.3f} max {d['max']:.3f} spread {d['spread']:.3f}"
 
 
 def _progress(message: str) -> None:

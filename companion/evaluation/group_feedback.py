@@ -76,8 +76,9 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
                    seeds: Sequence[int] = (ORDER_SEED,), weights: Sequence[float] = WEIGHTS,
                    pasted: PastedFish | None = None, progress: Callable[[str], None] = lambda _: None) -> dict:
     """{"groups": {group: {auroc_query, auroc_marked, gain, trust, centred_trust, weight}}, "mean_gain",
-    "worst_gain", ...} for the first seed's order, the same per seed under "orders", and "weight": the rule
-    applied on every group; each group's weight is chosen without it. Groups without n + n frames and something
+    "worst_gain", ...} for the first seed's order, the same per seed under "orders", "weight": the rule
+    applied on every group (each group's weight is chosen without it), and "by_weight": each candidate weight's
+    gain per order and group. Groups without n + n frames and something
     left of each class are skipped (listed under "skipped")."""
     y = np.array([f.fish for f in frames])
     in_group = {g: np.array([g in f.group.split("+") for f in frames]) for g in groups_of(frames)}
@@ -120,7 +121,9 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     chosen = {g: choose_weight(gains, without=g) for g in reported}
     rows = {seed: {g: tried[seed][chosen[g]][g] for g in reported} for seed in seeds}
     first = seeds[0]
-    return {"marks": n, "held_out": bool(held_out and head is not None), "skipped": skipped, "seed": first,
+    by_weight = {str(w): {str(seed): {g: tried[seed][w][g]["gain"] for g in reported} for seed in seeds}
+                 for w in weights}  # every candidate's gains: what the choice chose from
+    return {"by_weight": by_weight, "marks": n, "held_out": bool(held_out and head is not None), "skipped": skipped, "seed": first,
             "weight": choose_weight(gains) if reported else None, **_summary(rows[first]),
             "orders": (per_order := {str(seed): _summary(rows[seed]) for seed in seeds}),
             "over_orders": over_orders(per_order, {k: k for k in ("mean_query", "mean_marked", "mean_gain",

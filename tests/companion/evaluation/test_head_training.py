@@ -182,6 +182,8 @@ def test_marks_lift_held_out_habitats_and_never_lower_a_group_by_more_than_002(e
         assert all(0.0 <= r["centred_trust"] <= 1.0 for r in order["groups"].values())
         assert order["mean_gain"] >= MARKS_GAIN_FLOOR, (seed, order)
         assert np.mean([r["auroc_marked"] for r in habitats.values()]) >= MARKS_HABITAT_FLOOR, (seed, habitats)
+    for seed, order in result["orders"].items():  # every candidate's gains are kept, the chosen one among them
+        assert all(r["gain"] == result["by_weight"][str(r["weight"])][seed][g] for g, r in order["groups"].items())
     over = result["over_orders"]  # each figure summarised over the three orders
     assert over["worst_gain"]["min"] == min(o["worst_gain"] for o in result["orders"].values())
     assert over["mean_marked"]["mean"] == pytest.approx(np.mean([o["mean_marked"] for o in result["orders"].values()]))
