@@ -49,12 +49,13 @@ TOLERANCE = 0.005
 """Weights whose mean gain is within this of the best count as equal; the lightest of them is taken."""
 
 
-def choose_weight(gains: dict[float, dict[str, float]], without: str | None = None) -> float:
-    """The weight to use, from ``gains[weight][group]`` (mean over orders) on the groups other than ``without``:
-    the lightest whose mean gain is within ``TOLERANCE`` of the best among those that cost no group more than
-    ``MAX_LOSS``; the lightest weight when none qualifies."""
+def choose_weight(gains: dict[float, dict[int, dict[str, float]]], without: str | None = None) -> float:
+    """The weight to use, from ``gains[weight][order][group]`` on the groups other than ``without``: the lightest
+    whose mean gain is within ``TOLERANCE`` of the best among those that cost no group more than ``MAX_LOSS`` in
+    any order (each order is a dive of its own: a loss averaged away over orders is still a dive made worse); the
+    lightest weight when none qualifies."""
     def on_others(w: float) -> list[float]:
-        return [v for g, v in gains[w].items() if g != without]
+        return [v for order in gains[w].values() for g, v in order.items() if g != without]
 
     ok = [w for w in sorted(gains) if on_others(w) and min(on_others(w)) >= -MAX_LOSS]
     if not ok:
@@ -117,7 +118,7 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
         if hasattr(encoder, "heads"):
             encoder.heads = shipped
     reported = [g for g in in_group if g not in skipped]
-    gains = {w: {g: float(np.mean([tried[s][w][g]["gain"] for s in seeds])) for g in reported} for w in weights}
+    gains = {w: {s: {g: tried[s][w][g]["gain"] for g in reported} for s in seeds} for w in weights}
     chosen = {g: choose_weight(gains, without=g) for g in reported}
     rows = {seed: {g: tried[seed][chosen[g]][g] for g in reported} for seed in seeds}
     first = seeds[0]

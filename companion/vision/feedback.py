@@ -22,9 +22,14 @@ Dive-centred marks (``CentredMarks``): a frame's pooled features minus its dive'
 (``companion.vision.dive_mean``, one per dive, read by every topic's pre-sampler) drop the dive's water and sea bed.
 With two or more marks of each kind, the marks' centred features give a direction, ``like mean - unlike mean``;
 every frame's centred features are projected on it and the result, scaled to the query's spread over the dive's
-recent frames, is added to the score's log-odds with weight ``CENTRED_WEIGHT x trust``. Trust is the marks'
-leave-one-out agreement in the centred space (each mark checked against the direction of the others), 0 when
-they do not agree, so marks that contradict each other change nothing. Where they can be checked (two or more of
+recent frames, is added to the score's log-odds with weight ``CENTRED_WEIGHT x trust x doubt``. Trust is the
+marks' leave-one-out agreement in the centred space (each mark checked against the direction of the others), 0
+when they do not agree, so marks that contradict each other change nothing. Doubt is how far the query alone
+fails to sort the marks (``1 - max(0, 2 * AUROC - 1)`` over their (like, unlike) pairs: 1 at chance or worse):
+marks the query already sorts right add nothing it does not know, and a direction learnt from three frames of each kind at the start of a dive lowered the rest of some
+well-ranked habitats by up to 0.12 AUROC; marks that the query ranks backwards (a habitat where it fails) weigh
+fully. Without doubt, 3 + 3 marks cost some held-out habitat more than 0.02 in 12 of 20 frame orders; with it,
+in 3 (docs/encoders.md, "Marks weighed by the query's doubt"). Where they can be checked (two or more of
 each kind, given while the dive runs: the live companion's marks) they replace the nearest-centroid rule above
 (which still serves marks given before the dive, ``--like``/``--unlike`` of ``merlion score``/``summarize``), which cost up to 0.2 AUROC on a
 held-out DeepFish habitat where the centred marks were not trusted (docs/vision.md).
@@ -49,12 +54,14 @@ TRIAL_TRUST = (0.25, 0.5, 0.75, 1.0)
 """Fractions of ``mark_weight`` tried, leave-one-out on the marks, to decide how far they are trusted."""
 GAIN = 3.0
 """Slope of the example score at the mid point: d = +1 (the like prototype) maps to sigmoid(3) = 0.95."""
-CENTRED_WEIGHT = 3.0
-"""The dive-centred marks' score, in units of the query's spread, times their trust (module docstring): chosen
-among 1, 2, 3, 4 and 6 by ``companion.evaluation.group_feedback.choose_weight`` on the shared data's 13 groups
-(3 + 3 marks, three frame orders); the evaluation chooses it again without each reported group. It was 3 while
-the query was the pooled fish head, 4 with the first scene head, and 3 again since the scene head also learns
-from pasted fish (2026-11-27)."""
+CENTRED_WEIGHT = 2.0
+"""The dive-centred marks' score, in units of the query's spread, times their trust and doubt (module docstring):
+chosen among 1, 2, 3, 4 and 6 by ``companion.evaluation.group_feedback.choose_weight`` on the shared data's 13
+groups (3 + 3 marks, ten frame orders: ``merlion eval auroc --data ../shared/data --holdout --marks 3 --orders
+10``; three orders allow 3); the evaluation chooses it again without each reported group. It was 3 while the
+query was the pooled fish head, 4 with the first scene head, 3 again since the scene head also learns from
+pasted fish (2026-11-27), and 2 since the marks weigh by the query's doubt and no order may cost a group more
+than 0.02 (2026-11-28)."""
 
 
 def _normalised(features: np.ndarray) -> np.ndarray:
@@ -93,8 +100,11 @@ class Marks:
 
     @classmethod
     def from_images(cls, encoder: Encoder, like: Sequence[np.ndarray], unlike: Sequence[np.ndarray],
-                    text_embeddings: np.ndarray | None = None) -> Marks:
-        """Marks from images: with the queries (``text_embeddings``), object features and query scores."""
+                    text_embeddings: np.ndarray | None = None, scores: tuple[Sequence[float], Sequence[float]]
+                    | None = None) -> Marks:
+        """Marks from images: with the queries (``text_embeddings``), object features and query scores. ``scores``
+        (like, unlike): the query scores the frames had in their dive, which the dive-centred marks' doubt is
+        measured with; without them each image is scored on its own."""
         def feats(images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
             if not images:
                 return np.zeros((0, 1)), None if text_embeddings is None else np.zeros(0), None
@@ -106,6 +116,8 @@ class Marks:
                     pooled)
 
         (like_f, like_q, like_p), (unlike_f, unlike_q, unlike_p) = feats(like), feats(unlike)
+        if scores is not None and text_embeddings is not None:
+            like_q, unlike_q = np.asarray(scores[0], np.float64), np.asarray(scores[1], np.float64)
         return cls.from_features(like_f, unlike_f, like_q, unlike_q, objects=text_embeddings is not None,
                                  like_pooled=like_p, unlike_pooled=unlike_p)
 
@@ -171,6 +183,9 @@ class CentredMarks:
     along: np.ndarray
     """The marks' own projections and query log-odds: context for the scale while the dive has few frames."""
     logits: np.ndarray
+    doubt: float = 1.0
+    """How far the query alone fails to sort the marks: ``1 - max(0, 2 * AUROC - 1)`` over their (like, unlike)
+    pairs, 1 at chance or worse and without their query scores. The lift is scaled by it (module docstring)."""
 
     @classmethod
     def of(cls, marks: Marks, dive_mean: np.ndarray | None) -> CentredMarks | None:
@@ -185,7 +200,10 @@ class CentredMarks:
         direction = like.mean(axis=0) - unlike.mean(axis=0)
         query = (np.zeros(0) if marks.like_query is None or marks.unlike_query is None
                  else logit(np.concatenate([marks.like_query, marks.unlike_query])))
-        return cls(direction, trust, np.concatenate([like, unlike]) @ direction, query)
+        # the query's own agreement with the marks, as the marks' is measured: 0 at chance or worse
+        sure = 0.0 if not len(query) else max(0.0, 2.0 * _pair_auroc(query, np.arange(len(query)) < len(like)) - 1.0)
+        doubt = 1.0 - sure
+        return cls(direction, trust, np.concatenate([like, unlike]) @ direction, query, doubt)
 
     def lift(self, centred: np.ndarray, dive: DiveWindow, queries: QueryWindow,
              weight: float = CENTRED_WEIGHT) -> np.ndarray:
@@ -197,7 +215,7 @@ class CentredMarks:
         spread_m = float(np.std(along))
         if spread_m < 1e-12 or spread_q < 1e-12:
             return np.zeros(len(centred))
-        return weight * self.trust * spread_q * (centred @ self.direction - along.mean()) / spread_m
+        return weight * self.doubt * self.trust * spread_q * (centred @ self.direction - along.mean()) / spread_m
 
 
 @dataclass

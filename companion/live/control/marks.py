@@ -98,7 +98,9 @@ class MarksHandler:
         ctx = self.ctx
         pipeline = ctx.pipeline
 
-        def images(indices: list[int]) -> dict[str, list]:
+        scores: dict[str, tuple[list[float], list[float]]] = {t.name: ([], []) for t in pipeline.topics}
+
+        def images(indices: list[int], side: int) -> dict[str, list]:
             found: dict[str, list] = {t.name: [] for t in pipeline.topics}
             for index in indices:
                 frame = ctx.store.frame(index)
@@ -110,13 +112,15 @@ class MarksHandler:
                 # the frame as captured where the store has it (held frames; from disk with store.keep_raw): the
                 # marks are compared with raw frames in the raw dive (a copy is judged by its raw frame's row)
                 found[topic].append(pipeline.prepare(frame.image if frame.raw_image is None else frame.raw_image))
+                # the score it was kept with, in its dive: what the marks' doubt of the query is measured on
+                scores[topic][side].append(frame.score if frame.raw_score is None else frame.raw_score)
             return found
 
-        liked, unliked = images(like), images(unlike)  # all checked before any topic changes
+        liked, unliked = images(like, 0), images(unlike, 1)  # all checked before any topic changes
         for topic in pipeline.topics:
             if liked[topic.name] or unliked[topic.name]:
                 marks = Marks.from_images(ctx.encoder, liked[topic.name], unliked[topic.name],
-                                          topic.presampler.text_embeddings)
+                                          topic.presampler.text_embeddings, scores[topic.name])
                 self.images += len(liked[topic.name]) + len(unliked[topic.name])
             else:
                 marks = Marks(np.zeros((0, 1)), np.zeros((0, 1)))

@@ -61,10 +61,11 @@ scene head also trains on the other habitats' empty frames with fish pasted in: 
 PIXEL_HABITAT_GAIN = 0.01
 """Rise of the same mean (pasted fish included) when the scene head also reads the pixel changes
 (``pixel_scene``): measured 0.839 -> 0.862 (orders 1, 2: 0.830 -> 0.857, 0.822 -> 0.846)."""
-MARKS_GAIN_FLOOR = 0.02
+MARKS_GAIN_FLOOR = 0.015
 """Mean gain over the 13 groups of 3 + 3 dive-centred marks (weight chosen without each group), per frame order, on
-top of the held-out scene head (pasted fish included): measured +0.033 to +0.049 over seeds 0-2 (on top of the
-pooled head, before the scene head: +0.064 to +0.097; the nearest-centroid marks before them: +0.001)."""
+top of the held-out scene head (pasted fish included): measured +0.023 to +0.043 over seeds 0-2, +0.016 to +0.040
+over seeds 0-9, since the marks weigh by the query's doubt (before: +0.033 to +0.049 over seeds 0-2; on top of
+the pooled head, before the scene head: +0.064 to +0.097; the nearest-centroid marks before them: +0.001)."""
 MARKS_HABITAT_FLOOR = 0.84
 """Mean over DeepFish habitats of the held-out AUROC with those marks: measured 0.865-0.909 (query alone 0.82-0.85)."""
 
@@ -167,14 +168,15 @@ def test_held_out_head_beats_the_lexical_mapping_on_deepfish_habitats(encoded):
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)  # encodes the 803 labelled frames once (~40 s on an idle 2-core CPU)
-def test_marks_lift_held_out_habitats_and_never_lower_a_group_by_more_than_002(encoded, pasted):
+def test_marks_lift_held_out_habitats_and_lower_no_group_by_more_than_002_in_three_orders(encoded, pasted):
     encoder, frames, emb = encoded
     deep = [i for i, f in enumerate(frames) if f.source.startswith(DEEPFISH)]
     said: list[str] = []
     result = marks_by_group(encoder, PreSampler(encoder, "fish"), emb, frames, 3, held_out=True, seeds=(0, 1, 2),
                             pasted=pasted, progress=said.append)
     assert said[0].endswith("(1 of 13)") and said[-1].endswith("(13 of 13)") and len(said) == 13
-    assert result["held_out"] and not result["skipped"] and result["weight"] == CENTRED_WEIGHT
+    # the product's weight is the same rule's choice over ten orders (--orders 10: 2), three orders allow more
+    assert result["held_out"] and not result["skipped"] and result["weight"] >= CENTRED_WEIGHT
     for seed, order in result["orders"].items():
         habitats = {g: r for g, r in order["groups"].items() if g.startswith(DEEPFISH)}
         assert len(habitats) == 10 and len(order["groups"]) == 13

@@ -82,6 +82,26 @@ def test_consistent_marks_of_an_object_in_varying_scenes_lift_the_frames_not_mar
     assert result.auroc_query < 0.7 and result.auroc_marked > result.auroc_query + 0.2, result
 
 
+@pytest.mark.parametrize(("order", "doubt"), [("right", 0.0), ("backwards", 1.0), ("mixed", 2 / 3)])
+def test_centred_marks_weigh_as_far_as_the_query_fails_to_sort_them(order, doubt):
+    encoder = FeatureEncoder()
+    x, present = dive(1)
+    base = PreSampler(encoder, "object")
+    base.scores(x[:30])
+    like, unlike = x[[0, 2, 4]].astype(np.float64), x[[1, 3, 5]].astype(np.float64)
+    query = {"right": ([0.9, 0.8, 0.7], [0.3, 0.2, 0.1]), "backwards": ([0.1, 0.2, 0.3], [0.7, 0.8, 0.9]),
+             "mixed": ([0.9, 0.5, 0.2], [0.6, 0.4, 0.1])}[order]  # mixed: 6 of 9 pairs right, 2 * 6/9 - 1 sure
+    marks = Marks.from_features(like, unlike, *query, like_pooled=like, unlike_pooled=unlike)
+    marked = MarkedPreSampler(base, marks)
+    assert marked.centred_trust == 1.0 and marked.centred.doubt == pytest.approx(doubt)
+    alone = base.query_scores(x[30:])
+    if doubt == 0.0:  # the query already sorts the marks: they add nothing it does not know
+        assert np.array_equal(marked.scores(x[30:]), alone)
+    else:
+        rest = np.arange(30, len(x))
+        assert auroc(marked.scores(x[rest]), present[rest]) > auroc(alone, present[rest]) + 0.1
+
+
 def test_centred_marks_follow_the_dive_and_a_new_dive_starts_afresh():
     encoder = FeatureEncoder()
     x, present = dive(4)
@@ -143,7 +163,9 @@ def alone_with_its_own_mean(x, query, like, unlike, batches, marks_after, tau=10
                        for i in range(len(ulk))]
             trust = max(0.0, 2.0 * np.mean(np.array(checks) > 0) - 1.0)
             direction = lk.mean(0) - ulk.mean(0)
-            marks = (direction, trust, np.concatenate([lk, ulk]) @ direction,
+            pairs = query[like][:, None] - query[unlike][None, :]
+            doubt = 1.0 - max(0.0, 2.0 * np.mean((pairs > 0) + 0.5 * (pairs == 0)) - 1.0)
+            marks = (direction, trust * doubt, np.concatenate([lk, ulk]) @ direction,
                      _logit(np.concatenate([query[like], query[unlike]])))
         centred = []
         for i in range(start, start + size):
