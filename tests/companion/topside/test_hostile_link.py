@@ -409,7 +409,8 @@ def test_a_push_over_2_mib_is_never_assembled_and_its_frame_comes_by_ftp(tmp_pat
             peer.send(push_marker(1, 0))
             for msg in _big_push(3 << 20):
                 peer.send(msg)
-            assert wait_until(lambda: tool.gallery.get(1).thumbnail is not None, 10)
+            # the capture itself may not be filed yet when the waiting starts
+            assert wait_until(lambda: (frame := tool.gallery.get(1)) is not None and frame.thumbnail is not None, 10)
         finally:
             peer.close()
     one = tool.gallery.get(1)
