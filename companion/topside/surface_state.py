@@ -84,6 +84,7 @@ class LinkStatus:
     """Pushed (or part-pushed) thumbnails whose CRC matched the companion's file."""
     mismatched: int = 0
     lost_packets: int = 0
+    """Gaps in the sequence numbers of the autopilot's and the companion's messages (no other source's)."""
     unsigned_ignored: int = 0
     """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
     unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)

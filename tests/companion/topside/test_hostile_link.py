@@ -457,3 +457,29 @@ def test_an_index_with_values_of_the_wrong_kind_is_one_log_line(surface, caplog,
     assert len(ignored()) == 1 and ignored()[0].levelname == "WARNING"
     assert not [r for r in caplog.records if r.exc_info]  # no traceback
     assert tool.status.index_pulls == 0 and [c.image_index for c in tool.gallery.summary()] == [1]
+
+
+def test_made_up_sequence_numbers_from_made_up_ids_neither_grow_the_table_nor_count_as_lost(surface):
+    """Before, every (system, component) heard got a row in the sequence table (65,536 possible) and its jumps
+    were counted in ``lost_packets``: 300 strangers jumping 100 each made 29,700 "lost" packets. Now only the
+    vehicle's own sources (the autopilot and the companion) are followed."""
+    tool, port = surface
+    vehicle = Sender(port, 1, 1)
+    strangers = [Sender(port, 100 + i // 3, 10 + i % 3) for i in range(300)]
+    try:
+        vehicle.send(autopilot_heartbeat())
+        assert wait_until(lambda: tool.snapshot()["link"]["autopilot"] == [1, 1], 10)
+        gcs = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+        for s in strangers:
+            s.send(gcs)
+            s.mav.seq = 101  # 100 made-up "lost" packets
+            s.send(gcs)
+        vehicle.mav.seq = 5  # the autopilot's own losses still count: four
+        vehicle.send(autopilot_heartbeat())
+        assert wait_until(lambda: tool.status.messages == 602, 10)
+    finally:
+        vehicle.close()
+        for s in strangers:
+            s.close()
+    assert tool.snapshot()["link"]["lost_packets"] == 4
+    assert set(tool._last_seq) == {(1, 1)}
