@@ -45,6 +45,7 @@ class PageState:
                 "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
                 "verified": s.verified, "mismatched": s.mismatched,
                 "unsigned_ignored": s.unsigned_ignored, "unpaired_dropped": s.unpaired_dropped,
+                "requests_refused": s.requests_refused,
                 "inbox_dropped": s.inbox_dropped, "values_dropped": s.values_dropped,
                 "unsigned_sources": {f"{a}/{b}": n for (a, b), n in sorted(s.unsigned_sources.items())},
             }

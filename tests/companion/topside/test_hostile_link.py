@@ -483,3 +483,31 @@ def test_made_up_sequence_numbers_from_made_up_ids_neither_grow_the_table_nor_co
             s.close()
     assert tool.snapshot()["link"]["lost_packets"] == 4
     assert set(tool._last_seq) == {(1, 1)}
+
+
+def test_captures_jumping_ahead_ask_again_for_16_lost_captures_and_then_one_a_second(surface):
+    """Each capture whose index jumps ahead asks again for the captures in between (up to 16): before, 50 captures
+    jumping 20 each made the tool send 784 MAV_CMD_REQUEST_MESSAGE. Now one bucket bounds them all."""
+    tool, port = surface
+    peer = CompanionPeer(port)
+
+    def requests() -> int:
+        return sum(1 for m in list(peer.received) if m.get_type() == "COMMAND_LONG"
+                   and m.command == mav.MAV_CMD_REQUEST_MESSAGE)
+
+    try:
+        meet(peer)
+        started = time.monotonic()
+        for i in range(50):
+            peer.send(captured_message(summary_frame(20 * i), 0))
+        assert wait_until(lambda: tool.gallery.get(980) is not None, 20)
+        assert wait_until(lambda: requests() >= 16, 5)
+        time.sleep(0.2)  # what the tool sent has reached the peer
+        elapsed = time.monotonic() - started
+        sent = requests()
+    finally:
+        peer.close()
+    assert sent <= 16 + elapsed / 1.0 + 1
+    assert tool.status.requests_refused == 784 - sent
+    assert tool.snapshot()["link"]["requests_refused"] == 784 - sent
+    assert len(tool.gallery.captures()) == 50 + 784  # the lost ones are still expected, asked for or not
