@@ -511,3 +511,68 @@ def test_captures_jumping_ahead_ask_again_for_16_lost_captures_and_then_one_a_se
     assert tool.status.requests_refused == 784 - sent
     assert tool.snapshot()["link"]["requests_refused"] == 784 - sent
     assert len(tool.gallery.captures()) == 50 + 784  # the lost ones are still expected, asked for or not
+
+
+def _paced(tool: SurfaceTool, peer: CompanionPeer, messages: list, batch: int = 500) -> None:
+    """Send ``messages`` as the companion, a batch at a time, each handled before the next (nothing dropped at the
+    inbox: what is measured is what the gallery keeps)."""
+    for start in range(0, len(messages), batch):
+        target = tool.status.messages + len(messages[start:start + batch])
+        for msg in messages[start:start + batch]:
+            peer.send(msg)
+        assert wait_until(lambda target=target: tool.status.messages >= target, 30)
+    assert tool.status.inbox_dropped == 0
+
+
+def test_frames_trimmed_out_are_kept_4096_per_dive_the_first_trimmed_forgotten_first(surface, tmp_path, caplog):
+    """``Summary -#n`` for any n added a trimmed frame for the whole run (before: 5,000 trims, 5,000 kept, each
+    rewrite of gallery.json longer). Now the newest 4,096 trims are kept; the summary's frames always."""
+    from companion.topside.gallery import MAX_HISTORY
+
+    tool, port = surface
+    peer = CompanionPeer(port)
+    try:
+        meet(peer)
+        peer.add(summary_frame(1))
+        peer.add(summary_frame(2))
+        assert wait_until(lambda: all(tool.gallery.get(i) and tool.gallery.get(i).thumbnail for i in (1, 2)), 10)
+        peer.trim(1)
+        assert wait_until(lambda: not tool.gallery.get(1).in_summary, 10)
+        assert (tmp_path / "gallery" / "removed" / "1.jpg").exists()
+        trims = [mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, f"Summary -#{n}".encode())
+                 for n in range(1000, 6000)]
+        _paced(tool, peer, trims)
+    finally:
+        peer.close()
+    state = tool.snapshot()
+    assert MAX_HISTORY == 4096 and state["history_dropped"] == 5001 - 4096
+    assert [c["image_index"] for c in state["summary"]] == [2] and tool.gallery.get(2).thumbnail == "summary/2.jpg"
+    kept = [c.image_index for c in tool.gallery.captures() if not c.in_summary]
+    assert sorted(kept) == list(range(6000 - 4096, 6000))  # frame 1 and the first 904 trims went, first first
+    assert not (tmp_path / "gallery" / "removed" / "1.jpg").exists()
+    assert len([r for r in caplog.records if "forgotten" in r.getMessage()]) == 1
+    tool.gallery.flush()
+    again = Gallery(tmp_path / "gallery")
+    assert len(again.captures()) == 4097 and again.history_dropped == 905
+
+
+def _raw_capture(index: int) -> mav.MAVLink_camera_image_captured_message:
+    return mav.MAVLink_camera_image_captured_message(0, 0, 0, 0, 0, 0, -12500, [1, 0, 0, 0], index, 1, b"")
+
+
+def test_a_summary_announced_without_end_keeps_8192_frames_the_first_announced_leaving_first(surface):
+    """Captures announced and never trimmed (a sender that serves no index.json to mirror) were all the summary.
+    Past 8,192 (a companion holds 8 topics of 1,000 at most) the first announced leaves it, as if trimmed."""
+    from companion.topside.gallery import MAX_SUMMARY
+
+    tool, port = surface
+    peer = CompanionPeer(port)
+    peer.tree.remove("/summary/index.json")  # nothing to mirror: every capture stays in the summary
+    try:
+        meet(peer)
+        _paced(tool, peer, [_raw_capture(n) for n in range(MAX_SUMMARY + 100)])
+    finally:
+        peer.close()
+    summary = [c.image_index for c in tool.gallery.summary()]
+    assert MAX_SUMMARY == 8192 and sorted(summary) == list(range(100, MAX_SUMMARY + 100))
+    assert sorted(c.image_index for c in tool.gallery.captures() if not c.in_summary) == list(range(100))
