@@ -16,7 +16,8 @@ late message of an earlier dive is ignored, so old thumbnails never show under n
 What is kept is bounded, whoever sends (without a signing key anyone on the tether can speak as the companion):
 the frames in the current summary always (up to ``MAX_SUMMARY``, more than a companion can hold; past it the frame
 that entered first leaves the summary as if trimmed); of the frames trimmed out, the newest ``MAX_HISTORY`` of the
-dive, the first trimmed being dropped first (its thumbnail deleted), counted in ``history_dropped``.
+dive, the first trimmed being dropped first (its thumbnail deleted), counted in ``history_dropped``; and
+``MAX_LOG_ROWS`` rows of log.csv per run (then one ``log_full`` row; the rest counted in ``log_rows_dropped``).
 
 A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing; a
 folder written before topics existed opens too (its captures' topic is unknown, and its log.csv keeps its columns).
@@ -47,6 +48,9 @@ MAX_SUMMARY = 8192
 MAX_HISTORY = 4096
 """Frames of the current dive trimmed out of its summary that are kept (with their thumbnails); the first trimmed
 goes first. A summary of 6 that takes a new frame every 10 s trims 1,440 in four hours."""
+
+MAX_LOG_ROWS = 100_000
+"""Rows appended to log.csv per run (about 100 bytes each): a day's diving writes a few thousand."""
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 
@@ -130,9 +134,14 @@ class Gallery:
     """Thread-safe: the receive loop writes, the web server reads snapshots."""
 
     def __init__(self, root: str | os.PathLike[str], *, clock: Callable[[], float] = time.monotonic,
-                 max_summary: int = MAX_SUMMARY, max_history: int = MAX_HISTORY) -> None:
+                 max_summary: int = MAX_SUMMARY, max_history: int = MAX_HISTORY,
+                 max_log_rows: int = MAX_LOG_ROWS) -> None:
         self.root = Path(root)
-        self.max_summary, self.max_history = max_summary, max_history
+        self.max_summary, self.max_history, self.max_log_rows = max_summary, max_history, max_log_rows
+        self.log_rows = 0
+        """Rows appended to log.csv by this run."""
+        self.log_rows_dropped = 0
+        """Events of this run past ``max_log_rows``: not in log.csv (gallery.json still has the state)."""
         self._clock = clock
         self.write_every_s = 0.0
         """gallery.json is rewritten at most this often (0: on every change); see ``defer_writes``."""
@@ -483,7 +492,17 @@ class Gallery:
         self.json_writes += 1
 
     def _log_row(self, event: str, cap: Capture) -> None:
-        """Caller holds the lock."""
+        """Caller holds the lock. Past ``max_log_rows`` rows this run, one ``log_full`` row and then none (each
+        event of a sender announcing without end was a row, the file growing for the whole run)."""
+        if self.log_rows > self.max_log_rows:
+            self.log_rows_dropped += 1
+            return
+        if self.log_rows == self.max_log_rows:
+            log.warning("%s: %d rows this run: no more are written (log_rows_dropped; gallery.json keeps the "
+                        "state)", self._csv, self.max_log_rows)
+            self.log_rows_dropped += 1
+            event, cap = "log_full", Capture(image_index=-1, dive=self.dive)
+        self.log_rows += 1
         new = not self._csv.exists()
         if new:
             self._columns = list(LOG_COLUMNS)

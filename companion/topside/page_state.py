@@ -62,7 +62,8 @@ class PageState:
         summary = [_capture_view(c) for c in ctx.gallery.summary()]
         topics = [t.to_dict() for t in ctx.gallery.topics()]
         return {"time": now, "link": link, "companion": companion, "dive": ctx.gallery.dive, "summary": summary,
-                "history_dropped": ctx.gallery.history_dropped, "topics": topics,
+                "history_dropped": ctx.gallery.history_dropped, "log_rows_dropped": ctx.gallery.log_rows_dropped,
+                "topics": topics,
                 "thumbnails_waiting": ctx.gallery.missing_thumbnails(), "marks": marks}
 
 

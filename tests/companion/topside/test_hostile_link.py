@@ -3,6 +3,7 @@ the real FTP server answering. Each test is an attack an earlier helper found, a
 
 from __future__ import annotations
 
+import csv
 import json
 import socket
 import threading
@@ -29,11 +30,11 @@ from vehicle.protocol.image_push import CHUNK, MAX_PUSH_BYTES, ImageReceiver
 
 
 @contextmanager
-def running_tool(folder: Path, **options) -> Iterator[tuple[SurfaceTool, int]]:
+def running_tool(folder: Path, gallery: Gallery | None = None, **options) -> Iterator[tuple[SurfaceTool, int]]:
     """A surface tool listening on a free UDP port, its receive loop on a thread; yields (tool, port)."""
     port = free_udp_port()
     tool = SurfaceTool(SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", index_refresh_s=0.5, **options),
-                       Gallery(folder))
+                       gallery or Gallery(folder))
     tool.open()
     stop = threading.Event()
     thread = threading.Thread(target=tool.run, args=(stop,), daemon=True)
@@ -576,3 +577,27 @@ def test_a_summary_announced_without_end_keeps_8192_frames_the_first_announced_l
     summary = [c.image_index for c in tool.gallery.summary()]
     assert MAX_SUMMARY == 8192 and sorted(summary) == list(range(100, MAX_SUMMARY + 100))
     assert sorted(c.image_index for c in tool.gallery.captures() if not c.in_summary) == list(range(100))
+
+
+def test_log_csv_gets_a_bounded_number_of_rows_per_run(tmp_path):
+    """Each event was a row for the whole run. Now a run writes ``max_log_rows`` (100,000 by default, about 10 MB;
+    1,000 here), then one ``log_full`` row; the next run appends again."""
+    from companion.topside.gallery import MAX_LOG_ROWS
+
+    folder = tmp_path / "gallery"
+    with running_tool(folder, Gallery(folder, max_log_rows=1000)) as (tool, port):
+        peer = CompanionPeer(port)
+        try:
+            meet(peer)
+            _paced(tool, peer, [mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, f"Summary -#{n}".encode())
+                                for n in range(1500)])
+        finally:
+            peer.close()
+    with (folder / "log.csv").open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 1001 and rows[-1]["event"] == "log_full" and rows[-2]["image_index"] == "999"
+    assert tool.snapshot()["log_rows_dropped"] == 500 and MAX_LOG_ROWS == 100_000
+    assert len(Gallery(folder).captures()) == 1500  # the state is all in gallery.json
+    Gallery(folder, max_log_rows=1000).remove(5000)  # a new run
+    with (folder / "log.csv").open(newline="", encoding="utf-8") as fh:
+        assert list(csv.DictReader(fh))[-1]["image_index"] == "5000"
