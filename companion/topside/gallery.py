@@ -13,6 +13,12 @@ its ``file_url``, ``mftp://summary/<dive>/<n>.jpg``, or index.json) plus its ind
 current dive; a capture of a dive never seen before files the current one away under ``dives/`` first, and a
 late message of an earlier dive is ignored, so old thumbnails never show under new captures.
 
+What is kept is bounded, whoever sends (without a signing key anyone on the tether can speak as the companion):
+the frames in the current summary always (up to ``MAX_SUMMARY``, more than a companion can hold; past it the frame
+that entered first leaves the summary as if trimmed); of the frames trimmed out, the newest ``MAX_HISTORY`` of the
+dive, the first trimmed being dropped first (its thumbnail deleted), counted in ``history_dropped``; and
+``MAX_LOG_ROWS`` rows of log.csv per run (then one ``log_full`` row; the rest counted in ``log_rows_dropped``).
+
 A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing; a
 folder written before topics existed opens too (its captures' topic is unknown, and its log.csv keeps its columns).
 """
@@ -21,17 +27,30 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import os
 import re
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
+
+log = logging.getLogger("merlion.surface")
+
+MAX_SUMMARY = 8192
+"""Frames of the current summary kept: a companion holds at most 8 topics of k <= 1,000 frames."""
+MAX_HISTORY = 4096
+"""Frames of the current dive trimmed out of its summary that are kept (with their thumbnails); the first trimmed
+goes first. A summary of 6 that takes a new frame every 10 s trims 1,440 in four hours."""
+
+MAX_LOG_ROWS = 100_000
+"""Rows appended to log.csv per run (about 100 bytes each): a day's diving writes a few thousand."""
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 
@@ -110,12 +129,31 @@ class Capture:
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in data.items() if k in known})
 
+    def to_dict(self) -> dict:
+        """Its fields, shallow (``asdict`` deep-copies: 0.22 s for the 12,288 captures a gallery may hold, on the
+        receive loop at each gallery.json rewrite); ``q`` is shared, so only for writing out."""
+        return {name: getattr(self, name) for name in _CAPTURE_FIELDS}
+
+    def copy(self) -> Capture:
+        """A copy a reader may keep (its own ``q``)."""
+        return replace(self, q=None if self.q is None else list(self.q))
+
+
+_CAPTURE_FIELDS = tuple(f.name for f in fields(Capture))
+
 
 class Gallery:
     """Thread-safe: the receive loop writes, the web server reads snapshots."""
 
-    def __init__(self, root: str | os.PathLike[str], *, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, root: str | os.PathLike[str], *, clock: Callable[[], float] = time.monotonic,
+                 max_summary: int = MAX_SUMMARY, max_history: int = MAX_HISTORY,
+                 max_log_rows: int = MAX_LOG_ROWS) -> None:
         self.root = Path(root)
+        self.max_summary, self.max_history, self.max_log_rows = max_summary, max_history, max_log_rows
+        self.log_rows = 0
+        """Rows appended to log.csv by this run."""
+        self.log_rows_dropped = 0
+        """Events of this run past ``max_log_rows``: not in log.csv (gallery.json still has the state)."""
         self._clock = clock
         self.write_every_s = 0.0
         """gallery.json is rewritten at most this often (0: on every change); see ``defer_writes``."""
@@ -129,6 +167,12 @@ class Gallery:
             raise MerlionError(f"{self.root}: cannot create the gallery folder ({err.strerror})") from None
         self._lock = threading.Lock()
         self._captures: dict[int, Capture] = {}
+        self._in_summary: OrderedDict[int, None] = OrderedDict()
+        """Image indices in the summary, in the order they entered it."""
+        self._history: OrderedDict[int, None] = OrderedDict()
+        """Image indices of the current dive out of the summary, in the order they left it."""
+        self.history_dropped = 0
+        """Trimmed frames forgotten beyond ``max_history`` (all dives of this folder)."""
         self._archived: list[Capture] = []
         self.dive: str | None = None
         """The dive now shown (None until a companion names one)."""
@@ -151,8 +195,12 @@ class Gallery:
             self.dive = safe_dive(data["dive"]) if data.get("dive") else None  # a folder name, see safe_dive
             self._dives = [str(d) for d in data.get("dives", [])]
             self._topics = [Topic.from_dict(t) for t in data.get("topics", [])]
+            self.history_dropped = int(data.get("history_dropped") or 0)
         except (OSError, ValueError, TypeError, AttributeError, KeyError) as err:
             raise MerlionError(f"{self._json}: not a gallery file this tool can read ({err})") from None
+        for cap in sorted(self._captures.values(), key=lambda c: (c.removed_at or c.announced_at or 0.0,
+                                                                   c.image_index)):
+            self._track(cap)
 
     def _log_columns(self) -> list[str]:
         """The columns log.csv already has (a folder from an older tool keeps its header: rows stay aligned)."""
@@ -170,12 +218,12 @@ class Gallery:
     def get(self, image_index: int) -> Capture | None:
         with self._lock:
             cap = self._captures.get(image_index)
-            return None if cap is None else Capture(**asdict(cap))
+            return None if cap is None else cap.copy()
 
     def captures(self) -> list[Capture]:
         """Every capture ever seen, newest (highest image index) first."""
         with self._lock:
-            return [Capture(**asdict(c)) for _, c in sorted(self._captures.items(), reverse=True)]
+            return [c.copy() for _, c in sorted(self._captures.items(), reverse=True)]
 
     def summary(self) -> list[Capture]:
         """The frames now in the companion's summary, newest first."""
@@ -184,7 +232,7 @@ class Gallery:
     def archived(self) -> list[Capture]:
         """Captures of earlier dives, oldest dive first."""
         with self._lock:
-            return [Capture(**asdict(c)) for c in self._archived]
+            return [c.copy() for c in self._archived]
 
     def dives(self) -> list[str]:
         with self._lock:
@@ -251,6 +299,8 @@ class Gallery:
                     cap.in_summary = False
                     self._archived.append(cap)
                 self._captures = {}
+                self._in_summary.clear()
+                self._history.clear()
             if self.dive and self.dive not in self._dives:
                 self._dives.append(self.dive)
             self.dive = dive
@@ -275,7 +325,9 @@ class Gallery:
             if old is None:
                 cap.announced_at = cap.announced_at or time.time()
                 self._captures[cap.image_index] = cap
+                self._track(cap)
                 self._persist("added", cap)
+                self._bound()
                 return True
             changed = False
             for f in fields(Capture):
@@ -312,6 +364,7 @@ class Gallery:
             if cap is None:
                 cap = Capture(image_index=image_index, dive=self.dive, announced_at=time.time())
                 self._captures[image_index] = cap
+                self._track(cap)
             folder = "summary" if cap.in_summary else "removed"
             rel = f"{folder}/{image_index}.{ext}"
             path = self.root / rel
@@ -320,6 +373,7 @@ class Gallery:
                 (self.root / cap.thumbnail).unlink(missing_ok=True)
             cap.thumbnail, cap.thumbnail_via, cap.thumbnail_bytes = rel, via, len(data)
             self._persist("thumbnail", cap)
+            self._bound()
             return path
 
     def remove(self, image_index: int) -> bool:
@@ -335,15 +389,52 @@ class Gallery:
                 cap = Capture(image_index=image_index, dive=self.dive, in_summary=False, announced_at=now,
                               removed_at=now)
                 self._captures[image_index] = cap
+                self._track(cap)
                 self._persist("removed", cap)
+                self._bound()
                 return False
             if not cap.in_summary:
                 return False
-            cap.in_summary = False
-            cap.removed_at = time.time()
-            self._move_thumbnail(cap, "removed")
-            self._persist("removed", cap)
+            self._trim(cap)
+            self._bound()
             return True
+
+    def _trim(self, cap: Capture) -> None:
+        """Caller holds the lock."""
+        cap.in_summary = False
+        cap.removed_at = time.time()
+        self._move_thumbnail(cap, "removed")
+        self._track(cap)
+        self._persist("removed", cap)
+
+    def _track(self, cap: Capture) -> None:
+        """Keep ``cap`` in the order of the part it now belongs to (caller holds the lock)."""
+        i = cap.image_index
+        if cap.in_summary:
+            self._history.pop(i, None)
+            self._in_summary[i] = None
+        else:
+            self._in_summary.pop(i, None)
+            self._history[i] = None
+
+    def _bound(self) -> None:
+        """Caller holds the lock. The summary past ``max_summary``: the frame that entered first leaves it; the
+        history past ``max_history``: the frame that left first is forgotten, and its thumbnail deleted."""
+        while len(self._in_summary) > self.max_summary:
+            self._trim(self._captures[next(iter(self._in_summary))])
+        dropped = 0
+        while len(self._history) > self.max_history:
+            index, _ = self._history.popitem(last=False)
+            cap = self._captures.pop(index)
+            if cap.thumbnail:
+                (self.root / cap.thumbnail).unlink(missing_ok=True)
+            dropped += 1
+        if dropped:
+            if not self.history_dropped:
+                log.warning("more than %d frames trimmed out of this dive's summary: the first trimmed are "
+                            "forgotten, thumbnails and all (history_dropped)", self.max_history)
+            self.history_dropped += dropped
+            self._json_due = True
 
     def mirror(self, summary: list[int], announced_before: float | None = None) -> list[int]:
         """Make the gallery's current summary ``summary`` (from index.json); return indices removed.
@@ -369,10 +460,14 @@ class Gallery:
 
     def _restore(self, image_index: int) -> None:
         with self._lock:
-            cap = self._captures[image_index]
+            cap = self._captures.get(image_index)
+            if cap is None:
+                return  # forgotten meanwhile (beyond max_history)
             cap.in_summary, cap.removed_at = True, None
             self._move_thumbnail(cap, "summary")
+            self._track(cap)
             self._persist("added", cap)
+            self._bound()
 
     def _move_thumbnail(self, cap: Capture, folder: str) -> None:
         """Keep a capture's thumbnail in the folder that matches its state (caller holds the lock)."""
@@ -399,16 +494,27 @@ class Gallery:
             "dive": self.dive,
             "dives": self._dives,
             "summary": sorted(i for i, c in self._captures.items() if c.in_summary),
-            "captures": [asdict(c) for _, c in sorted(self._captures.items())],
-            "archived": [asdict(c) for c in self._archived],
+            "captures": [c.to_dict() for _, c in sorted(self._captures.items())],
+            "archived": [c.to_dict() for c in self._archived],
             "topics": [t.to_dict() for t in self._topics],
+            "history_dropped": self.history_dropped,
         }
         atomic_write(self._json, json.dumps(doc, indent=1))
         self._json_due, self._json_at = False, self._clock()
         self.json_writes += 1
 
     def _log_row(self, event: str, cap: Capture) -> None:
-        """Caller holds the lock."""
+        """Caller holds the lock. Past ``max_log_rows`` rows this run, one ``log_full`` row and then none (each
+        event of a sender announcing without end was a row, the file growing for the whole run)."""
+        if self.log_rows > self.max_log_rows:
+            self.log_rows_dropped += 1
+            return
+        if self.log_rows == self.max_log_rows:
+            log.warning("%s: %d rows this run: no more are written (log_rows_dropped; gallery.json keeps the "
+                        "state)", self._csv, self.max_log_rows)
+            self.log_rows_dropped += 1
+            event, cap = "log_full", Capture(image_index=-1, dive=self.dive)
+        self.log_rows += 1
         new = not self._csv.exists()
         if new:
             self._columns = list(LOG_COLUMNS)
@@ -416,6 +522,6 @@ class Gallery:
             writer = csv.writer(fh)
             if new:
                 writer.writerow(self._columns)
-            row = asdict(cap)
+            row = cap.to_dict()
             row.update(event=event, wall_time=f"{time.time():.3f}")
             writer.writerow(["" if row.get(k) is None else row.get(k) for k in self._columns])

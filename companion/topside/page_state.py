@@ -45,6 +45,7 @@ class PageState:
                 "ftp_ok": s.ftp_ok, "ftp_failed": s.ftp_failed, "index_pulls": s.index_pulls,
                 "verified": s.verified, "mismatched": s.mismatched,
                 "unsigned_ignored": s.unsigned_ignored, "unpaired_dropped": s.unpaired_dropped,
+                "requests_refused": s.requests_refused,
                 "inbox_dropped": s.inbox_dropped, "values_dropped": s.values_dropped,
                 "unsigned_sources": {f"{a}/{b}": n for (a, b), n in sorted(s.unsigned_sources.items())},
             }
@@ -61,7 +62,9 @@ class PageState:
         summary = [_capture_view(c) for c in ctx.gallery.summary()]
         topics = [t.to_dict() for t in ctx.gallery.topics()]
         return {"time": now, "link": link, "companion": companion, "dive": ctx.gallery.dive, "summary": summary,
-                "topics": topics, "thumbnails_waiting": ctx.gallery.missing_thumbnails(), "marks": marks}
+                "history_dropped": ctx.gallery.history_dropped, "log_rows_dropped": ctx.gallery.log_rows_dropped,
+                "topics": topics,
+                "thumbnails_waiting": ctx.gallery.missing_thumbnails(), "marks": marks}
 
 
 def _age(now: float, then: float | None) -> float | None:

@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.topside.gallery import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
-from companion.topside.surface_state import MAX_UNPAIRED, SurfaceContext
+from companion.topside.surface_state import MAX_UNPAIRED, REQUEST_BURST, REQUEST_REFILL_S, SurfaceContext
 from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
@@ -33,6 +33,7 @@ class PushPairing:
         self.sync = sync
         self.images = ImageReceiver(clock=ctx.clock)
         self._refusal_log = WarningBucket()  # a flood of refused captures is a few lines, not one per message
+        self._requests = WarningBucket(REQUEST_BURST, REQUEST_REFILL_S)  # one bucket for every capture asked again
 
     def on_capture(self, msg) -> None:
         ctx, p = self.ctx, self.ctx.pairing
@@ -128,11 +129,22 @@ class PushPairing:
             p.waiting.append((index, self.ctx.clock()))
 
     def _request_capture(self, index: int) -> None:
-        """MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED, index): the camera protocol's way to re-get a capture."""
-        if self.ctx.status.companion is None:
+        """MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED, index): the camera protocol's way to re-get a capture. One
+        token bucket bounds them all: each capture jumping ahead asks for up to 16, so without it one datagram of a
+        sender without the key became 16 commands on the wire, as often as it liked."""
+        ctx = self.ctx
+        if ctx.status.companion is None:
             return
-        system, component = self.ctx.status.companion
-        self.ctx.send(mav.MAVLink_command_long_message(
+        if not self._requests.take():
+            with ctx.lock:
+                ctx.status.requests_refused += 1
+                first = ctx.status.requests_refused == 1
+            if first:
+                log.warning("more captures to ask for again than %d at once and one every %.0f s: the rest are not "
+                            "asked for (their thumbnails still come by push or FTP)", REQUEST_BURST, REQUEST_REFILL_S)
+            return
+        system, component = ctx.status.companion
+        ctx.send(mav.MAVLink_command_long_message(
             system, component, mav.MAV_CMD_REQUEST_MESSAGE, 0,
             mav.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED, index, 0, 0, 0, 0, 0))
 

@@ -33,6 +33,11 @@ MAX_UNPAIRED = 16
 pushes it, so a handful covers a reordering; more are a sender pushing images nobody announced, which grew without
 bound (each up to the push cap). The oldest go first, as ``early`` handshakes do."""
 
+REQUEST_BURST = 16
+REQUEST_REFILL_S = 1.0
+"""Captures asked for again (MAV_CMD_REQUEST_MESSAGE): 16 at once (the most one jump asks for), then one a second,
+for all of them together. A real gap is a few captures lost on a lossy link; more is a sender making the tool talk."""
+
 
 @dataclass
 class SurfaceOptions:
@@ -84,6 +89,7 @@ class LinkStatus:
     """Pushed (or part-pushed) thumbnails whose CRC matched the companion's file."""
     mismatched: int = 0
     lost_packets: int = 0
+    """Gaps in the sequence numbers of the autopilot's and the companion's messages (no other source's)."""
     unsigned_ignored: int = 0
     """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
     unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)
@@ -91,6 +97,8 @@ class LinkStatus:
     """Messages dropped because the receive loop was ``tool.INBOX_MAX`` behind."""
     values_dropped: int = 0
     """Values under a new name once ``tool.MAX_VALUES`` names are shown: ignored."""
+    requests_refused: int = 0
+    """Lost captures not asked for again: past ``REQUEST_BURST`` at once, one every ``REQUEST_REFILL_S``."""
     unpaired_dropped: int = 0
     """Pushes no capture claimed, dropped beyond ``MAX_UNPAIRED``."""
 

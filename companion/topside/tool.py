@@ -185,23 +185,19 @@ class SurfaceTool:
             self._ignore(msg, source)
             return
         now = time.time()
-        seq = msg.get_seq()
         status = self.ctx.status
         with self.ctx.lock:
             status.messages += 1
             status.last_message = now
-            last = self._last_seq.get(source)
-            gap = 0 if last is None else (seq - last - 1) % 256
-            if gap < 128:  # a larger jump is a restart or reordering, not a loss
-                status.lost_packets += gap
-            self._last_seq[source] = seq
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, source, now)
+            self._count_lost(source, msg.get_seq())
             return
         if kind == "CAMERA_IMAGE_CAPTURED":
             self._adopt(source)
         elif kind in ("DATA_TRANSMISSION_HANDSHAKE", "STATUSTEXT", "NAMED_VALUE_FLOAT") and source in self._cameras:
             self._adopt(source)
+        self._count_lost(source, msg.get_seq())
         if status.companion is None and kind == "STATUSTEXT":
             # the companion's first lines ("started") may come before its heartbeat: keep a few for later
             early = self._early_text.pop(source, None) or deque(maxlen=5)
@@ -223,6 +219,20 @@ class SurfaceTool:
             self._on_value(msg, kind, now)
         elif kind == "FILE_TRANSFER_PROTOCOL" and self.ctx.ftp is not None:
             self.ctx.ftp.handle(msg)
+
+    def _count_lost(self, source: tuple[int, int], seq: int) -> None:
+        """``lost_packets``: the gaps in the sequence numbers of the vehicle's own sources only (the autopilot and
+        the companion, once known). Sender ids are free, so following every source heard let a stranger grow the
+        table to 65,536 rows and add up to 127 made-up losses per message; the table now has two rows at most."""
+        status = self.ctx.status
+        if source != status.companion and source != status.autopilot:
+            return
+        with self.ctx.lock:
+            last = self._last_seq.get(source)
+            gap = 0 if last is None else (seq - last - 1) % 256
+            if gap < 128:  # a larger jump is a restart or reordering, not a loss
+                status.lost_packets += gap
+            self._last_seq[source] = seq
 
     def _ignore(self, msg, source: tuple[int, int]) -> None:
         """An unsigned (or badly signed, or replayed) message on a signed link: counted, reported once per source

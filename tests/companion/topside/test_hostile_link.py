@@ -3,6 +3,7 @@ the real FTP server answering. Each test is an attack an earlier helper found, a
 
 from __future__ import annotations
 
+import csv
 import json
 import socket
 import threading
@@ -29,11 +30,11 @@ from vehicle.protocol.image_push import CHUNK, MAX_PUSH_BYTES, ImageReceiver
 
 
 @contextmanager
-def running_tool(folder: Path, **options) -> Iterator[tuple[SurfaceTool, int]]:
+def running_tool(folder: Path, gallery: Gallery | None = None, **options) -> Iterator[tuple[SurfaceTool, int]]:
     """A surface tool listening on a free UDP port, its receive loop on a thread; yields (tool, port)."""
     port = free_udp_port()
     tool = SurfaceTool(SurfaceOptions(connect=f"udpin:127.0.0.1:{port}", index_refresh_s=0.5, **options),
-                       Gallery(folder))
+                       gallery or Gallery(folder))
     tool.open()
     stop = threading.Event()
     thread = threading.Thread(target=tool.run, args=(stop,), daemon=True)
@@ -458,3 +459,146 @@ def test_an_index_with_values_of_the_wrong_kind_is_one_log_line(surface, caplog,
     assert len(ignored()) == 1 and ignored()[0].levelname == "WARNING"
     assert not [r for r in caplog.records if r.exc_info]  # no traceback
     assert tool.status.index_pulls == 0 and [c.image_index for c in tool.gallery.summary()] == [1]
+
+
+def test_made_up_sequence_numbers_from_made_up_ids_neither_grow_the_table_nor_count_as_lost(surface):
+    """Before, every (system, component) heard got a row in the sequence table (65,536 possible) and its jumps
+    were counted in ``lost_packets``: 300 strangers jumping 100 each made 29,700 "lost" packets. Now only the
+    vehicle's own sources (the autopilot and the companion) are followed."""
+    tool, port = surface
+    vehicle = Sender(port, 1, 1)
+    strangers = [Sender(port, 100 + i // 3, 10 + i % 3) for i in range(300)]
+    try:
+        vehicle.send(autopilot_heartbeat())
+        assert wait_until(lambda: tool.snapshot()["link"]["autopilot"] == [1, 1], 10)
+        gcs = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+        for s in strangers:
+            s.send(gcs)
+            s.mav.seq = 101  # 100 made-up "lost" packets
+            s.send(gcs)
+        vehicle.mav.seq = 5  # the autopilot's own losses still count: four
+        vehicle.send(autopilot_heartbeat())
+        assert wait_until(lambda: tool.status.messages == 602, 10)
+    finally:
+        vehicle.close()
+        for s in strangers:
+            s.close()
+    assert tool.snapshot()["link"]["lost_packets"] == 4
+    assert set(tool._last_seq) == {(1, 1)}
+
+
+def test_captures_jumping_ahead_ask_again_for_16_lost_captures_and_then_one_a_second(surface):
+    """Each capture whose index jumps ahead asks again for the captures in between (up to 16): before, 50 captures
+    jumping 20 each made the tool send 784 MAV_CMD_REQUEST_MESSAGE. Now one bucket bounds them all."""
+    tool, port = surface
+    peer = CompanionPeer(port)
+
+    def requests() -> int:
+        return sum(1 for m in list(peer.received) if m.get_type() == "COMMAND_LONG"
+                   and m.command == mav.MAV_CMD_REQUEST_MESSAGE)
+
+    try:
+        meet(peer)
+        started = time.monotonic()
+        for i in range(50):
+            peer.send(captured_message(summary_frame(20 * i), 0))
+        assert wait_until(lambda: tool.gallery.get(980) is not None, 20)
+        assert wait_until(lambda: requests() >= 16, 5)
+        time.sleep(0.2)  # what the tool sent has reached the peer
+        elapsed = time.monotonic() - started
+        sent = requests()
+    finally:
+        peer.close()
+    assert sent <= 16 + elapsed / 1.0 + 1
+    assert tool.status.requests_refused == 784 - sent
+    assert tool.snapshot()["link"]["requests_refused"] == 784 - sent
+    assert len(tool.gallery.captures()) == 50 + 784  # the lost ones are still expected, asked for or not
+
+
+def _paced(tool: SurfaceTool, peer: CompanionPeer, messages: list, batch: int = 500) -> None:
+    """Send ``messages`` as the companion, a batch at a time, each handled before the next (nothing dropped at the
+    inbox: what is measured is what the gallery keeps)."""
+    for start in range(0, len(messages), batch):
+        target = tool.status.messages + len(messages[start:start + batch])
+        for msg in messages[start:start + batch]:
+            peer.send(msg)
+        assert wait_until(lambda target=target: tool.status.messages >= target, 30)
+    assert tool.status.inbox_dropped == 0
+
+
+def test_frames_trimmed_out_are_kept_4096_per_dive_the_first_trimmed_forgotten_first(surface, tmp_path, caplog):
+    """``Summary -#n`` for any n added a trimmed frame for the whole run (before: 5,000 trims, 5,000 kept, each
+    rewrite of gallery.json longer). Now the newest 4,096 trims are kept; the summary's frames always."""
+    from companion.topside.gallery import MAX_HISTORY
+
+    tool, port = surface
+    peer = CompanionPeer(port)
+    try:
+        meet(peer)
+        peer.add(summary_frame(1))
+        peer.add(summary_frame(2))
+        assert wait_until(lambda: all(tool.gallery.get(i) and tool.gallery.get(i).thumbnail for i in (1, 2)), 10)
+        peer.trim(1)
+        assert wait_until(lambda: not tool.gallery.get(1).in_summary, 10)
+        assert (tmp_path / "gallery" / "removed" / "1.jpg").exists()
+        trims = [mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, f"Summary -#{n}".encode())
+                 for n in range(1000, 6000)]
+        _paced(tool, peer, trims)
+    finally:
+        peer.close()
+    state = tool.snapshot()
+    assert MAX_HISTORY == 4096 and state["history_dropped"] == 5001 - 4096
+    assert [c["image_index"] for c in state["summary"]] == [2] and tool.gallery.get(2).thumbnail == "summary/2.jpg"
+    kept = [c.image_index for c in tool.gallery.captures() if not c.in_summary]
+    assert sorted(kept) == list(range(6000 - 4096, 6000))  # frame 1 and the first 904 trims went, first first
+    assert not (tmp_path / "gallery" / "removed" / "1.jpg").exists()
+    assert len([r for r in caplog.records if "forgotten" in r.getMessage()]) == 1
+    tool.gallery.flush()
+    again = Gallery(tmp_path / "gallery")
+    assert len(again.captures()) == 4097 and again.history_dropped == 905
+
+
+def _raw_capture(index: int) -> mav.MAVLink_camera_image_captured_message:
+    return mav.MAVLink_camera_image_captured_message(0, 0, 0, 0, 0, 0, -12500, [1, 0, 0, 0], index, 1, b"")
+
+
+def test_a_summary_announced_without_end_keeps_8192_frames_the_first_announced_leaving_first(surface):
+    """Captures announced and never trimmed (a sender that serves no index.json to mirror) were all the summary.
+    Past 8,192 (a companion holds 8 topics of 1,000 at most) the first announced leaves it, as if trimmed."""
+    from companion.topside.gallery import MAX_SUMMARY
+
+    tool, port = surface
+    peer = CompanionPeer(port)
+    peer.tree.remove("/summary/index.json")  # nothing to mirror: every capture stays in the summary
+    try:
+        meet(peer)
+        _paced(tool, peer, [_raw_capture(n) for n in range(MAX_SUMMARY + 100)])
+    finally:
+        peer.close()
+    summary = [c.image_index for c in tool.gallery.summary()]
+    assert MAX_SUMMARY == 8192 and sorted(summary) == list(range(100, MAX_SUMMARY + 100))
+    assert sorted(c.image_index for c in tool.gallery.captures() if not c.in_summary) == list(range(100))
+
+
+def test_log_csv_gets_a_bounded_number_of_rows_per_run(tmp_path):
+    """Each event was a row for the whole run. Now a run writes ``max_log_rows`` (100,000 by default, about 10 MB;
+    1,000 here), then one ``log_full`` row; the next run appends again."""
+    from companion.topside.gallery import MAX_LOG_ROWS
+
+    folder = tmp_path / "gallery"
+    with running_tool(folder, Gallery(folder, max_log_rows=1000)) as (tool, port):
+        peer = CompanionPeer(port)
+        try:
+            meet(peer)
+            _paced(tool, peer, [mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, f"Summary -#{n}".encode())
+                                for n in range(1500)])
+        finally:
+            peer.close()
+    with (folder / "log.csv").open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 1001 and rows[-1]["event"] == "log_full" and rows[-2]["image_index"] == "999"
+    assert tool.snapshot()["log_rows_dropped"] == 500 and MAX_LOG_ROWS == 100_000
+    assert len(Gallery(folder).captures()) == 1500  # the state is all in gallery.json
+    Gallery(folder, max_log_rows=1000).remove(5000)  # a new run
+    with (folder / "log.csv").open(newline="", encoding="utf-8") as fh:
+        assert list(csv.DictReader(fh))[-1]["image_index"] == "5000"
