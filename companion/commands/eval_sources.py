@@ -105,21 +105,12 @@ def auroc_by_source(args: argparse.Namespace) -> int:
     if d := result["deepfish_habitats"]:
         print(f"DeepFish habitats: {_spread_text(d)} ({d['groups']} habitats)")
     if "holdout" in result:
-        h = result["holdout"]
-        print(f"held out ({h['method']}):")
-        for group, value in h["by_group"].items():
-            print(f"  {group:24s} AUROC {value:.3f}")
-        if d := h["deepfish_habitats"]:
-            print(f"  DeepFish habitats held out: {_spread_text(d)}")
+        _print_held_out("held out", result["holdout"])
     if "dive_centred" in result:
         c = result["dive_centred"]
-        print(f"held out, dive-centred ({c['method']}):")
-        for group, value in c["by_group"].items():
-            choice = c["chosen"].get(group)
-            note = f"  (lambda {choice['lambda']:g}, prior weight {choice['prior_weight']})" if choice else ""
-            print(f"  {group:24s} AUROC {value:.3f}{note}")
-        if d := c["deepfish_habitats"]:
-            print(f"  DeepFish habitats held out: {_spread_text(d)}; DeepFish pooled {c['deepfish_pooled']:.3f}")
+        notes = {g: f"  (lambda {choice['lambda']:g}, prior weight {choice['prior_weight']})"
+                 for g, choice in c["chosen"].items() if choice}
+        _print_held_out("held out, dive-centred", c, notes, f"; DeepFish pooled {c['deepfish_pooled']:.3f}")
     for key in ("scene", "scene_by_clip"):
         if key in result:
             _print_scene(result[key])
@@ -141,6 +132,15 @@ def auroc_by_source(args: argparse.Namespace) -> int:
         print(f"held out {row['held_out']:10s} chosen {row['chosen']:40s} tune {row['tune_auroc']:.3f}  "
               f"held-out {row['held_out_auroc']:.3f}")
     return 0
+
+
+def _print_held_out(title: str, h: dict, notes: dict[str, str] | None = None, tail: str = "") -> None:
+    """One held-out result: its method, each group's AUROC (with its note), the DeepFish habitats' spread."""
+    print(f"{title} ({h['method']}):")
+    for group, value in h["by_group"].items():
+        print(f"  {group:24s} AUROC {value:.3f}{(notes or {}).get(group, '')}")
+    if d := h["deepfish_habitats"]:
+        print(f"  DeepFish habitats held out: {_spread_text(d)}{tail}")
 
 
 def _spread_text(d: dict) -> str:

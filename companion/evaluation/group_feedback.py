@@ -122,8 +122,7 @@ def marks_by_group(encoder: ImageNetEncoder | object, presampler: PreSampler, em
     chosen = {g: choose_weight(gains, without=g) for g in reported}
     rows = {seed: {g: tried[seed][chosen[g]][g] for g in reported} for seed in seeds}
     first = seeds[0]
-    by_weight = {str(w): {str(seed): {g: tried[seed][w][g]["gain"] for g in reported} for seed in seeds}
-                 for w in weights}  # every candidate's gains: what the choice chose from
+    by_weight = {str(w): {str(s): order for s, order in per.items()} for w, per in gains.items()}  # what it chose from
     return {"by_weight": by_weight, "marks": n, "held_out": bool(held_out and head is not None), "skipped": skipped, "seed": first,
             "weight": choose_weight(gains) if reported else None, **_summary(rows[first]),
             "orders": (per_order := {str(seed): _summary(rows[seed]) for seed in seeds}),

@@ -105,19 +105,20 @@ class Marks:
         """Marks from images: with the queries (``text_embeddings``), object features and query scores. ``scores``
         (like, unlike): the query scores the frames had in their dive, which the dive-centred marks' doubt is
         measured with; without them each image is scored on its own."""
-        def feats(images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        def feats(images: Sequence[np.ndarray], known: Sequence[float] | None
+                  ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
             if not images:
                 return np.zeros((0, 1)), None if text_embeddings is None else np.zeros(0), None
             emb = encoder.encode_images(list(images))
             pooled = encoder.sampler_features(emb)
             if text_embeddings is None:
                 return pooled, None, pooled
-            return (encoder.object_features(emb, text_embeddings), encoder.semantic_scores(emb, text_embeddings),
-                    pooled)
+            query = (encoder.semantic_scores(emb, text_embeddings) if known is None
+                     else np.asarray(known, np.float64))  # the frames' own scores are not asked for again
+            return encoder.object_features(emb, text_embeddings), query, pooled
 
-        (like_f, like_q, like_p), (unlike_f, unlike_q, unlike_p) = feats(like), feats(unlike)
-        if scores is not None and text_embeddings is not None:
-            like_q, unlike_q = np.asarray(scores[0], np.float64), np.asarray(scores[1], np.float64)
+        known = scores if scores is not None else (None, None)
+        (like_f, like_q, like_p), (unlike_f, unlike_q, unlike_p) = feats(like, known[0]), feats(unlike, known[1])
         return cls.from_features(like_f, unlike_f, like_q, unlike_q, objects=text_embeddings is not None,
                                  like_pooled=like_p, unlike_pooled=unlike_p)
 
