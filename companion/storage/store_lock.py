@@ -45,12 +45,10 @@ class StoreLock:
         if fd is None:
             return
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as err:
+            _flock_or_refuse(fd, fcntl.LOCK_EX, self.dir)
+        except BaseException:  # refused, or the lock call failed: the descriptor goes either way
             os.close(fd)
-            if err.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise
-            raise in_use(self.dir) from None
+            raise
         self._fd = fd
         try:  # who holds it, for the next one refused (a full disk may refuse: the lock itself still holds)
             os.ftruncate(fd, 0)
@@ -85,13 +83,19 @@ def check_free(directory: str | os.PathLike[str]) -> None:
     except OSError:
         return  # no lock file: no store, or one no merlion of this version ran on
     try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        _flock_or_refuse(fd, fcntl.LOCK_SH, Path(directory))
+    finally:
+        os.close(fd)
+
+
+def _flock_or_refuse(fd: int, mode: int, directory: Path) -> None:
+    """``flock`` without waiting; held by another process: StoreInUse naming it."""
+    try:
+        fcntl.flock(fd, mode | fcntl.LOCK_NB)
     except OSError as err:
         if err.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
             raise
-        raise in_use(Path(directory)) from None
-    finally:
-        os.close(fd)
+        raise in_use(directory) from None
 
 
 def in_use(directory: Path) -> StoreInUse:
