@@ -52,18 +52,26 @@ MAX_RELATIVES = 40
 """More relatives than this is no longer a reading of the word ("rope" -> every artifact): refused instead."""
 MAX_WORDS = 4
 """Longest WordNet lemma tried, in words ("portuguese man of war")."""
+RELATED_STEPS = 3
+"""WordNet links walked from a word the encoder cannot see to the relatives offered in its place."""
+RELATED = 3
+"""Relatives offered at most."""
 _WORD = re.compile(r"[a-z][a-z'-]*|[,;/&+]")
 
 
 class UnknownWord(MerlionError):
     """A query word that resolves to no ImageNet class; ``word``, ``brief`` and ``near`` make the short line."""
 
-    def __init__(self, query: str, word: str, why: str, near: tuple[str, ...], brief: str) -> None:
+    def __init__(self, query: str, word: str, why: str, near: tuple[str, ...], brief: str,
+                 related: bool = False) -> None:
         self.query = query
         self.word = word
         self.near = near
+        """Spelling neighbours of a word WordNet does not know, or (``related``) the relatives it can see of one
+        it does."""
         self.brief = brief
-        hint = f"; near words: {', '.join(near)}" if near else ""
+        label = "related words it can see" if related else "near words"
+        hint = f"; {label}: {', '.join(near)}" if near else ""
         super().__init__(f"{word!r} {why} (query {query!r}){hint}")
 
     def short(self, width: int = 50, prefix: str = "") -> str:
@@ -262,15 +270,51 @@ def _resolve_phrase(wn: WordNetNouns, query: str, words: list[str]) -> Term:
                 found, how = _climb(wn, span)
                 if found:
                     return _term(phrase, span, how, found)
-                raise UnknownWord(query, span, "names nothing the imagenet encoder can see", _near(wn, span),
-                                  "not in model")
+                raise UnknownWord(query, span, "names nothing the imagenet encoder can see", _related(wn, span),
+                                  "not in model", related=True)
     raise UnknownWord(query, phrase, "is not a thing WordNet knows", _near(wn, words[-1]), "unknown")
 
 
 def _near(wn: WordNetNouns, word: str) -> tuple[str, ...]:
-    """WordNet nouns spelled like ``word`` that do reach a class, closest first (at most three)."""
+    """WordNet nouns spelled like ``word`` that do reach a class, closest first (at most three): for a word
+    WordNet does not know, most often a slip of the keyboard ("jellyfsh")."""
     near = difflib.get_close_matches(word, _seeable_lemmas(), n=3, cutoff=0.7)
     return tuple(n for n in near if n != word)
+
+
+def _related(wn: WordNetNouns, word: str) -> tuple[str, ...]:
+    """Words the encoder can see that WordNet links to a real word it cannot, nearest first (at most three).
+
+    A real word needs relatives, not spelling neighbours ("sand" is not "sandal"): breadth-first over the
+    part-whole links and the is-a links, one step up (no nearer the root than ``MIN_DEPTH``) and then only
+    down, so relatives are the word's siblings and their kinds, not kinds of a far ancestor ("sponge" is an
+    invertebrate, not any "animal"); at most ``RELATED_STEPS`` links away. A relative counts when it is an ImageNet class or an everyday word with at most
+    ``MAX_RELATIVES`` classes below it; at equal distance, the word's own kind (animal, artifact, ...) first.
+    "sand" -> sandbar, shore; "tire" -> car wheel; "kelp" has none (no alga is a class): no guess is offered."""
+    index = class_of_offset()
+    senses = sorted(wn.lookup(word), key=lambda s: s.lexfile != ANIMALS)
+    seen = {s.offset for s in senses}
+    level = [(s.offset, s.lexfile, True) for s in senses]  # (synset, the sense's kind, may climb)
+    found: list[str] = []
+    for _ in range(RELATED_STEPS):
+        hits, after = [], []
+        for offset, kind, climbing in level:
+            s = wn.synsets[offset]
+            up = [h for h in s.hypernyms if climbing and _depth(wn, h) >= MIN_DEPTH]
+            for other in (*up, *s.hyponyms, *s.parts):
+                if other in seen:
+                    continue
+                seen.add(other)
+                below = len(_classes_below(wn, other))
+                if 0 < below <= MAX_RELATIVES and (other in index or wn.everyday(other)):
+                    hits.append((wn.synsets[other].lexfile != kind, wn.synsets[other].name))
+                else:
+                    after.append((other, kind, False))
+        found += [name for _, name in sorted(hits, key=lambda h: h[0]) if name not in found and name != word]
+        if len(found) >= RELATED:
+            break
+        level = after
+    return tuple(found[:RELATED])
 
 
 @functools.lru_cache(maxsize=1)

