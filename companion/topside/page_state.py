@@ -63,6 +63,7 @@ class PageState:
         topics = [t.to_dict() for t in ctx.gallery.topics()]
         return {"time": now, "link": link, "companion": companion, "dive": ctx.gallery.dive, "summary": summary,
                 "history_dropped": ctx.gallery.history_dropped, "log_rows_dropped": ctx.gallery.log_rows_dropped,
+                "archived_dropped": ctx.gallery.archived_dropped,
                 "topics": topics,
                 "thumbnails_waiting": ctx.gallery.missing_thumbnails(), "marks": marks}
 
