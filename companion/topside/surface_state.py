@@ -11,7 +11,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,6 +32,22 @@ MAX_UNPAIRED = 16
 """Pushes kept while no capture claims them (finished or abandoned): the companion announces a frame before it
 pushes it, so a handful covers a reordering; more are a sender pushing images nobody announced, which grew without
 bound (each up to the push cap). The oldest go first, as ``early`` handshakes do."""
+
+MAX_WAITING = 256
+"""Captures waiting for their push at once. The companion pushes each frame right after announcing it, so a few wait
+(a summary filling up at a dive's start, a few dozen); a sender announcing captures without end made the queue
+grow for good. Past this, the capture that waited longest stops waiting and is fetched by FTP (its turn in the
+FTP queue), as if its push had timed out."""
+MAX_FETCHES = 8192
+"""Thumbnails waiting for their FTP fetch (one per frame of the summary at most, ``gallery.MAX_SUMMARY``); they are
+fetched one at a time, in the order asked for, so the index pulls and the page's requests take their turns
+between them. Past this the longest waiting is forgotten (``fetches_dropped``; the next index.json lists it
+again while it is in the summary)."""
+MAX_PARTIAL_BYTES = 4 << 20
+"""Bytes of stalled pushes kept for the FTP fetches that wait (only their holes are read); past this a waiting
+fetch reads the whole file instead (a push may be 2 MiB: a queue of them was gigabytes)."""
+FTP_INDEX, FTP_THUMBNAILS, FTP_PAGE = "index", "thumbnails", "page"
+"""The FTP client's lanes: each requester's requests wait apart and are served in turn."""
 
 REQUEST_BURST = 16
 REQUEST_REFILL_S = 1.0
@@ -101,6 +117,10 @@ class LinkStatus:
     """Lost captures not asked for again: past ``REQUEST_BURST`` at once, one every ``REQUEST_REFILL_S``."""
     unpaired_dropped: int = 0
     """Pushes no capture claimed, dropped beyond ``MAX_UNPAIRED``."""
+    waiting_overflow: int = 0
+    """Captures that stopped waiting for a push beyond ``MAX_WAITING`` (fetched by FTP instead)."""
+    fetches_dropped: int = 0
+    """Thumbnail fetches forgotten beyond ``MAX_FETCHES`` waiting."""
 
 
 @dataclass
@@ -121,6 +141,11 @@ class PairingState:
     """Pushes abandoned before pairing, by handshake number."""
     fetching: set[tuple[str | None, int]] = field(default_factory=set)
     """(dive, image index) being pulled by FTP."""
+    fetch_queue: OrderedDict = field(default_factory=OrderedDict)
+    """Thumbnails of the current dive waiting for their FTP fetch: image index -> (replace, partial push or None),
+    in the order asked for (``MAX_FETCHES`` at most)."""
+    partial_bytes: int = 0
+    """Bytes of the partial pushes in ``fetch_queue`` (``MAX_PARTIAL_BYTES`` at most)."""
     marker: int | None = None
     """Image index named by the last MRL_PUSH, until its handshake comes."""
     crc: dict[int, int] = field(default_factory=dict)
@@ -134,8 +159,9 @@ class PairingState:
     def forget_dive(self) -> None:
         """A new dive: image indices start again, so every pairing made under the old ones goes."""
         for pending in (self.waiting, self.early, self.expected, self.bound, self.orphans, self.lost_push, self.crc,
-                        self.unverified):
+                        self.unverified, self.fetch_queue):
             pending.clear()
+        self.partial_bytes = 0
         self.last_announced = None
 
     def keep_unpaired(self, pending: dict, handshake_no: int, push) -> int:

@@ -5,13 +5,20 @@ real pymavlink messages, the real FTP server answering (helpers from ``test_host
 from __future__ import annotations
 
 import json
+import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.topside.gallery import Gallery
 from tests.companion.surface_peer import CompanionPeer, summary_frame
-from tests.companion.topside.test_hostile_link import _paced, meet, running_tool
+from tests.companion.topside.test_hostile_link import (
+    _paced,
+    _raw_capture,
+    meet,
+    running_tool,
+)
 from tests.waiting import wait_until
+from vehicle.protocol.ftp import FtpErr, FtpPacket, Op, nak
 
 
 def _dive_capture(index: int, dive: str) -> mav.MAVLink_camera_image_captured_message:
@@ -52,3 +59,76 @@ def test_dives_announced_without_end_keep_a_bounded_archive_and_gallery_json(tmp
     again = Gallery(folder, max_archived=300)  # reopened: the same bounds, the counters kept
     assert len(again.archived()) == 300 and again.archived_dropped == 300 and len(again.dives()) == MAX_DIVES
 
+
+
+class SlowFtp:
+    """The companion's real FTP server behind a slow link: each request is answered after ``delay`` seconds."""
+
+    def __init__(self, ftp, delay: float) -> None:
+        self.ftp, self.delay, self.opened = ftp, delay, []
+
+    def handle(self, payload: bytes, requester) -> list[bytes]:
+        packet = FtpPacket.unpack(payload)
+        if packet.opcode == Op.OPEN_FILE_RO:
+            self.opened.append(bytes(packet.data[: packet.size]).decode())
+        time.sleep(self.delay)
+        return self.ftp.handle(payload, requester)
+
+    def next_burst(self):
+        return self.ftp.next_burst()
+
+
+def test_captures_no_push_comes_for_wait_in_bounded_queues_and_the_page_is_served(tmp_path):
+    """2,000 captures announced and never pushed: before, all 2,000 waited for a push, and after the push timeout
+    each became an FTP fetch queued at once; behind them, on a link answering a request every 20 ms, the page's
+    full frame waited 40 s (it gives up after 120 s). Now 256 wait for a push (the rest go to the FTP queue
+    at once), the thumbnails are fetched one at a time, and the page's request takes its turn after one of them."""
+    from companion.topside.surface_state import MAX_WAITING
+
+    with running_tool(tmp_path / "gallery", push_timeout_s=1.0) as (tool, port):
+        peer = CompanionPeer(port)
+        peer.tree.remove("/summary/index.json")
+        peer.tree.put("/summary/full/1999.jpg", b"\xff\xd8full frame\xff\xd9")
+        try:
+            meet(peer)
+            peer.ftp = slow = SlowFtp(peer.ftp, 0.02)
+            _paced(tool, peer, [_raw_capture(n) for n in range(2000)], batch=250)
+            assert len(tool.ctx.pairing.waiting) <= MAX_WAITING == 256
+            time.sleep(1.5)  # every push timed out: all 2,000 want an FTP fetch
+            assert wait_until(lambda: len(tool.ctx.pairing.waiting) == 0, 5)
+            assert len(tool.ctx.ftp.pending()) <= 3  # the index, one thumbnail, a page request at most
+            started = time.monotonic()
+            full = tool.full_frame(1999, timeout=15)
+            took = time.monotonic() - started
+            assert full is not None and full.read_bytes() == b"\xff\xd8full frame\xff\xd9"
+            assert took < 2.0
+            assert wait_until(lambda: len(slow.opened) > 60, 10)  # the thumbnails are still fetched, in turn
+        finally:
+            peer.close()
+    thumbs = [p for p in slow.opened if p.startswith("/summary/") and p[9:-4].isdigit()]
+    assert thumbs[:3] == ["/summary/0.jpg", "/summary/1.jpg", "/summary/2.jpg"]  # the first announced first
+    assert tool.status.ftp_failed >= 60  # not found: this companion has no such files
+
+
+def test_each_ftp_lane_holds_64_requests_and_the_lanes_take_turns():
+    """One requester's flood of fetches neither grows the client's queue for good nor keeps another's waiting."""
+    from companion.topside.ftp_client import MAX_QUEUED, FtpClient
+
+    sent: list[bytes] = []
+    client = FtpClient(lambda _s, _c, payload: sent.append(payload), (1, 100))
+    outcomes: list[tuple[str, str]] = []
+    for n in range(MAX_QUEUED + 11):  # the first goes out at once; 64 wait; 10 are refused
+        client.fetch(f"/summary/{n}.jpg", lambda path, _data, error: outcomes.append((path, error)),
+                     lane="thumbnails")
+    client.fetch("/summary/full/7.jpg", lambda *_: None, lane="page")
+    assert MAX_QUEUED == 64 and client.refused == 10 and len(client.pending()) == 1 + 64 + 1
+    assert [p for p, _ in outcomes] == [f"/summary/{n}.jpg" for n in range(65, 75)]
+    assert all(e.startswith("refused:") for _, e in outcomes)
+    packer, parser, opened = mav.MAVLink(None, srcSystem=1, srcComponent=100), mav.MAVLink(None), []
+    for _ in range(3):  # each open NAKed (not found): the next request is the other lane's
+        request = FtpPacket.unpack(sent[-1])
+        opened.append(bytes(request.data[: request.size]).decode())
+        reply = nak(request, FtpErr.FILE_NOT_FOUND).pack()
+        client.handle(parser.decode(bytearray(
+            mav.MAVLink_file_transfer_protocol_message(0, 254, 190, list(reply)).pack(packer))))
+    assert opened == ["/summary/0.jpg", "/summary/full/7.jpg", "/summary/1.jpg"]
