@@ -37,7 +37,7 @@ class PageState:
                 "connect": ctx.options.connect,
                 "messages": s.messages,
                 "last_message_age_s": None if s.last_message is None else round(now - s.last_message, 1),
-                "lost_packets": s.lost_packets,
+                "lost_packets": s.lost_packets, "other_address_messages": s.other_address_messages,
                 "autopilot": list(s.autopilot) if s.autopilot else None,
                 "autopilot_heartbeat_age_s": _age(now, s.autopilot_heartbeat),
                 "foreign_autopilot_heartbeats": s.foreign_autopilot_heartbeats,

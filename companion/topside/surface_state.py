@@ -105,7 +105,11 @@ class LinkStatus:
     """Pushed (or part-pushed) thumbnails whose CRC matched the companion's file."""
     mismatched: int = 0
     lost_packets: int = 0
-    """Gaps in the sequence numbers of the autopilot's and the companion's messages (no other source's)."""
+    """Gaps in the sequence numbers of the autopilot's and the companion's messages (no other source's), from the
+    address each was first heard at (without a key)."""
+    other_address_messages: int = 0
+    """Without a key: messages under the autopilot's or the companion's ids from another address than theirs (their
+    sequence numbers not followed)."""
     unsigned_ignored: int = 0
     """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
     unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)

@@ -7,13 +7,16 @@ from __future__ import annotations
 import json
 import time
 
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion.topside.gallery import Gallery
 from tests.companion.surface_peer import CompanionPeer, summary_frame
 from tests.companion.topside.test_hostile_link import (
+    Sender,
     _paced,
     _raw_capture,
+    autopilot_heartbeat,
     meet,
     running_tool,
 )
@@ -132,3 +135,75 @@ def test_each_ftp_lane_holds_64_requests_and_the_lanes_take_turns():
         client.handle(parser.decode(bytearray(
             mav.MAVLink_file_transfer_protocol_message(0, 254, 190, list(reply)).pack(packer))))
     assert opened == ["/summary/0.jpg", "/summary/full/7.jpg", "/summary/1.jpg"]
+
+
+@pytest.fixture
+def surface(tmp_path):
+    with running_tool(tmp_path / "gallery") as running:
+        yield running
+
+
+def _jumping(sender: Sender, msg, count: int) -> None:
+    """``count`` messages from ``sender``, each 100 sequence numbers after the last: 99 "lost" packets apiece."""
+    for _ in range(count):
+        sender.send(msg)
+        sender.mav.seq = (sender.mav.seq + 99) % 256
+
+
+def test_made_up_sequence_numbers_under_the_vehicles_own_ids_count_nothing_from_another_address(surface):
+    """Without a key the ids are free: a device sending under the autopilot's and the companion's ids, 100
+    sequence numbers apart, made 99 "lost" packets a message (40 messages: 3,960). Now the sequence of each is
+    followed only from the address its identity was learnt from; the rest is counted apart."""
+    tool, port = surface
+    autopilot, spoofer = Sender(port, 1, 1), Sender(port, 1, 1)
+    peer = CompanionPeer(port)
+    value = mav.MAVLink_named_value_float_message(0, b"MRL_FPS", 5.0)
+    try:
+        autopilot.send(autopilot_heartbeat())
+        meet(peer)
+        peer.add(summary_frame(1), push=False)  # the companion is known
+        assert wait_until(lambda: tool.status.companion == (1, 100) and tool.status.autopilot == (1, 1), 10)
+        sent = tool.status.messages
+        _jumping(spoofer, autopilot_heartbeat(), 20)
+        spoofer.mav.srcComponent = 100
+        _jumping(spoofer, value, 20)
+        autopilot.mav.seq += 4  # the vehicle's own losses still count: four
+        autopilot.send(autopilot_heartbeat())
+        peer.mav.seq += 3  # and the companion's: three
+        peer.values(MRL_FPS=4.0)
+        assert wait_until(lambda: tool.status.messages >= sent + 42, 10)
+    finally:
+        autopilot.close()
+        spoofer.close()
+        peer.close()
+    link = tool.snapshot()["link"]
+    assert link["lost_packets"] == 7
+    assert link["other_address_messages"] == 40
+
+
+def test_with_a_key_unsigned_messages_under_the_companions_ids_count_no_lost_packets(tmp_path):
+    """With a signing key, only what the connection verified is followed: an unsigned device sending under the
+    signed companion's ids with made-up sequence numbers adds nothing to ``lost_packets``."""
+    from companion.config import MavlinkConfig
+    from vehicle.link.connection import MavLink
+
+    key = tmp_path / "signing.key"
+    key.write_text("reef survey 17\n")
+    with running_tool(tmp_path / "gallery", signing_key_file=str(key)) as (tool, port):
+        companion = MavLink(f"udpout:127.0.0.1:{port}", MavlinkConfig(system_id=1, component_id=100,
+                                                                       signing_key_file=str(key)), name="companion")
+        companion.start()
+        spoofer = Sender(port, 1, 100)
+        try:
+            assert wait_until(lambda: tool.status.messages > 0, 10)  # its signed heartbeat: a camera
+            companion.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"started"))
+            assert wait_until(lambda: tool.status.companion == (1, 100), 10)
+            _jumping(spoofer, mav.MAVLink_named_value_float_message(0, b"MRL_FPS", 5.0), 40)
+            assert wait_until(lambda: tool.status.unsigned_ignored >= 40, 10)
+            companion.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"still here"))
+            assert wait_until(lambda: any(line["text"] == "still here" for line in tool.status.statustext), 10)
+        finally:
+            spoofer.close()
+            companion.stop()
+    link = tool.snapshot()["link"]
+    assert link["lost_packets"] == 0 and link["unsigned_sources"] == {"1/100": 40}
