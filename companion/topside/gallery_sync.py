@@ -88,6 +88,8 @@ class GallerySync:
         # frames that left without a push keep no place in the pairing queue (else every later push shifts)
         p.drop_waiting(gone)
         waiting = {i for i, _ in p.waiting}
+        p.expected.clear()  # of the frames this index lists: a frame it does not list has left the summary
+        p.crc.clear()
         for cap in captures:
             if (cap.file_url or "").endswith(".jpg"):  # pushes are JPEG: comparable
                 if cap.thumbnail_bytes is not None:
@@ -150,13 +152,17 @@ class GallerySync:
         path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
         if self.ctx.ftp is None or not path.endswith(".jpg"):
             return  # a WebP thumbnail on the server is not the JPEG that was pushed: nothing to compare
+        self._verify_crc(index, crc32_mavftp(data))
+
+    def _verify_crc(self, index: int, got: int) -> None:
+        """``got``: the CRC-32 of the thumbnail we hold for ``index``."""
         crc = self.ctx.pairing.crc.get(index)
         if crc is None:
-            self.ctx.pairing.unverified[index] = data
+            self.ctx.pairing.unverified[index] = got
             self.want_index()
             return
         self.ctx.pairing.unverified.pop(index, None)
-        self._checked(index, crc == crc32_mavftp(data))
+        self._checked(index, crc == got)
 
     def _checked(self, index: int, ok: bool) -> None:
         with self.ctx.lock:
@@ -167,7 +173,7 @@ class GallerySync:
         log.warning("thumbnail of capture %d is not the companion's (CRC differs): fetching it by name", index)
         self.fetch_thumbnail(index, replace=True)
 
-    def _verify_by_request(self, index: int, data: bytes) -> None:
+    def _verify_by_request(self, index: int, got: int) -> None:
         """The fallback for a companion whose index.json has no CRC: one CalcFileCRC32 request."""
         cap = self.ctx.gallery.get(index)
         path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
@@ -178,7 +184,7 @@ class GallerySync:
             if crc is None:
                 log.debug("CRC of %s: %s", path, error)  # e.g. trimmed meanwhile: nothing to fix
                 return
-            self._checked(index, crc == crc32_mavftp(data))
+            self._checked(index, crc == got)
 
         self.ctx.ftp.crc(path, checked, lane=FTP_THUMBNAILS)
 
@@ -186,15 +192,15 @@ class GallerySync:
         """After an index pull: check the pushes that waited for their CRC; an index without CRCs (another
         companion) gets the CalcFileCRC32 request instead; frames trimmed meanwhile need no check."""
         p = self.ctx.pairing
-        for index, data in list(p.unverified.items()):
+        for index, got in list(p.unverified.items()):
             cap = self.ctx.gallery.get(index)
             if cap is None or not cap.in_summary:
                 del p.unverified[index]
             elif index in p.crc:
-                self.verify(index, data)
+                self._verify_crc(index, got)
             elif index in listed:
                 del p.unverified[index]
-                self._verify_by_request(index, data)
+                self._verify_by_request(index, got)
             # else: announced after this index was built; the next pull lists it
 
     def fetch_thumbnail(self, index: int, *, replace: bool = False, partial: Abandoned | None = None) -> None:

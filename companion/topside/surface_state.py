@@ -136,7 +136,7 @@ class PairingState:
     early: deque = field(default_factory=lambda: deque(maxlen=MAX_UNPAIRED))
     """Handshakes that came before their capture (their numbers)."""
     expected: dict[int, int] = field(default_factory=dict)
-    """Thumbnail bytes by image index, from index.json (JPEG only)."""
+    """Thumbnail bytes by image index, from the latest index.json (JPEG only)."""
     bound: dict[int, int] = field(default_factory=dict)
     """Handshake number -> image index."""
     orphans: dict[int, PushedImage] = field(default_factory=dict)
@@ -153,9 +153,11 @@ class PairingState:
     marker: int | None = None
     """Image index named by the last MRL_PUSH, until its handshake comes."""
     crc: dict[int, int] = field(default_factory=dict)
-    """Thumbnail CRC32 by image index, from index.json (JPEG only)."""
-    unverified: dict[int, bytes] = field(default_factory=dict)
-    """Pushed thumbnails waiting for an index.json with their CRC."""
+    """Thumbnail CRC32 by image index, from the latest index.json (JPEG only): each pull replaces them, so indices
+    listed once never pile up."""
+    unverified: dict[int, int] = field(default_factory=dict)
+    """CRC-32s of pushed thumbnails waiting for an index.json with the companion's (the CRC, not the bytes: a push
+    may be 2 MiB, and one waits per frame of the summary)."""
     last_announced: int | None = None
     index_due: float | None = None
     index_pulled_at: float = -1e9

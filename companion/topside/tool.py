@@ -19,7 +19,7 @@ import math
 import queue
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -64,6 +64,9 @@ MAX_VALUES = 64
 """Value names kept (the companion sends a handful); a sender making up new names is ignored past this."""
 EARLY_TEXT_SOURCES = 16
 """Sources whose status lines are kept before the companion is known (the newest sources)."""
+MAX_CAMERAS = 16
+"""Camera components remembered (by heartbeat) until the companion is known: the ones heard most recently (a real
+one beats at 1 Hz). Each made-up id was a row for the whole run, 65,536 possible."""
 
 
 def verified(msg) -> bool:
@@ -96,7 +99,8 @@ class SurfaceTool:
         self._last_seq: dict[tuple[int, int], int] = {}
         self._seq_peer: dict[tuple[int, int], tuple[str, int] | None] = {}
         """The address each followed source's sequence numbers are read from (two rows at most)."""
-        self._cameras: set[tuple[int, int]] = set()
+        self._cameras: OrderedDict[tuple[int, int], None] = OrderedDict()
+        """Camera components heard (by heartbeat), most recent last; only until the companion is known."""
         self._offline_at = -1e9
         self._signed_only = self._link.signing.enabled
         self._boot_clock = BootClock()  # the companion's time_boot_ms on this clock: the depth track's times
@@ -284,7 +288,11 @@ class SurfaceTool:
         status = self.ctx.status
         with self.ctx.lock:
             if msg.type == MAV_TYPE_CAMERA:
-                self._cameras.add(source)
+                if status.companion is None:
+                    self._cameras[source] = None
+                    self._cameras.move_to_end(source)
+                    if len(self._cameras) > MAX_CAMERAS:
+                        self._cameras.popitem(last=False)
                 if source == status.companion:
                     status.companion_heartbeat = now
             elif is_autopilot_heartbeat(msg) and source[0] != 255:
@@ -313,6 +321,7 @@ class SurfaceTool:
         for msg, when in self._early_text.pop(source, ()):
             self.sync.on_statustext(msg, when)
         self._early_text.clear()
+        self._cameras.clear()  # only needed to find the companion
         if ctx.options.ftp:
             ctx.ftp = FtpClient(self._send_ftp, source, own=(ctx.options.system_id, ctx.options.component_id),
                                 clock=ctx.clock)

@@ -207,3 +207,91 @@ def test_with_a_key_unsigned_messages_under_the_companions_ids_count_no_lost_pac
             companion.stop()
     link = tool.snapshot()["link"]
     assert link["lost_packets"] == 0 and link["unsigned_sources"] == {"1/100": 40}
+
+
+def test_camera_heartbeats_from_made_up_ids_are_remembered_16_at_most(surface):
+    """Every camera component heard was remembered for the run (65,536 ids possible); now the 16 heard last, until
+    the companion is known, and the companion among them is still found."""
+    from companion.topside.tool import MAX_CAMERAS
+
+    tool, port = surface
+    camera = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_CAMERA, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+    strangers = [Sender(port, 42, 1 + i) for i in range(40)]
+    peer = CompanionPeer(port)
+    try:
+        peer.heartbeat()
+        for s in strangers:
+            s.send(camera)
+        peer.heartbeat()  # heard again: among the newest
+        assert wait_until(lambda: tool.status.messages >= 42, 10)
+        assert MAX_CAMERAS == 16 and len(tool._cameras) == 16 and (1, 100) in tool._cameras
+        peer.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"started"))
+        assert wait_until(lambda: tool.status.companion == (1, 100), 10)
+    finally:
+        peer.close()
+        for s in strangers:
+            s.close()
+    assert not tool._cameras
+
+
+def test_pushed_thumbnails_waiting_for_their_crc_keep_the_crc_not_the_bytes(surface):
+    """A pushed thumbnail waits for the index.json that lists its CRC: its bytes were kept meanwhile (a push may
+    be 2 MiB, one per frame of the summary: gigabytes). Now only its CRC waits."""
+    tool, port = surface
+    peer = CompanionPeer(port, markers=True)
+    peer.tree.remove("/summary/index.json")  # the index never comes: every push waits
+    try:
+        meet(peer)
+        for n in range(20):
+            peer.add(summary_frame(n))
+        assert wait_until(lambda: tool.status.pushed_ok == 20, 20)
+    finally:
+        peer.close()
+    waiting = tool.ctx.pairing.unverified
+    assert sorted(waiting) == list(range(20))
+    assert all(isinstance(crc, int) and 0 <= crc < 1 << 32 for crc in waiting.values())
+
+
+def test_sizes_and_crcs_are_those_of_the_latest_index_only(surface):
+    """Each index.json's sizes and CRCs were added to what earlier ones gave, for the whole dive: an index listing
+    other made-up frames each pull grew them without end. Now each pull replaces them."""
+    tool, port = surface
+    peer = CompanionPeer(port)
+    frames = [{"image_index": n, "thumbnail": f"summary/{n}.jpg", "thumbnail_bytes": 100, "thumbnail_crc32": n}
+              for n in range(1000)]
+    peer.tree.put("/summary/index.json", json.dumps({"frames": frames}).encode())
+    try:
+        meet(peer)
+        peer.add(summary_frame(1), push=False)
+        assert wait_until(lambda: tool.status.index_pulls == 1, 10)
+        frames = [dict(f, image_index=f["image_index"] + 1000) for f in frames]
+        peer.tree.put("/summary/index.json", json.dumps({"frames": frames}).encode())
+        peer.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"Topics set: fish"))
+        assert wait_until(lambda: tool.status.index_pulls == 2 and 1999 in tool.ctx.pairing.crc, 10)
+        tool.ctx.requests.put(lambda: None)
+        assert wait_until(lambda: tool.ctx.requests.empty(), 5)  # the loop has finished with that index
+    finally:
+        peer.close()
+    assert sorted(tool.ctx.pairing.crc) == list(range(1000, 2000)) and len(tool.ctx.pairing.expected) == 1000
+
+
+def test_an_index_beyond_what_a_companion_can_hold_is_refused_and_its_strings_are_bounded():
+    """index.json (16 MiB at most) could list any number of frames and topics, and strings of any length in each
+    capture's topic and file_url, all kept in gallery.json and on the page."""
+    from companion.topside.messages import index_topics, parse_index
+
+    many = json.dumps({"frames": [{"image_index": n} for n in range(8193)]}).encode()
+    with pytest.raises(ValueError, match="8193 frames, more than 8192"):
+        parse_index(many)
+    topics = [{"name": f"t{n}", "positive": "fish"} for n in range(9)]
+    with pytest.raises(ValueError, match="9 topics, more than 8"):
+        index_topics(json.dumps({"topics": topics}).encode())
+    with pytest.raises(ValueError, match="not a topic"):
+        index_topics(json.dumps({"topics": [{"name": "fish", "positive": "x" * 301}]}).encode())
+    with pytest.raises(ValueError, match="not a topic"):
+        index_topics(json.dumps({"topics": [{"name": "fish\n", "positive": "fish"}]}).encode())
+    [cap] = parse_index(json.dumps({"frames": [{"image_index": 1, "topic": "x" * 100_000,
+                                                "file_url": "mftp://summary/" + "y" * 300 + ".jpg"}]}).encode())
+    assert cap.topic is None and cap.file_url is None
+    [cap] = parse_index(json.dumps({"frames": [{"image_index": 1, "topic": "fish"}]}).encode())
+    assert cap.topic == "fish" and cap.file_url is None
