@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 
 from companion.topside.marks_upload import MARKS_PATH, marks_document
-from companion.topside.surface_state import FULL_FRAME_TIMEOUT_S, MARKS_TIMEOUT_S, SurfaceContext
+from companion.topside.surface_state import FTP_PAGE, FULL_FRAME_TIMEOUT_S, MARKS_TIMEOUT_S, SurfaceContext
 
 log = logging.getLogger("merlion.surface")
 
@@ -47,7 +47,7 @@ class SurfaceActions:
                     log.info("full frame %d: %s", index, error or "not fetched")
                 done.set()
 
-            ctx.ftp.fetch(f"/summary/full/{index}.jpg", fetched)
+            ctx.ftp.fetch(f"/summary/full/{index}.jpg", fetched, lane=FTP_PAGE)
 
         ctx.requests.put(start)
         done.wait(timeout)
@@ -86,7 +86,7 @@ class SurfaceActions:
                 result[0] = "" if got is not None else (error or "not sent")
                 done.set()
 
-            ctx.ftp.upload(MARKS_PATH, data, sent)
+            ctx.ftp.upload(MARKS_PATH, data, sent, lane=FTP_PAGE)
 
         ctx.requests.put(start)
         done.wait(timeout)

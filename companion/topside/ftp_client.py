@@ -4,7 +4,10 @@ else's receive loop.
 pymavlink's ``mavftp`` reads the connection itself (``recv_match`` in its own loops), which would steal the
 captures and thumbnails the surface tool's one receive loop must see; so this client is a message-driven state
 machine instead: ``handle`` takes FTP replies, ``tick`` re-asks for what the link lost. One request is in flight
-at a time (the companion paces FTP last in its byte budget, so more would only queue duplicates there).
+at a time (the companion paces FTP last in its byte budget, so more would only queue duplicates there). Requests
+wait in a queue per lane (each requester its own: index pulls, thumbnails, the page's requests), served in turn, a
+request from each lane that has one, so a flood of one requester's fetches never starves another's; each lane holds
+``MAX_QUEUED`` at most.
 Protocol: mavlink.io/en/services/ftp.html.
 """
 
@@ -32,6 +35,9 @@ MAX_FILE_BYTES = 16 * 1024 * 1024
 """The largest file read: a thumbnail, index.json or a full frame is kilobytes to a few MB. The size comes from
 the server's open ACK (a u32): a hostile one announcing 4 GiB made the client allocate two buffers of that size
 before it read a byte."""
+MAX_QUEUED = 64
+"""Requests waiting per lane (requester: the index, the thumbnails, the page). Past it a request is refused at once
+(``done`` hears why): a sender making the tool fetch without end grew one queue for the whole run."""
 
 
 @dataclass
@@ -103,17 +109,25 @@ class FtpClient:
     def __init__(self, send: SendFn, target: tuple[int, int], *, own: tuple[int, int] | None = None,
                  clock: Callable[[], float] = time.monotonic, min_timeout_s: float = 0.5,
                  max_timeout_s: float = 3.0, max_tries: int = 10, burst: bool = True,
-                 max_file_bytes: int = MAX_FILE_BYTES, session: int | None = None) -> None:
+                 max_file_bytes: int = MAX_FILE_BYTES, session: int | None = None,
+                 max_queued: int = MAX_QUEUED) -> None:
         """``session``: the session number this client opens its files with (default: a random one)."""
         self._send = send
+        self.max_queued = max_queued
         self.max_file_bytes = max_file_bytes
         self.target = target
         self._own = own
         self._clock = clock
         self._min_timeout, self._max_timeout, self._max_tries = min_timeout_s, max_timeout_s, max_tries
         self._burst = burst
-        self._queue: deque[_Job] = deque()
+        self._lanes: dict[str, deque[_Job]] = {}
+        """Waiting requests by lane, in the order the lanes first asked (a handful of names, fixed by the callers)."""
+        self._last_lane: str | None = None
+        self._finishing = False
+        self.refused = 0
+        """Requests refused because their lane held ``max_queued`` already."""
         self._job: _Job | None = None
+        self._job_lane = ""
         self._seq = secrets.randbelow(0x10000)
         """Starts anywhere: a server answers a request it has seen from our ids lately (same sequence number, same
         bytes) from its retransmission cache, so a client restarted within that window must not repeat its old
@@ -139,36 +153,43 @@ class FtpClient:
     # --- public --------------------------------------------------------------------------------------------
 
     def fetch(self, path: str, done: DoneFn, *, known: dict[int, bytes] | None = None,
-              known_size: int | None = None) -> None:
+              known_size: int | None = None, lane: str = "") -> None:
         """Queue a download of ``path`` (e.g. ``/summary/3.jpg``); ``done`` hears the outcome exactly once.
 
         ``known`` (offset -> bytes of a file of ``known_size`` bytes, e.g. the packets of a stalled push) are
         not read again when the server's file has that size: on a lossy link that saves most of the transfer.
+        ``lane``: the requester, whose requests wait apart and are served in turn with the other lanes'.
         """
-        self._queue.append(_Job(path, done, known=dict(known or {}), known_size=known_size))
-        if self._job is None:
-            self._next_job()
+        self._enqueue(_Job(path, done, known=dict(known or {}), known_size=known_size), lane)
 
-    def crc(self, path: str, done: Callable[[str, int | None, str], None]) -> None:
+    def crc(self, path: str, done: Callable[[str, int | None, str], None], *, lane: str = "") -> None:
         """Queue a CalcFileCRC32 of ``path``; ``done(path, crc or None, error)`` (see ``crc32_mavftp``)."""
 
         def unpack_crc(p: str, data: bytes | None, error: str) -> None:
             done(p, None if data is None else struct.unpack("<I", data)[0], error)
 
-        self._queue.append(_Job(path, unpack_crc, crc_only=True))
-        if self._job is None:
-            self._next_job()
+        self._enqueue(_Job(path, unpack_crc, crc_only=True), lane)
 
-    def upload(self, path: str, data: bytes, done: DoneFn) -> None:
+    def upload(self, path: str, data: bytes, done: DoneFn, *, lane: str = "") -> None:
         """Queue an upload of ``data`` to ``path`` (e.g. ``/config/marks.json``); ``done(path, data or None,
         error)``: a server that refuses the file (it answers the closing request with a NAK) is an error."""
-        self._queue.append(_Job(path, done, upload=bytes(data)))
-        if self._job is None:
-            self._next_job()
+        self._enqueue(_Job(path, done, upload=bytes(data)), lane)
 
-    def pending(self) -> list[str]:
-        paths = [j.path for j in self._queue]
-        return paths if self._job is None else [self._job.path, *paths]
+    def pending(self, lane: str | None = None) -> list[str]:
+        """The paths asked for and not done (of ``lane`` only, when given), the one in progress first."""
+        paths = [j.path for name, jobs in self._lanes.items() if lane in (None, name) for j in jobs]
+        current = self._job is not None and lane in (None, self._job_lane)
+        return [self._job.path, *paths] if current else paths
+
+    def _enqueue(self, job: _Job, lane: str) -> None:
+        jobs = self._lanes.setdefault(lane, deque())
+        if len(jobs) >= self.max_queued:
+            self.refused += 1
+            job.done(job.path, None, f"refused: {len(jobs)} requests of this kind wait already")
+            return
+        jobs.append(job)
+        if self._job is None and not self._finishing:
+            self._next_job()
 
     @property
     def busy(self) -> bool:
@@ -254,10 +275,16 @@ class FtpClient:
         self._transmit(opcode, FtpPacket.request(self._seq, session, opcode, offset, data, size), offset)
 
     def _next_job(self) -> None:
-        if not self._queue:
+        """Start the next request: from the lane after the one served last that has one waiting (round robin)."""
+        names = list(self._lanes)
+        if self._last_lane in self._lanes:
+            at = names.index(self._last_lane) + 1
+            names = names[at:] + names[:at]
+        lane = next((name for name in names if self._lanes[name]), None)
+        if lane is None:
             self._job = None
             return
-        self._job = self._queue.popleft()
+        self._job, self._job_lane, self._last_lane = self._lanes[lane].popleft(), lane, lane
         self.started_wall = time.time()
         path = self._job.path.encode("utf-8")
         if len(path) >= MAX_DATA:
@@ -405,10 +432,13 @@ class FtpClient:
             return
         self._job = None
         self._request = None
+        self._finishing = True  # what ``done`` asks for waits its lane's turn, like everything else
         try:
             job.done(job.path, data, error)
         except Exception:  # a caller's bug must not stall the queue
             log.exception("FTP callback for %s failed", job.path)
+        finally:
+            self._finishing = False
         if self._job is None:
             self._next_job()
 

@@ -16,8 +16,10 @@ late message of an earlier dive is ignored, so old thumbnails never show under n
 What is kept is bounded, whoever sends (without a signing key anyone on the tether can speak as the companion):
 the frames in the current summary always (up to ``MAX_SUMMARY``, more than a companion can hold; past it the frame
 that entered first leaves the summary as if trimmed); of the frames trimmed out, the newest ``MAX_HISTORY`` of the
-dive, the first trimmed being dropped first (its thumbnail deleted), counted in ``history_dropped``; and
-``MAX_LOG_ROWS`` rows of log.csv per run (then one ``log_full`` row; the rest counted in ``log_rows_dropped``).
+dive, the first trimmed being dropped first (its thumbnail deleted), counted in ``history_dropped``; of earlier
+dives, the newest ``MAX_ARCHIVED`` captures (the first archived dropped first, thumbnails and all, counted in
+``archived_dropped``) and the newest ``MAX_DIVES`` dive ids; and ``MAX_LOG_ROWS`` rows of log.csv per run (then
+one ``log_full`` row; the rest counted in ``log_rows_dropped``).
 
 A gallery reopened on the same DIR continues where it stopped, so restarting the tool mid-dive loses nothing; a
 folder written before topics existed opens too (its captures' topic is unknown, and its log.csv keeps its columns).
@@ -33,7 +35,7 @@ import os
 import re
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -48,6 +50,13 @@ MAX_SUMMARY = 8192
 MAX_HISTORY = 4096
 """Frames of the current dive trimmed out of its summary that are kept (with their thumbnails); the first trimmed
 goes first. A summary of 6 that takes a new frame every 10 s trims 1,440 in four hours."""
+
+MAX_ARCHIVED = 4096
+"""Captures of earlier dives kept (with their thumbnails under ``dives/``); the first archived go first. A real dive
+leaves its summary and its trimmed frames (1,440 in four hours): a day of dives fits (a folder a day), while a
+sender naming a new dive in each capture no longer grows gallery.json (4,096 archived add 2.2 MB, 0.06 s a write)."""
+MAX_DIVES = 256
+"""Dive ids remembered (a late message of one of them is ignored); the oldest are forgotten first."""
 
 MAX_LOG_ROWS = 100_000
 """Rows appended to log.csv per run (about 100 bytes each): a day's diving writes a few thousand."""
@@ -147,9 +156,11 @@ class Gallery:
 
     def __init__(self, root: str | os.PathLike[str], *, clock: Callable[[], float] = time.monotonic,
                  max_summary: int = MAX_SUMMARY, max_history: int = MAX_HISTORY,
-                 max_log_rows: int = MAX_LOG_ROWS) -> None:
+                 max_log_rows: int = MAX_LOG_ROWS, max_archived: int = MAX_ARCHIVED,
+                 max_dives: int = MAX_DIVES) -> None:
         self.root = Path(root)
         self.max_summary, self.max_history, self.max_log_rows = max_summary, max_history, max_log_rows
+        self.max_archived, self.max_dives = max_archived, max_dives
         self.log_rows = 0
         """Rows appended to log.csv by this run."""
         self.log_rows_dropped = 0
@@ -173,7 +184,10 @@ class Gallery:
         """Image indices of the current dive out of the summary, in the order they left it."""
         self.history_dropped = 0
         """Trimmed frames forgotten beyond ``max_history`` (all dives of this folder)."""
-        self._archived: list[Capture] = []
+        self._archived: deque[Capture] = deque()
+        """Captures of earlier dives, in the order they were filed away (at most ``max_archived``)."""
+        self.archived_dropped = 0
+        """Captures of earlier dives forgotten beyond ``max_archived`` (their thumbnails deleted)."""
         self.dive: str | None = None
         """The dive now shown (None until a companion names one)."""
         self._dives: list[str] = []
@@ -191,16 +205,18 @@ class Gallery:
             for item in data.get("captures", []):
                 cap = Capture.from_dict(item)
                 self._captures[cap.image_index] = cap
-            self._archived = [Capture.from_dict(item) for item in data.get("archived", [])]
+            self._archived = deque(Capture.from_dict(item) for item in data.get("archived", []))
             self.dive = safe_dive(data["dive"]) if data.get("dive") else None  # a folder name, see safe_dive
             self._dives = [str(d) for d in data.get("dives", [])]
             self._topics = [Topic.from_dict(t) for t in data.get("topics", [])]
             self.history_dropped = int(data.get("history_dropped") or 0)
+            self.archived_dropped = int(data.get("archived_dropped") or 0)
         except (OSError, ValueError, TypeError, AttributeError, KeyError) as err:
             raise MerlionError(f"{self._json}: not a gallery file this tool can read ({err})") from None
         for cap in sorted(self._captures.values(), key=lambda c: (c.removed_at or c.announced_at or 0.0,
                                                                    c.image_index)):
             self._track(cap)
+        self._bound_archive()  # a folder from a tool without the bound, or one run with a larger one
 
     def _log_columns(self) -> list[str]:
         """The columns log.csv already has (a folder from an older tool keeps its header: rows stay aligned)."""
@@ -305,6 +321,7 @@ class Gallery:
                 self._dives.append(self.dive)
             self.dive = dive
             self._dives.append(dive)
+            self._bound_archive()
             self._persist("dive", Capture(image_index=-1, dive=dive))
             return "new"
 
@@ -436,6 +453,39 @@ class Gallery:
             self.history_dropped += dropped
             self._json_due = True
 
+    def _bound_archive(self) -> None:
+        """Caller holds the lock (or is ``_load``). Earlier dives past ``max_archived`` captures: the first archived
+        is forgotten and its thumbnail deleted (a dive folder left empty goes too); past ``max_dives`` ids the
+        oldest is forgotten. A sender without the key that names a new dive in every capture grew both for good."""
+        dropped = 0
+        while len(self._archived) > self.max_archived:
+            self._forget_thumbnail(self._archived.popleft())
+            dropped += 1
+        if dropped:
+            if not self.archived_dropped:
+                log.warning("more than %d captures of earlier dives: the first archived are forgotten, thumbnails "
+                            "and all (archived_dropped)", self.max_archived)
+            self.archived_dropped += dropped
+            self._json_due = True
+        if len(self._dives) > self.max_dives:
+            gone = set([d for d in self._dives if d != self.dive][: len(self._dives) - self.max_dives])
+            self._dives = [d for d in self._dives if d not in gone]
+            self._json_due = True
+
+    def _forget_thumbnail(self, cap: Capture) -> None:
+        """Delete an archived capture's thumbnail, and its dive's folders once empty."""
+        if not cap.thumbnail:
+            return
+        path = self.root / cap.thumbnail
+        path.unlink(missing_ok=True)
+        dives, folder = self.root / "dives", path.parent
+        while dives in folder.parents:
+            try:
+                folder.rmdir()
+            except OSError:
+                break  # not empty
+            folder = folder.parent
+
     def mirror(self, summary: list[int], announced_before: float | None = None) -> list[int]:
         """Make the gallery's current summary ``summary`` (from index.json); return indices removed.
 
@@ -498,6 +548,7 @@ class Gallery:
             "archived": [c.to_dict() for c in self._archived],
             "topics": [t.to_dict() for t in self._topics],
             "history_dropped": self.history_dropped,
+            "archived_dropped": self.archived_dropped,
         }
         atomic_write(self._json, json.dumps(doc, indent=1))
         self._json_due, self._json_at = False, self._clock()

@@ -11,7 +11,16 @@ import logging
 
 from companion.topside.ftp_client import crc32_mavftp
 from companion.topside.messages import index_dive, index_topics, mftp_path, parse_index, parse_statustext
-from companion.topside.surface_state import INDEX_PATH, SEVERITY_WARNING, SurfaceContext
+from companion.topside.surface_state import (
+    FTP_INDEX,
+    FTP_THUMBNAILS,
+    INDEX_PATH,
+    MAX_FETCHES,
+    MAX_PARTIAL_BYTES,
+    SEVERITY_WARNING,
+    SurfaceContext,
+)
+from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.image_push import Abandoned
 
 log = logging.getLogger("merlion.surface")
@@ -22,6 +31,7 @@ class GallerySync:
 
     def __init__(self, ctx: SurfaceContext) -> None:
         self.ctx = ctx
+        self._failures = WarningBucket()  # failed thumbnail fetches: a few log lines, then one per 10 s
 
     # --- the dive and the index ----------------------------------------------------------------------------
 
@@ -48,7 +58,7 @@ class GallerySync:
         if p.index_due is not None and now >= p.index_due and ftp is not None and INDEX_PATH not in ftp.pending():
             p.index_due = None
             p.index_pulled_at = now
-            ftp.fetch(INDEX_PATH, self.on_index)
+            ftp.fetch(INDEX_PATH, self.on_index, lane=FTP_INDEX)
 
     def on_index(self, _path: str, data: bytes | None, error: str) -> None:
         ctx, p = self.ctx, self.ctx.pairing
@@ -78,6 +88,8 @@ class GallerySync:
         # frames that left without a push keep no place in the pairing queue (else every later push shifts)
         p.drop_waiting(gone)
         waiting = {i for i, _ in p.waiting}
+        p.expected.clear()  # of the frames this index lists: a frame it does not list has left the summary
+        p.crc.clear()
         for cap in captures:
             if (cap.file_url or "").endswith(".jpg"):  # pushes are JPEG: comparable
                 if cap.thumbnail_bytes is not None:
@@ -140,13 +152,17 @@ class GallerySync:
         path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
         if self.ctx.ftp is None or not path.endswith(".jpg"):
             return  # a WebP thumbnail on the server is not the JPEG that was pushed: nothing to compare
+        self._verify_crc(index, crc32_mavftp(data))
+
+    def _verify_crc(self, index: int, got: int) -> None:
+        """``got``: the CRC-32 of the thumbnail we hold for ``index``."""
         crc = self.ctx.pairing.crc.get(index)
         if crc is None:
-            self.ctx.pairing.unverified[index] = data
+            self.ctx.pairing.unverified[index] = got
             self.want_index()
             return
         self.ctx.pairing.unverified.pop(index, None)
-        self._checked(index, crc == crc32_mavftp(data))
+        self._checked(index, crc == got)
 
     def _checked(self, index: int, ok: bool) -> None:
         with self.ctx.lock:
@@ -157,7 +173,7 @@ class GallerySync:
         log.warning("thumbnail of capture %d is not the companion's (CRC differs): fetching it by name", index)
         self.fetch_thumbnail(index, replace=True)
 
-    def _verify_by_request(self, index: int, data: bytes) -> None:
+    def _verify_by_request(self, index: int, got: int) -> None:
         """The fallback for a companion whose index.json has no CRC: one CalcFileCRC32 request."""
         cap = self.ctx.gallery.get(index)
         path = mftp_path((cap.file_url if cap else None) or "") or f"/summary/{index}.jpg"
@@ -168,36 +184,74 @@ class GallerySync:
             if crc is None:
                 log.debug("CRC of %s: %s", path, error)  # e.g. trimmed meanwhile: nothing to fix
                 return
-            self._checked(index, crc == crc32_mavftp(data))
+            self._checked(index, crc == got)
 
-        self.ctx.ftp.crc(path, checked)
+        self.ctx.ftp.crc(path, checked, lane=FTP_THUMBNAILS)
 
     def _verify_waiting(self, listed: set[int]) -> None:
         """After an index pull: check the pushes that waited for their CRC; an index without CRCs (another
         companion) gets the CalcFileCRC32 request instead; frames trimmed meanwhile need no check."""
         p = self.ctx.pairing
-        for index, data in list(p.unverified.items()):
+        for index, got in list(p.unverified.items()):
             cap = self.ctx.gallery.get(index)
             if cap is None or not cap.in_summary:
                 del p.unverified[index]
             elif index in p.crc:
-                self.verify(index, data)
+                self._verify_crc(index, got)
             elif index in listed:
                 del p.unverified[index]
-                self._verify_by_request(index, data)
+                self._verify_by_request(index, got)
             # else: announced after this index was built; the next pull lists it
 
     def fetch_thumbnail(self, index: int, *, replace: bool = False, partial: Abandoned | None = None) -> None:
-        """Pull the thumbnail by FTP; with the ``partial`` push it came from, only the packets the push lost."""
+        """Queue an FTP pull of the thumbnail (with the ``partial`` push it came from: only the packets the push
+        lost). The queue holds one entry per frame, fetched one at a time in the order asked for (``pump``)."""
+        ctx, p = self.ctx, self.ctx.pairing
+        cap = ctx.gallery.get(index)
+        if ctx.ftp is None or cap is None or not cap.in_summary or (ctx.gallery.dive, index) in p.fetching:
+            return
+        if cap.thumbnail is not None and not replace:
+            return
+        old = p.fetch_queue.pop(index, None)
+        if old is not None:
+            replace, partial = replace or old[0], partial or old[1]
+            p.partial_bytes -= _held(old[1])
+        if partial is not None and p.partial_bytes + _held(partial) > MAX_PARTIAL_BYTES:
+            partial = None  # read the whole file: stalled pushes by the megabyte are not kept for the queue
+        p.partial_bytes += _held(partial)
+        p.fetch_queue[index] = (replace, partial)
+        dropped = 0
+        while len(p.fetch_queue) > MAX_FETCHES:
+            _, (_, gone) = p.fetch_queue.popitem(last=False)
+            p.partial_bytes -= _held(gone)
+            dropped += 1
+        if dropped:
+            with ctx.lock:
+                ctx.status.fetches_dropped += dropped
+                first = ctx.status.fetches_dropped == dropped
+            if first:
+                log.warning("more than %d thumbnails wait for FTP: the longest waiting are forgotten "
+                            "(fetches_dropped)", MAX_FETCHES)
+        self.pump()
+
+    def pump(self) -> None:
+        """Hand the FTP client the next thumbnail waiting, when none of ours is in its queue: the index pulls and
+        the page's requests take their turns between thumbnails, however many wait."""
+        ctx, p = self.ctx, self.ctx.pairing
+        while ctx.ftp is not None and p.fetch_queue and not ctx.ftp.pending(FTP_THUMBNAILS):
+            index, (replace, partial) = p.fetch_queue.popitem(last=False)
+            p.partial_bytes -= _held(partial)
+            self._start_fetch(index, replace, partial)
+
+    def _start_fetch(self, index: int, replace: bool, partial: Abandoned | None) -> None:
         ctx = self.ctx
         cap = ctx.gallery.get(index)
         dive = ctx.gallery.dive
         if cap is None or not cap.in_summary or (dive, index) in ctx.pairing.fetching:
-            return
+            return  # trimmed (or forgotten) while it waited
         if cap.thumbnail is not None and not replace:
-            return
-        if ctx.ftp is None:
-            return
+            return  # its push came meanwhile
+        assert ctx.ftp is not None
         path = mftp_path(cap.file_url or "") or f"/summary/{index}.jpg"
         ctx.pairing.fetching.add((dive, index))
 
@@ -208,19 +262,28 @@ class GallerySync:
                     ctx.status.ftp_failed += 1
                 else:
                     ctx.status.ftp_ok += 1
-            if data is None:
-                log.warning("FTP %s: %s", path, error)
-                return
-            if ctx.gallery.dive != dive:
-                return  # the vehicle's store was reset meanwhile: this index now names another frame
-            now_cap = ctx.gallery.get(index)
-            if now_cap is not None and (replace or now_cap.thumbnail is None):
-                ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
-                ctx.gallery.add_thumbnail(index, data, ext=ext, via="push+ftp" if known else "ftp")
-                if known:
-                    self.verify(index, data)
+            try:
+                if data is None:
+                    if self._failures.take():  # a sender announcing frames it has not: a few lines, not one each
+                        log.warning("FTP %s: %s", path, error)
+                    return
+                if ctx.gallery.dive != dive:
+                    return  # the vehicle's store was reset meanwhile: this index now names another frame
+                now_cap = ctx.gallery.get(index)
+                if now_cap is not None and (replace or now_cap.thumbnail is None):
+                    ext = path.rsplit(".", 1)[-1] if "." in path.rsplit("/", 1)[-1] else "jpg"
+                    ctx.gallery.add_thumbnail(index, data, ext=ext, via="push+ftp" if known else "ftp")
+                    if known:
+                        self.verify(index, data)
+            finally:
+                self.pump()
 
         known, known_size = {}, None
         if partial is not None and partial.kind == "jpeg" and path.endswith(".jpg"):
             known, known_size = partial.chunks, partial.size  # the same JPEG file: fill in only the holes
-        ctx.ftp.fetch(path, done, known=known, known_size=known_size)
+        ctx.ftp.fetch(path, done, known=known, known_size=known_size, lane=FTP_THUMBNAILS)
+
+
+def _held(partial: Abandoned | None) -> int:
+    """Bytes a partial push keeps in memory."""
+    return 0 if partial is None else sum(len(chunk) for chunk in partial.chunks.values())

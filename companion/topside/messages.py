@@ -12,7 +12,12 @@ import math
 import re
 from dataclasses import dataclass, field
 
-from companion.topside.gallery import Capture, Topic, safe_dive
+from companion.topside.gallery import MAX_SUMMARY, Capture, Topic, safe_dive
+from vehicle.protocol.queries import MAX_LINE, MAX_NEGATIVES, MAX_TOPICS, NAME
+
+MAX_URL = 205
+"""Characters of a ``file_url`` kept (CAMERA_IMAGE_CAPTURED's field holds 205): a longer one from index.json is
+dropped, as is a topic that is not a topic name; each was kept for every capture in gallery.json."""
 
 
 def heading_from_q(q: list[float] | tuple[float, ...]) -> float | None:
@@ -163,11 +168,17 @@ def index_topics(data: bytes) -> list[Topic] | None:
     items = doc.get("topics") if isinstance(doc, dict) else None
     if not isinstance(items, list):
         return None
+    if len(items) > MAX_TOPICS:  # what the companion's own queries parser allows (vehicle/protocol/queries.py)
+        raise ValueError(f"index lists {len(items)} topics, more than {MAX_TOPICS}")
     topics = []
     for item in items:
         if isinstance(item, dict) and isinstance(item.get("name"), str) and item["name"]:
             negatives = item.get("negatives") if isinstance(item.get("negatives"), list) else []
-            topics.append(Topic(item["name"], str(item.get("positive") or ""), tuple(str(n) for n in negatives)))
+            topic = Topic(item["name"], str(item.get("positive") or ""), tuple(str(n) for n in negatives))
+            if not NAME.fullmatch(topic.name) or len(topic.negatives) > MAX_NEGATIVES or any(
+                    len(text) > MAX_LINE for text in (topic.positive, *topic.negatives)):
+                raise ValueError(f"index topic {topic.name[:30]!r}: not a topic the companion could follow")
+            topics.append(topic)
     return topics
 
 
@@ -178,6 +189,8 @@ def parse_index(data: bytes) -> list[Capture]:
     dive = doc.get("dive") if isinstance(doc, dict) else None
     if isinstance(doc, dict):
         items = _first(doc, "frames", "summary", "captures", "images", "items") or []
+    if isinstance(items, (list, dict)) and len(items) > MAX_SUMMARY:
+        raise ValueError(f"index lists {len(items)} frames, more than {MAX_SUMMARY}")
     if isinstance(items, dict):
         items = [dict(v, image_index=v.get("image_index", k)) for k, v in items.items()]
     out = []
@@ -210,9 +223,9 @@ def parse_index(data: bytes) -> list[Capture]:
             lat=_num(tags.get("lat")), lon=_num(tags.get("lon")), alt_m=_num(tags.get("alt_m")),
             score=_num(_first(tags, "score", "ss", "semantic_score")),
             raw_score=_num(tags.get("raw_score")),
-            topic=str(tags["topic"]) if isinstance(tags.get("topic"), str) and tags["topic"] else None,
+            topic=tags["topic"] if isinstance(tags.get("topic"), str) and NAME.fullmatch(tags["topic"]) else None,
             below_threshold=tags["below_threshold"] if isinstance(tags.get("below_threshold"), bool) else None,
-            file_url=url if isinstance(url, str) else None,
+            file_url=url if isinstance(url, str) and len(url) <= MAX_URL else None,
         )
         cap.thumbnail_bytes = int(size) if _num(size) is not None else None
         crc = _num(_first(tags, "thumbnail_crc32", "crc32"))

@@ -37,7 +37,7 @@ class PageState:
                 "connect": ctx.options.connect,
                 "messages": s.messages,
                 "last_message_age_s": None if s.last_message is None else round(now - s.last_message, 1),
-                "lost_packets": s.lost_packets,
+                "lost_packets": s.lost_packets, "other_address_messages": s.other_address_messages,
                 "autopilot": list(s.autopilot) if s.autopilot else None,
                 "autopilot_heartbeat_age_s": _age(now, s.autopilot_heartbeat),
                 "foreign_autopilot_heartbeats": s.foreign_autopilot_heartbeats,
@@ -46,6 +46,7 @@ class PageState:
                 "verified": s.verified, "mismatched": s.mismatched,
                 "unsigned_ignored": s.unsigned_ignored, "unpaired_dropped": s.unpaired_dropped,
                 "requests_refused": s.requests_refused,
+                "waiting_overflow": s.waiting_overflow, "fetches_dropped": s.fetches_dropped,
                 "inbox_dropped": s.inbox_dropped, "values_dropped": s.values_dropped,
                 "unsigned_sources": {f"{a}/{b}": n for (a, b), n in sorted(s.unsigned_sources.items())},
             }
@@ -63,6 +64,7 @@ class PageState:
         topics = [t.to_dict() for t in ctx.gallery.topics()]
         return {"time": now, "link": link, "companion": companion, "dive": ctx.gallery.dive, "summary": summary,
                 "history_dropped": ctx.gallery.history_dropped, "log_rows_dropped": ctx.gallery.log_rows_dropped,
+                "archived_dropped": ctx.gallery.archived_dropped,
                 "topics": topics,
                 "thumbnails_waiting": ctx.gallery.missing_thumbnails(), "marks": marks}
 

@@ -18,7 +18,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from companion.topside.gallery import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
-from companion.topside.surface_state import MAX_UNPAIRED, REQUEST_BURST, REQUEST_REFILL_S, SurfaceContext
+from companion.topside.surface_state import (
+    MAX_UNPAIRED,
+    MAX_WAITING,
+    REQUEST_BURST,
+    REQUEST_REFILL_S,
+    SurfaceContext,
+)
 from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.image_push import Abandoned, ImageReceiver, LostHandshake, PushedImage
 
@@ -125,8 +131,18 @@ class PushPairing:
             return  # its marked push came first (the capture was lost and asked for again)
         if p.early:
             self._bind(p.early.popleft(), index)
-        else:
-            p.waiting.append((index, self.ctx.clock()))
+            return
+        p.waiting.append((index, self.ctx.clock()))
+        if len(p.waiting) > MAX_WAITING:
+            # a sender announcing captures without end: the longest waiting is fetched by FTP now, in its turn
+            oldest, _ = p.waiting.popleft()
+            with self.ctx.lock:
+                self.ctx.status.waiting_overflow += 1
+                first = self.ctx.status.waiting_overflow == 1
+            if first:
+                log.warning("more than %d captures wait for their push: the longest waiting are fetched by FTP "
+                            "instead (waiting_overflow)", MAX_WAITING)
+            self.sync.fetch_thumbnail(oldest)
 
     def _request_capture(self, index: int) -> None:
         """MAV_CMD_REQUEST_MESSAGE(CAMERA_IMAGE_CAPTURED, index): the camera protocol's way to re-get a capture. One

@@ -11,7 +11,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,6 +32,22 @@ MAX_UNPAIRED = 16
 """Pushes kept while no capture claims them (finished or abandoned): the companion announces a frame before it
 pushes it, so a handful covers a reordering; more are a sender pushing images nobody announced, which grew without
 bound (each up to the push cap). The oldest go first, as ``early`` handshakes do."""
+
+MAX_WAITING = 256
+"""Captures waiting for their push at once. The companion pushes each frame right after announcing it, so a few wait
+(a summary filling up at a dive's start, a few dozen); a sender announcing captures without end made the queue
+grow for good. Past this, the capture that waited longest stops waiting and is fetched by FTP (its turn in the
+FTP queue), as if its push had timed out."""
+MAX_FETCHES = 8192
+"""Thumbnails waiting for their FTP fetch (one per frame of the summary at most, ``gallery.MAX_SUMMARY``); they are
+fetched one at a time, in the order asked for, so the index pulls and the page's requests take their turns
+between them. Past this the longest waiting is forgotten (``fetches_dropped``; the next index.json lists it
+again while it is in the summary)."""
+MAX_PARTIAL_BYTES = 4 << 20
+"""Bytes of stalled pushes kept for the FTP fetches that wait (only their holes are read); past this a waiting
+fetch reads the whole file instead (a push may be 2 MiB: a queue of them was gigabytes)."""
+FTP_INDEX, FTP_THUMBNAILS, FTP_PAGE = "index", "thumbnails", "page"
+"""The FTP client's lanes: each requester's requests wait apart and are served in turn."""
 
 REQUEST_BURST = 16
 REQUEST_REFILL_S = 1.0
@@ -89,7 +105,11 @@ class LinkStatus:
     """Pushed (or part-pushed) thumbnails whose CRC matched the companion's file."""
     mismatched: int = 0
     lost_packets: int = 0
-    """Gaps in the sequence numbers of the autopilot's and the companion's messages (no other source's)."""
+    """Gaps in the sequence numbers of the autopilot's and the companion's messages (no other source's), from the
+    address each was first heard at (without a key)."""
+    other_address_messages: int = 0
+    """Without a key: messages under the autopilot's or the companion's ids from another address than theirs (their
+    sequence numbers not followed)."""
     unsigned_ignored: int = 0
     """With a signing key: messages not verified as the companion's (unsigned, badly signed, replayed) ignored."""
     unsigned_sources: dict[tuple[int, int], int] = field(default_factory=dict)
@@ -101,6 +121,10 @@ class LinkStatus:
     """Lost captures not asked for again: past ``REQUEST_BURST`` at once, one every ``REQUEST_REFILL_S``."""
     unpaired_dropped: int = 0
     """Pushes no capture claimed, dropped beyond ``MAX_UNPAIRED``."""
+    waiting_overflow: int = 0
+    """Captures that stopped waiting for a push beyond ``MAX_WAITING`` (fetched by FTP instead)."""
+    fetches_dropped: int = 0
+    """Thumbnail fetches forgotten beyond ``MAX_FETCHES`` waiting."""
 
 
 @dataclass
@@ -112,7 +136,7 @@ class PairingState:
     early: deque = field(default_factory=lambda: deque(maxlen=MAX_UNPAIRED))
     """Handshakes that came before their capture (their numbers)."""
     expected: dict[int, int] = field(default_factory=dict)
-    """Thumbnail bytes by image index, from index.json (JPEG only)."""
+    """Thumbnail bytes by image index, from the latest index.json (JPEG only)."""
     bound: dict[int, int] = field(default_factory=dict)
     """Handshake number -> image index."""
     orphans: dict[int, PushedImage] = field(default_factory=dict)
@@ -121,12 +145,19 @@ class PairingState:
     """Pushes abandoned before pairing, by handshake number."""
     fetching: set[tuple[str | None, int]] = field(default_factory=set)
     """(dive, image index) being pulled by FTP."""
+    fetch_queue: OrderedDict = field(default_factory=OrderedDict)
+    """Thumbnails of the current dive waiting for their FTP fetch: image index -> (replace, partial push or None),
+    in the order asked for (``MAX_FETCHES`` at most)."""
+    partial_bytes: int = 0
+    """Bytes of the partial pushes in ``fetch_queue`` (``MAX_PARTIAL_BYTES`` at most)."""
     marker: int | None = None
     """Image index named by the last MRL_PUSH, until its handshake comes."""
     crc: dict[int, int] = field(default_factory=dict)
-    """Thumbnail CRC32 by image index, from index.json (JPEG only)."""
-    unverified: dict[int, bytes] = field(default_factory=dict)
-    """Pushed thumbnails waiting for an index.json with their CRC."""
+    """Thumbnail CRC32 by image index, from the latest index.json (JPEG only): each pull replaces them, so indices
+    listed once never pile up."""
+    unverified: dict[int, int] = field(default_factory=dict)
+    """CRC-32s of pushed thumbnails waiting for an index.json with the companion's (the CRC, not the bytes: a push
+    may be 2 MiB, and one waits per frame of the summary)."""
     last_announced: int | None = None
     index_due: float | None = None
     index_pulled_at: float = -1e9
@@ -134,8 +165,9 @@ class PairingState:
     def forget_dive(self) -> None:
         """A new dive: image indices start again, so every pairing made under the old ones goes."""
         for pending in (self.waiting, self.early, self.expected, self.bound, self.orphans, self.lost_push, self.crc,
-                        self.unverified):
+                        self.unverified, self.fetch_queue):
             pending.clear()
+        self.partial_bytes = 0
         self.last_announced = None
 
     def keep_unpaired(self, pending: dict, handshake_no: int, push) -> int:

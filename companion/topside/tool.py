@@ -19,7 +19,7 @@ import math
 import queue
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -64,6 +64,9 @@ MAX_VALUES = 64
 """Value names kept (the companion sends a handful); a sender making up new names is ignored past this."""
 EARLY_TEXT_SOURCES = 16
 """Sources whose status lines are kept before the companion is known (the newest sources)."""
+MAX_CAMERAS = 16
+"""Camera components remembered (by heartbeat) until the companion is known: the ones heard most recently (a real
+one beats at 1 Hz). Each made-up id was a row for the whole run, 65,536 possible."""
 
 
 def verified(msg) -> bool:
@@ -94,7 +97,10 @@ class SurfaceTool:
         self._opened = False
         self._early_text: dict[tuple[int, int], deque] = {}
         self._last_seq: dict[tuple[int, int], int] = {}
-        self._cameras: set[tuple[int, int]] = set()
+        self._seq_peer: dict[tuple[int, int], tuple[str, int] | None] = {}
+        """The address each followed source's sequence numbers are read from (two rows at most)."""
+        self._cameras: OrderedDict[tuple[int, int], None] = OrderedDict()
+        """Camera components heard (by heartbeat), most recent last; only until the companion is known."""
         self._offline_at = -1e9
         self._signed_only = self._link.signing.enabled
         self._boot_clock = BootClock()  # the companion's time_boot_ms on this clock: the depth track's times
@@ -191,13 +197,13 @@ class SurfaceTool:
             status.last_message = now
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, source, now)
-            self._count_lost(source, msg.get_seq())
+            self._count_lost(source, msg)
             return
         if kind == "CAMERA_IMAGE_CAPTURED":
             self._adopt(source)
         elif kind in ("DATA_TRANSMISSION_HANDSHAKE", "STATUSTEXT", "NAMED_VALUE_FLOAT") and source in self._cameras:
             self._adopt(source)
-        self._count_lost(source, msg.get_seq())
+        self._count_lost(source, msg)
         if status.companion is None and kind == "STATUSTEXT":
             # the companion's first lines ("started") may come before its heartbeat: keep a few for later
             early = self._early_text.pop(source, None) or deque(maxlen=5)
@@ -220,14 +226,25 @@ class SurfaceTool:
         elif kind == "FILE_TRANSFER_PROTOCOL" and self.ctx.ftp is not None:
             self.ctx.ftp.handle(msg)
 
-    def _count_lost(self, source: tuple[int, int], seq: int) -> None:
+    def _count_lost(self, source: tuple[int, int], msg) -> None:
         """``lost_packets``: the gaps in the sequence numbers of the vehicle's own sources only (the autopilot and
         the companion, once known). Sender ids are free, so following every source heard let a stranger grow the
-        table to 65,536 rows and add up to 127 made-up losses per message; the table now has two rows at most."""
+        table to 65,536 rows and add up to 127 made-up losses per message; the table now has two rows at most.
+
+        Without a key the vehicle's own ids are free too: each source is followed only from the UDP address its
+        first counted message came from (the one that made it the autopilot or the companion), never re-learnt; a
+        message under its ids from another address is counted in ``other_address_messages`` instead (a device
+        sending under them with made-up numbers added up to 127 "lost" packets a message). With a key only
+        verified messages get here, wherever they come from."""
         status = self.ctx.status
         if source != status.companion and source != status.autopilot:
             return
+        peer = getattr(msg, "_peer", None)
         with self.ctx.lock:
+            if not self._signed_only and self._seq_peer.setdefault(source, peer) != peer:
+                status.other_address_messages += 1
+                return
+            seq = msg.get_seq()
             last = self._last_seq.get(source)
             gap = 0 if last is None else (seq - last - 1) % 256
             if gap < 128:  # a larger jump is a restart or reordering, not a loss
@@ -271,7 +288,11 @@ class SurfaceTool:
         status = self.ctx.status
         with self.ctx.lock:
             if msg.type == MAV_TYPE_CAMERA:
-                self._cameras.add(source)
+                if status.companion is None:
+                    self._cameras[source] = None
+                    self._cameras.move_to_end(source)
+                    if len(self._cameras) > MAX_CAMERAS:
+                        self._cameras.popitem(last=False)
                 if source == status.companion:
                     status.companion_heartbeat = now
             elif is_autopilot_heartbeat(msg) and source[0] != 255:
@@ -300,6 +321,7 @@ class SurfaceTool:
         for msg, when in self._early_text.pop(source, ()):
             self.sync.on_statustext(msg, when)
         self._early_text.clear()
+        self._cameras.clear()  # only needed to find the companion
         if ctx.options.ftp:
             ctx.ftp = FtpClient(self._send_ftp, source, own=(ctx.options.system_id, ctx.options.component_id),
                                 clock=ctx.clock)

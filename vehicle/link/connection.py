@@ -307,7 +307,7 @@ class MavLink:
                 data = conn.recv()
                 if not data:
                     break
-                self._feed(data)
+                self._feed(data, getattr(conn, "last_peer", None))
             return True
         else:
             data = conn.recv(4096)
@@ -315,18 +315,20 @@ class MavLink:
             self._feed(data)
         return True
 
-    def _feed(self, data: bytes) -> None:
-        """Parse received bytes and dispatch the messages in them, timing it (the loop reads nothing meanwhile)."""
+    def _feed(self, data: bytes, peer: tuple[str, int] | None = None) -> None:
+        """Parse received bytes and dispatch the messages in them, timing it (the loop reads nothing meanwhile).
+        ``peer``: the UDP address they came from, kept on each message as ``_peer`` (ids are free, addresses
+        less so: a reader may follow a source only from where it first heard it)."""
         start, cpu = time.perf_counter(), time.thread_time()
         try:
-            self._parse_and_dispatch(data)
+            self._parse_and_dispatch(data, peer)
         finally:
             took = time.perf_counter() - start
             self.rx_longest_s = max(self.rx_longest_s, took)
             self.rx_longest_cpu_s = max(self.rx_longest_cpu_s, time.thread_time() - cpu)
             self.rx_slow += took > 0.05
 
-    def _parse_and_dispatch(self, data: bytes) -> None:
+    def _parse_and_dispatch(self, data: bytes, peer: tuple[str, int] | None = None) -> None:
         self.rx_bytes += len(data)
         if self.endpoint.is_udp and self._rx.buf_len() > 0 and data[0] in _MAGIC:
             # the last datagram left half a packet and this one starts a new packet: the half was truncated.
@@ -340,6 +342,7 @@ class MavLink:
             self._rx = self._new_parser()
             return
         for msg in msgs:
+            msg._peer = peer
             self._dispatch(msg)
 
     def _count_bad(self, reason: str) -> None:

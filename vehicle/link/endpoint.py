@@ -8,6 +8,7 @@ peers (``udp_peers``).
 
 from __future__ import annotations
 
+import errno
 import logging
 import socket
 import sys
@@ -80,12 +81,30 @@ def open_transport(endpoint: Endpoint, system_id: int, component_id: int, name: 
         return mavutil.mavlink_connection(f"tcp:{endpoint.address}", retries=0, **kwargs)
     if endpoint.scheme == "udpin":  # pymavlink's learns every address that sends a datagram, and answers all
         conn = BoundedUdpServer(endpoint.address, **kwargs)
+    elif endpoint.scheme == "udpout":
+        conn = UdpClient(endpoint.address, input=False, **kwargs)
     else:
         conn = mavutil.mavlink_connection(f"{endpoint.scheme}:{endpoint.address}", **kwargs)
     if endpoint.is_udp:
         kept = ask_receive_buffer(conn.port, _UDP_RCVBUF)
         log.debug("%s: UDP receive buffer %d KB", name, kept // 1024)
     return conn
+
+
+class UdpClient(mavutil.mavudp):
+    """pymavlink's ``udpout:``, remembering the address each datagram came from (``last_peer``): anyone may send to
+    its port, and whoever reads the messages may want to know which came from where."""
+
+    last_peer: tuple[str, int] | None = None
+
+    def recv(self, n=None) -> bytes:
+        try:
+            data, self.last_peer = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+        except OSError as err:
+            if err.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b""
+            raise
+        return data
 
 
 def ask_receive_buffer(sock: socket.socket, nbytes: int) -> int:

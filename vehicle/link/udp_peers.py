@@ -39,6 +39,8 @@ class BoundedUdpServer(mavutil.mavudp):
         self._heard: dict[tuple[str, int], float] = {}
         self.refused_peers = 0
         """Datagrams from an address not learnt because the table was full of peers that speak."""
+        self.last_peer: tuple[str, int] | None = None
+        """The address the last datagram came from (the link tags what it parses from it)."""
 
     def recv(self, n=None) -> bytes:
         try:
@@ -47,6 +49,7 @@ class BoundedUdpServer(mavutil.mavudp):
             if err.errno in _NO_DATA:
                 return b""
             raise
+        self.last_peer = address
         self._learn(address)
         return data
 
