@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from companion.evaluation.group_feedback import MAX_LOSS, choose_weight
+from companion.evaluation.group_feedback import MAX_LOSS, SEEN_LOSS, choose_weight
 
 
 def test_a_weight_that_costs_a_group_too_much_in_one_order_is_not_chosen_though_its_mean_is_fine():
     # weight 4 gains most on average, and its mean over the two orders costs group b only 0.01, but one dive
     # (order 1) loses 0.03 on b: a dive made worse is not averaged away
     gains = {1.0: {0: {"a": 0.02, "b": 0.0}, 1: {"a": 0.02, "b": 0.0}},
-             2.0: {0: {"a": 0.05, "b": 0.0}, 1: {"a": 0.05, "b": -0.015}},
+             2.0: {0: {"a": 0.05, "b": 0.0}, 1: {"a": 0.05, "b": -0.008}},
              4.0: {0: {"a": 0.09, "b": 0.01}, 1: {"a": 0.09, "b": -MAX_LOSS - 0.01}}}
     assert choose_weight(gains) == 2.0
     assert choose_weight(gains, without="b") == 4.0  # chosen without the group that loses: nothing stops it
@@ -20,3 +20,12 @@ def test_among_near_equal_weights_the_lightest_and_when_none_qualifies_the_light
     assert choose_weight(near) == 1.0  # within TOLERANCE (0.005) of the best
     bad = {2.0: {0: {"a": -0.05}}, 3.0: {0: {"a": -0.04}}}
     assert choose_weight(bad) == 2.0
+
+
+def test_a_weight_is_chosen_only_if_it_keeps_the_groups_it_sees_within_half_the_allowed_loss():
+    # the held-out group is not seen by its own choice and lost 2-4 times the worst seen loss on the shared data:
+    # a weight costing a seen group 0.015 (within MAX_LOSS, beyond SEEN_LOSS) leaves no margin for it
+    assert SEEN_LOSS == MAX_LOSS / 2
+    gains = {1.0: {0: {"a": 0.02, "b": -0.005}}, 2.0: {0: {"a": 0.30, "b": -0.015}}}
+    assert choose_weight(gains) == 1.0
+    assert choose_weight(gains, without="b") == 2.0

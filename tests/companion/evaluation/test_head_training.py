@@ -63,8 +63,9 @@ PIXEL_HABITAT_GAIN = 0.01
 (``pixel_scene``): measured 0.839 -> 0.862 (orders 1, 2: 0.830 -> 0.857, 0.822 -> 0.846)."""
 MARKS_GAIN_FLOOR = 0.015
 """Mean gain over the 13 groups of 3 + 3 dive-centred marks (weight chosen without each group), per frame order, on
-top of the held-out scene head (pasted fish included): measured +0.023 to +0.043 over seeds 0-2, +0.016 to +0.040
-over seeds 0-9, since the marks weigh by the query's doubt (before: +0.033 to +0.049 over seeds 0-2; on top of
+top of the held-out scene head (pasted fish included): measured +0.022 to +0.037 over seeds 0-2 (+0.011 to +0.037
+over seeds 0-19) since a weight must keep the groups it is chosen on within 0.01 (weight 1 on every group); +0.023
+to +0.043 over seeds 0-2 with the marks weighed by the query's doubt at weight 2 (before: +0.033 to +0.049; on top of
 the pooled head, before the scene head: +0.064 to +0.097; the nearest-centroid marks before them: +0.001)."""
 MARKS_HABITAT_FLOOR = 0.84
 """Mean over DeepFish habitats of the held-out AUROC with those marks: measured 0.865-0.909 (query alone 0.82-0.85)."""

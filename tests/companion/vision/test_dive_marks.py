@@ -79,8 +79,9 @@ def test_consistent_marks_of_an_object_in_varying_scenes_lift_the_frames_not_mar
     x, present = dive(seed)
     result = evaluate(encoder, PreSampler(encoder, "object", ["nothing"]), x, present, 3)
     assert result.centred_trust > 0.5
-    # at CENTRED_WEIGHT 2, times the query's doubt (it sorts a few of the marks' pairs by chance): +0.18 to +0.36
-    assert result.auroc_query < 0.7 and result.auroc_marked > result.auroc_query + 0.15, result
+    # at CENTRED_WEIGHT 1, times the query's doubt (it sorts a few of the marks' pairs by chance): +0.10 to +0.26
+    # (+0.18 to +0.36 at 2)
+    assert result.auroc_query < 0.7 and result.auroc_marked > result.auroc_query + 0.08, result
 
 
 @pytest.mark.parametrize(("order", "doubt"), [("right", 0.0), ("backwards", 1.0), ("mixed", 2 / 3)])
