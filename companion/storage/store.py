@@ -206,7 +206,8 @@ class Store:
 
     def replace_feature(self, index: int, feature: np.ndarray, encoder: str) -> None:
         """A held frame's sampler feature made again by ``encoder`` (a resume under another encoder): in memory,
-        and on disk unless memory-only (the .npy, then the sidecar naming the encoder)."""
+        and on disk unless memory-only (the .npy, then the sidecar naming the encoder, then summary.json, which
+        lists the sidecars: it names the encoder in use from the start of the run, not from its first frame)."""
         with self._lock:
             held = self._held[index]
             held.frame.feature = feature
@@ -219,6 +220,8 @@ class Store:
                 write_feature_files(self.dir, held)
             except OSError as err:
                 self._degrade(err)
+                return
+            self._write_summary()
 
     @property
     def next_image_index(self) -> int:
