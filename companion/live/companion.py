@@ -127,11 +127,11 @@ class LiveCompanion:
         self.saved_params = self._params_file().load()
         refuse_newer(Path(self.cfg.store.dir))
         self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
-        self.store = Store(self.cfg.store)
-        queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__)
+        self.store = Store(self.cfg.store, guard=self.store_lock.check)  # a folder swapped under it: stops writing
+        queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__, guard=self.store_lock.check)
         own = self.cfg
         self.cfg, configured = follow_saved_queries(own, queries_file)
-        marks_file = MarksFile(self.store.dir / "marks.json", version=__version__)
+        marks_file = MarksFile(self.store.dir / "marks.json", version=__version__, guard=self.store_lock.check)
         saved_marks = marks_file.load()
         resume = self.store.resume_state()
         if resume.frames:
@@ -225,7 +225,9 @@ class LiveCompanion:
             self.surface.event(line, st.WARNING)
 
     def _params_file(self) -> ParamsFile:
-        return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)
+        if self.options.params_path:
+            return ParamsFile(self.options.params_path, version=__version__)
+        return ParamsFile(Path(self.cfg.store.dir) / "params.json", version=__version__, guard=self.store_lock.check)
 
     def _start_vehicle(self, image_count: int) -> None:
         cfg = self.cfg

@@ -28,6 +28,7 @@ import os
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -95,8 +96,12 @@ def refuse_newer(directory: Path) -> None:
 class Store:
     """The summary on disk, kept in step with SummaryEvents; thread-safe."""
 
-    def __init__(self, cfg: StoreConfig, *, directory: str | os.PathLike[str] | None = None) -> None:
+    def __init__(self, cfg: StoreConfig, *, directory: str | os.PathLike[str] | None = None,
+                 guard: Callable[[], None] | None = None) -> None:
+        """``guard``: asked before each change is written (``StoreLock.check``); raising ``StoreReplaced`` there
+        makes the store memory-only for good, so it never writes into a folder another process took."""
         self.cfg = cfg
+        self._guard = guard
         self.dir = Path(directory if directory is not None else cfg.dir)
         self.frames_dir = self.dir / "frames"
         self.budget_bytes = int(cfg.disk_budget_mb * 1024 * 1024)
@@ -204,6 +209,18 @@ class Store:
             return ResumeState([h.frame for h in held], self._next_index,
                                {h.frame.image_index: encoder_of(h.sidecar) for h in held})
 
+    def _still_ours(self) -> bool:
+        """The folder at the path is still the one this run locked (no guard: assumed); if not, memory-only."""
+        if self.health.lost:
+            return False
+        if self._guard is not None:
+            try:
+                self._guard()
+            except OSError as err:
+                self._degrade(err)
+                return False
+        return True
+
     def replace_feature(self, index: int, feature: np.ndarray, encoder: str) -> None:
         """A held frame's sampler feature made again by ``encoder`` (a resume under another encoder): in memory,
         and on disk unless memory-only (the .npy, then the sidecar naming the encoder, then summary.json, which
@@ -214,7 +231,7 @@ class Store:
             if not isinstance(held.sidecar.get("tags"), dict):
                 held.sidecar["tags"] = {}
             held.sidecar["tags"]["encoder"] = encoder
-            if self.memory_only or not held.on_disk:
+            if not self._still_ours() or self.memory_only or not held.on_disk:
                 return
             try:
                 write_feature_files(self.dir, held)
@@ -279,7 +296,7 @@ class Store:
     def apply(self, event: SummaryEvent, *, tags: dict[str, Any] | None = None) -> None:
         """Record one summary change: save an added frame, forget a removed one, update the index and the log."""
         with self._lock:
-            if self.health.retry_due():
+            if self._still_ours() and self.health.retry_due():
                 self._recover()
             index = event.frame.image_index
             if event.kind == "added":
@@ -305,6 +322,8 @@ class Store:
     def _persist_next_index(self) -> None:
         """Before the index is announced (the keeper publishes after ``apply``): an in-place write, which a full
         disk still takes."""
+        if self.health.lost:
+            return  # the path is another store's now: its next_index is not this run's to raise
         try:
             self._reservation.save(self._next_index)
         except OSError as err:
@@ -320,7 +339,7 @@ class Store:
         """Try the disk again if the store is memory-only and a retry is due (the companion calls this once a
         second; ``apply`` does too); True when the store is on disk."""
         with self._lock:
-            if self.health.retry_due():
+            if self.health.retry_due() and self._still_ours():
                 self._recover()
             return not self.memory_only
 
