@@ -81,6 +81,9 @@ class LiveOptions:
     """Encoder factory override (tests); default companion.vision.encoders.factory.make_encoder."""
     params_path: str | None = None
     """Where live-tuned parameters persist (default: in the store directory)."""
+    store_lock: StoreLock | None = None
+    """The store's lock, taken already by the caller (the demo, before it moves an earlier run aside), who also
+    releases it; None: the companion takes it at start and releases it at stop."""
 
 
 class LiveCompanion:
@@ -95,7 +98,7 @@ class LiveCompanion:
         self.stop_event = threading.Event()
         self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
         self.started_at = time.monotonic()
-        self.store_lock = StoreLock(cfg.store.dir)
+        self.store_lock = self.options.store_lock or StoreLock(cfg.store.dir)
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
@@ -126,7 +129,8 @@ class LiveCompanion:
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
         refuse_newer(Path(self.cfg.store.dir))
-        self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
+        if not self.store_lock.held:
+            self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
         self.store = Store(self.cfg.store, guard=self.store_lock.check)  # a folder swapped under it: stops writing
         queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__, guard=self.store_lock.check)
         own = self.cfg
@@ -419,6 +423,7 @@ class LiveCompanion:
             self.telemetry.stop()
         if self.link is not None:
             self.link.stop()
-        self.store_lock.release()  # after the keeper: its last change is on disk
+        if self.options.store_lock is None:
+            self.store_lock.release()  # after the keeper: its last change is on disk
         self.notifier.close()
 

@@ -15,10 +15,12 @@ the store stops writing there for good (``StoreReplaced``), instead of writing i
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import logging
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from companion.errors import UsageError
@@ -114,6 +116,23 @@ def check_free(directory: str | os.PathLike[str]) -> None:
         return  # no lock file: no store, or one no merlion of this version ran on
     try:
         _flock_or_refuse(fd, fcntl.LOCK_SH, Path(directory))
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def holding(directory: str | os.PathLike[str]) -> Iterator[None]:
+    """Hold the store at ``directory`` for a moment without changing it (StoreInUse if a live process holds it):
+    the demo moves an earlier run aside inside this, so no run can take that store while it is being moved. No
+    lock file (no store, or one no merlion of this version ran on): nothing to hold, nothing created."""
+    try:
+        fd = os.open(Path(directory) / LOCK_FILE, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        _flock_or_refuse(fd, fcntl.LOCK_EX, Path(directory))
+        yield
     finally:
         os.close(fd)
 
