@@ -117,6 +117,7 @@ class LiveCompanion:
         self.inference: InferenceLoop | None = None
         self.selective: SelectiveStage | None = None
         self.enhance_worker: EnhanceWorker | None = None
+        self._used_up_said = False
         self.watchdog = Watchdog(self.health, self.notifier, self.stop_event, self._update_status)
 
     @property
@@ -315,7 +316,18 @@ class LiveCompanion:
         if self.surface is not None:
             self.surface.update_status(fps=self.counters.fps(), score=self.counters.last_score,
                                        summary=len(self.store.summary), depth_m=depth)
+        self._say_indices_used_up()
         self.notifier.status(self.status_line())
+
+    def _say_indices_used_up(self) -> None:
+        """Once, as a WARNING (the vehicle rides through it; the summary held is still served): every image index
+        MAVLink carries was handed out (the pipeline and the store log it as an error), so nothing new enters the
+        summary until the store is moved aside."""
+        if self._used_up_said or self.pipeline is None or not self.pipeline.indices_used_up:
+            return
+        if self.surface is not None:
+            self._used_up_said = True
+            self.surface.event("Image indices used up: start a new store", st.WARNING)
 
     def status_line(self) -> str:
         c = self.counters
@@ -330,12 +342,13 @@ class LiveCompanion:
         """"3/6" with one topic; "fish 3/6, coral 2/6" with several (the keeper's counts after its last change)."""
         k = self.pipeline.sampler.k if self.pipeline is not None else self.cfg.sampler.k  # MERL_K may change it
         held = self.keeper.held_by_topic() if self.keeper is not None else {}
+        used_up = " (image indices used up)" if self.pipeline is not None and self.pipeline.indices_used_up else ""
         if len(held) > 1:
-            return ", ".join(f"{name} {n}/{k}" for name, n in held.items())
+            return ", ".join(f"{name} {n}/{k}" for name, n in held.items()) + used_up
         summary = len(self.store.summary) if self.store is not None else 0
         duplicates = self.pipeline.counts["duplicates"] if self.pipeline is not None else 0
         # a summary short of K with duplicates refused: the dive has no more distinct views (issue 25)
-        return f"{summary}/{k}" + (f" ({duplicates} duplicates not kept)" if duplicates else "")
+        return f"{summary}/{k}" + (f" ({duplicates} duplicates not kept)" if duplicates else "") + used_up
 
     def keeper_document(self) -> dict[str, Any]:
         """/store/summary.json (companion.live.control.summary_file)."""

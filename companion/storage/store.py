@@ -50,7 +50,7 @@ from companion.storage.frame_files import (
     write_feature_files,
     write_frame_files,
 )
-from companion.storage.index_reservation import IndexReservation, valid_index
+from companion.storage.index_reservation import MAX_INDEX, IndexReservation, valid_index
 from companion.storage.store_health import Listener, StoreHealth
 from companion.storage.summary_file import read_summary_file
 from companion.storage.versioned import upgrade
@@ -169,6 +169,11 @@ class Store:
     def _load(self) -> None:
         saved = read_summary_file(self.dir / SUMMARY_FILE)  # a damaged field is dropped alone, with a warning
         indices = saved.summary if saved.summary is not None else self._changes.last_summary()
+        beyond = [i for i in indices if not valid_index(i)]
+        if beyond:  # a change log of a run from before the int32 limit was kept: MAVLink cannot announce them
+            log.warning("store %s: image(s) %s dropped from the summary: past %d, the last index MAVLink carries",
+                        self.dir, beyond, MAX_INDEX)
+            indices = [i for i in indices if valid_index(i)]
         next_index, dive = saved.next_index, saved.dive
         highest = self._highest_index_on_disk()
         self._next_index = max(next_index, highest + 1, self._reservation.load())
@@ -190,15 +195,21 @@ class Store:
                 self.dive = secrets.token_hex(4)
                 log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
                             err.strerror or err, self.dive)
-        if not dive or saved.dropped:
+        if not dive or saved.dropped or beyond:
             self._write_summary()  # the new dive id is fixed now, not at the first frame; a dropped field goes
         self.stats.bytes_on_disk = self._disk_usage()
+        if self._next_index > MAX_INDEX:
+            log.error("store %s: every image index MAVLink can carry (0-%d) is used: no new frame can enter the "
+                      "summary (the one held is still served); move the store aside to start a new one", self.dir,
+                      MAX_INDEX)
 
     def _highest_index_on_disk(self) -> int:
+        """The highest image index a sidecar is named for; one past the int32 limit (a run from before it was
+        kept) counts as the limit, so the next index is ``USED_UP`` and those files are never written over."""
         highest = -1
         for path in self.frames_dir.glob("*.json"):
-            if path.stem.isascii() and path.stem.isdigit() and valid_index(int(path.stem)):
-                highest = max(highest, int(path.stem))
+            if path.stem.isascii() and path.stem.isdigit():
+                highest = max(highest, min(int(path.stem), MAX_INDEX))
         return highest
 
     # ---- what the rest of the companion asks ----------------------------------------------------------------
@@ -299,6 +310,9 @@ class Store:
             if self._still_ours() and self.health.retry_due():
                 self._recover()
             index = event.frame.image_index
+            if event.kind == "added" and not valid_index(index):  # the pipeline stops at the limit: a last guard
+                log.error("store %s: image index %d not stored: MAVLink carries 0-%d", self.dir, index, MAX_INDEX)
+                return
             if event.kind == "added":
                 sidecar = sidecar_for(event.frame, tags=tags)
                 self._next_index = max(self._next_index, index + 1)
@@ -414,7 +428,9 @@ class Store:
         usage = self._disk_usage()
         if usage > self.budget_bytes:
             keep = set(self._summary)
-            old = sorted({int(p.name[:6]) for p in self.frames_dir.glob("[0-9]*.*") if p.name[:6].isdigit()} - keep)
+            # the index is the name up to its first dot: six digits and more (frame_name pads, never cuts)
+            stems = {p.name.split(".", 1)[0] for p in self.frames_dir.glob("[0-9]*.*")}
+            old = sorted({int(n) for n in stems if n.isascii() and n.isdigit()} - keep)
             for index in old:
                 if usage <= self.budget_bytes:
                     break
