@@ -81,6 +81,9 @@ class LiveOptions:
     """Encoder factory override (tests); default companion.vision.encoders.factory.make_encoder."""
     params_path: str | None = None
     """Where live-tuned parameters persist (default: in the store directory)."""
+    store_lock: StoreLock | None = None
+    """The store's lock, taken already by the caller (the demo, before it moves an earlier run aside), who also
+    releases it; None: the companion takes it at start and releases it at stop."""
 
 
 class LiveCompanion:
@@ -95,7 +98,7 @@ class LiveCompanion:
         self.stop_event = threading.Event()
         self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
         self.started_at = time.monotonic()
-        self.store_lock = StoreLock(cfg.store.dir)
+        self.store_lock = self.options.store_lock or StoreLock(cfg.store.dir)
         self.store: Store | None = None
         self.keeper: SummaryKeeper | None = None
         self.saved_params: dict[str, float] = {}
@@ -114,6 +117,7 @@ class LiveCompanion:
         self.inference: InferenceLoop | None = None
         self.selective: SelectiveStage | None = None
         self.enhance_worker: EnhanceWorker | None = None
+        self._used_up_said = False
         self.watchdog = Watchdog(self.health, self.notifier, self.stop_event, self._update_status)
 
     @property
@@ -126,12 +130,13 @@ class LiveCompanion:
         # a settings file from a newer version stops the start before anything is opened or written
         self.saved_params = self._params_file().load()
         refuse_newer(Path(self.cfg.store.dir))
-        self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
-        self.store = Store(self.cfg.store)
-        queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__)
+        if not self.store_lock.held:
+            self.store_lock.acquire()  # another live process on this store: stop here, exit 2, nothing touched
+        self.store = Store(self.cfg.store, guard=self.store_lock.check)  # a folder swapped under it: stops writing
+        queries_file = QueriesFile(self.store.dir / "queries.json", version=__version__, guard=self.store_lock.check)
         own = self.cfg
         self.cfg, configured = follow_saved_queries(own, queries_file)
-        marks_file = MarksFile(self.store.dir / "marks.json", version=__version__)
+        marks_file = MarksFile(self.store.dir / "marks.json", version=__version__, guard=self.store_lock.check)
         saved_marks = marks_file.load()
         resume = self.store.resume_state()
         if resume.frames:
@@ -225,7 +230,9 @@ class LiveCompanion:
             self.surface.event(line, st.WARNING)
 
     def _params_file(self) -> ParamsFile:
-        return ParamsFile(self.options.params_path or Path(self.cfg.store.dir) / "params.json", version=__version__)
+        if self.options.params_path:
+            return ParamsFile(self.options.params_path, version=__version__)
+        return ParamsFile(Path(self.cfg.store.dir) / "params.json", version=__version__, guard=self.store_lock.check)
 
     def _start_vehicle(self, image_count: int) -> None:
         cfg = self.cfg
@@ -309,7 +316,18 @@ class LiveCompanion:
         if self.surface is not None:
             self.surface.update_status(fps=self.counters.fps(), score=self.counters.last_score,
                                        summary=len(self.store.summary), depth_m=depth)
+        self._say_indices_used_up()
         self.notifier.status(self.status_line())
+
+    def _say_indices_used_up(self) -> None:
+        """Once, as a WARNING (the vehicle rides through it; the summary held is still served): every image index
+        MAVLink carries was handed out (the pipeline and the store log it as an error), so nothing new enters the
+        summary until the store is moved aside."""
+        if self._used_up_said or self.pipeline is None or not self.pipeline.indices_used_up:
+            return
+        if self.surface is not None:
+            self._used_up_said = True
+            self.surface.event("Image indices used up: start a new store", st.WARNING)
 
     def status_line(self) -> str:
         c = self.counters
@@ -324,12 +342,13 @@ class LiveCompanion:
         """"3/6" with one topic; "fish 3/6, coral 2/6" with several (the keeper's counts after its last change)."""
         k = self.pipeline.sampler.k if self.pipeline is not None else self.cfg.sampler.k  # MERL_K may change it
         held = self.keeper.held_by_topic() if self.keeper is not None else {}
+        used_up = " (image indices used up)" if self.pipeline is not None and self.pipeline.indices_used_up else ""
         if len(held) > 1:
-            return ", ".join(f"{name} {n}/{k}" for name, n in held.items())
+            return ", ".join(f"{name} {n}/{k}" for name, n in held.items()) + used_up
         summary = len(self.store.summary) if self.store is not None else 0
         duplicates = self.pipeline.counts["duplicates"] if self.pipeline is not None else 0
         # a summary short of K with duplicates refused: the dive has no more distinct views (issue 25)
-        return f"{summary}/{k}" + (f" ({duplicates} duplicates not kept)" if duplicates else "")
+        return f"{summary}/{k}" + (f" ({duplicates} duplicates not kept)" if duplicates else "") + used_up
 
     def keeper_document(self) -> dict[str, Any]:
         """/store/summary.json (companion.live.control.summary_file)."""
@@ -417,6 +436,7 @@ class LiveCompanion:
             self.telemetry.stop()
         if self.link is not None:
             self.link.stop()
-        self.store_lock.release()  # after the keeper: its last change is on disk
+        if self.options.store_lock is None:
+            self.store_lock.release()  # after the keeper: its last change is on disk
         self.notifier.close()
 

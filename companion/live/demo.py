@@ -16,6 +16,8 @@ used the scene head, the drawn fish scored 0.01-0.34 on the pooled head and the 
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import logging
 import os
@@ -26,6 +28,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,7 +42,7 @@ from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
 from companion.storage.store import Store
-from companion.storage.store_lock import check_free
+from companion.storage.store_lock import StoreLock, holding
 from companion.vision.contact_sheet import Tile, contact_sheet
 
 log = logging.getLogger(__name__)
@@ -188,8 +191,10 @@ def _surface_settled(surface_dir: Path, summary: list[int], timeout: float) -> b
         time.sleep(0.1)
 
 
-def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str, Any]:
-    """Run the demo; returns the report (also written to DIR/report.json)."""
+def run_demo(opts: DemoOptions, stop: threading.Event | None = None, *,
+             store_lock: StoreLock | None = None) -> dict[str, Any]:
+    """Run the demo; returns the report (also written to DIR/report.json). ``store_lock``: DIR/store's, held by
+    the caller until the report is written (None: the companion takes it when it starts)."""
     stop = stop or threading.Event()
     check_source(opts)
     out = opts.out
@@ -216,7 +221,7 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None) -> dict[str
             _say(opts, f"merlion demo: surface page at {page} (live while the demo runs)")
         else:
             log.warning("the surface tool did not start its page; see %s", logs / "surface.log")
-        companion = LiveCompanion(cfg, LiveOptions())
+        companion = LiveCompanion(cfg, LiveOptions(store_lock=store_lock))
         companion.start()
         _say(opts, f"merlion demo: companion running on {cfg.source.uri} with {companion.encoder.name}; "
                    f"simulated ArduSub and surface tool on loopback; {opts.duration:.0f} s (Ctrl-C ends it early)")
@@ -298,26 +303,68 @@ def set_aside_previous_run(out: Path) -> Path | None:
     return target
 
 
+@contextlib.contextmanager
+def _one_start_at_a_time(out: Path) -> Iterator[None]:
+    """Demos starting beside each other (one parent folder) take turns to check, move aside and lock ``out``
+    (a few milliseconds): a ``flock`` on the parent folder, which creates no file. Without it, two demos started
+    together both passed the check before either held the store: one moved the other's fresh output aside, and
+    both surface tools wrote one gallery until the second companion was refused."""
+    parent = out.absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(parent, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as err:
+        raise MerlionError(f"--out {out}: cannot create {err.filename or parent} ({err.strerror or err})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def claim_out(opts: DemoOptions) -> StoreLock:
+    """Move an earlier run aside (or keep it, with ``resume``) and take DIR/store's lock, all before anything is
+    started or written: a run or demo holding that store stops this one (StoreInUse, exit 2) with nothing moved."""
+    out = opts.out
+    with _one_start_at_a_time(out):
+        with holding(out / "store"):  # no run may take the earlier store while it is being moved
+            if opts.resume:
+                if out.is_dir() and any(out.iterdir()):
+                    _say(opts, f"merlion demo: resuming the earlier run in {out} (its store and gallery go on)")
+            else:
+                moved = set_aside_previous_run(out)
+                if moved is not None:
+                    _say(opts, f"merlion demo: starting fresh; the earlier run in {out} was moved to {moved}")
+        try:
+            (out / "store").mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise MerlionError(f"--out {out}: cannot create {err.filename or out} ({err.strerror or err})") from None
+        lock = StoreLock(out / "store")
+        lock.acquire()
+    return lock
+
+
 def main(opts: DemoOptions) -> int:
     if not 0 <= opts.web_port <= 65535:
         raise UsageError(f"--web {opts.web_port}: not a port (0-65535; 0 picks a free one)")
     if opts.out.exists() and not opts.out.is_dir():
         raise UsageError(f"--out {opts.out}: exists and is not a folder")
-    check_free(opts.out / "store")  # a demo running there: neither moved aside nor written over (exit 2)
-    if opts.resume:
-        if opts.out.is_dir() and any(opts.out.iterdir()):
-            _say(opts, f"merlion demo: resuming the earlier run in {opts.out} (its store and gallery go on)")
-    else:
-        moved = set_aside_previous_run(opts.out)
-        if moved is not None:
-            _say(opts, f"merlion demo: starting fresh; the earlier run in {opts.out} was moved to {moved}")
+    check_source(opts)  # a bad --source moves nothing aside
+    store_lock = claim_out(opts)  # held until the report is written, so no demo moves this one's output away
+    try:
+        return _run(opts, store_lock)
+    finally:
+        store_lock.release()
+
+
+def _run(opts: DemoOptions, store_lock: StoreLock) -> int:
     stop = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():  # Ctrl-C ends the demo early, with its report
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda *_: stop.set())
     try:
-        report = run_demo(opts, stop)
+        report = run_demo(opts, stop, store_lock=store_lock)
     except OSError as err:
         raise MerlionError(f"demo: {err}") from None
     finally:

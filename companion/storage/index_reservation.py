@@ -13,17 +13,26 @@ import logging
 import os
 from pathlib import Path
 
+from vehicle.camera.capture_frame import MAX_IMAGE_INDEX
+
 log = logging.getLogger(__name__)
 
 RECORD_BYTES = 32
-MAX_INDEX = 2**31 - 1
-"""The highest image index there can be: CAMERA_IMAGE_CAPTURED carries it as an int32. A next index beyond it
-(a damaged file, a hand edit) was never handed out, so a store drops such a claim instead of trusting it."""
+MAX_INDEX = MAX_IMAGE_INDEX
+"""The highest image index there can be: CAMERA_IMAGE_CAPTURED carries it as an int32. The next index may be one
+more (``USED_UP``: every index was handed out); a claim beyond that (a damaged file, a hand edit) was never
+handed out, so a store drops it instead of trusting it."""
+USED_UP = MAX_INDEX + 1
 
 
 def valid_index(value: object) -> bool:
-    """A whole number an image index (or the next one) can be; not a bool, a float or a string."""
+    """A whole number an image index can be; not a bool, a float or a string."""
     return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= MAX_INDEX
+
+
+def valid_next(value: object) -> bool:
+    """A whole number the next image index can be: an image index, or ``USED_UP``."""
+    return valid_index(value) or (value == USED_UP and not isinstance(value, (bool, float)))
 
 
 class IndexReservation:
@@ -39,9 +48,9 @@ class IndexReservation:
             self.saved = int(text or 0)
         except (OSError, ValueError, UnicodeDecodeError):
             self.saved = 0  # absent or damaged: summary.json and the frames on disk still give a floor
-        if not valid_index(self.saved):
-            log.warning("%s: next image index %s is not one MAVLink can announce (0-%d); ignored", self.path,
-                        self.saved, MAX_INDEX)
+        if not valid_next(self.saved):
+            log.warning("%s: next image index %s is not one MAVLink can announce (0-%d, or %d once all are used); "
+                        "ignored", self.path, self.saved, MAX_INDEX, USED_UP)
             self.saved = 0
         return self.saved
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,9 +57,12 @@ def _indices(value: object, key: str) -> list[int]:
 class MarksFile:
     """``load()`` the saved marks; ``save(marks)`` replaces them; ``clear()`` removes them."""
 
-    def __init__(self, path: str | os.PathLike[str], *, version: str = "") -> None:
+    def __init__(self, path: str | os.PathLike[str], *, version: str = "",
+                 guard: Callable[[], None] | None = None) -> None:
         self.path = Path(path)
         self.version = version
+        self.guard = guard or (lambda: None)
+        """Asked before a write (``StoreLock.check``): OSError when the store folder is no longer this run's."""
 
     def load(self) -> SavedMarks:
         """The saved marks (none when absent or damaged); raises NewerFileError for a newer version's file."""
@@ -85,10 +89,12 @@ class MarksFile:
             return SavedMarks()
 
     def save(self, marks: SavedMarks) -> None:
+        self.guard()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         body = {"version": FILE_VERSION, "written_by": self.version or "unknown", "query": marks.query,
                 "topics": marks.topics, "like": marks.like, "unlike": marks.unlike}
         atomic_write(self.path, json.dumps(body, indent=1) + "\n")
 
     def clear(self) -> None:
+        self.guard()
         self.path.unlink(missing_ok=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,9 +36,12 @@ MIGRATIONS = {1: _v1_to_v2}
 class ParamsFile:
     """``load()`` the saved values; ``save(values)`` replaces them. ``version``: this merlion's, for the file."""
 
-    def __init__(self, path: str | os.PathLike[str], *, version: str = "") -> None:
+    def __init__(self, path: str | os.PathLike[str], *, version: str = "",
+                 guard: Callable[[], None] | None = None) -> None:
         self.path = Path(path)
         self.version = version
+        self.guard = guard or (lambda: None)
+        """Asked before a write (``StoreLock.check``): OSError when the store folder is no longer this run's."""
         self.failing = False
 
     def load(self) -> dict[str, float]:
@@ -64,6 +68,7 @@ class ParamsFile:
         run and the PARAM_SET is still answered, only a restart forgets them. Said once per failure streak."""
         body = {"version": FILE_VERSION, "written_by": self.version or "unknown", "params": values}
         try:
+            self.guard()
             self.path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write(self.path, json.dumps(body, indent=1) + "\n")
         except OSError as err:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,9 +53,12 @@ def _topics(value: object, key: str) -> list[dict[str, Any]]:
 class QueriesFile:
     """``load()`` the saved upload (None when there is none); ``save(...)`` replaces it."""
 
-    def __init__(self, path: str | os.PathLike[str], *, version: str = "") -> None:
+    def __init__(self, path: str | os.PathLike[str], *, version: str = "",
+                 guard: Callable[[], None] | None = None) -> None:
         self.path = Path(path)
         self.version = version
+        self.guard = guard or (lambda: None)
+        """Asked before a write (``StoreLock.check``): OSError when the store folder is no longer this run's."""
 
     def load(self) -> SavedQueries | None:
         """The saved upload (None when absent or damaged); raises NewerFileError for a newer version's file."""
@@ -73,6 +77,7 @@ class QueriesFile:
             return None
 
     def save(self, saved: SavedQueries) -> None:
+        self.guard()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         body = {"version": FILE_VERSION, "written_by": self.version or "unknown", "topics": saved.topics,
                 "configured": saved.configured}

@@ -28,6 +28,7 @@ import os
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,7 +50,7 @@ from companion.storage.frame_files import (
     write_feature_files,
     write_frame_files,
 )
-from companion.storage.index_reservation import IndexReservation, valid_index
+from companion.storage.index_reservation import MAX_INDEX, IndexReservation, valid_index
 from companion.storage.store_health import Listener, StoreHealth
 from companion.storage.summary_file import read_summary_file
 from companion.storage.versioned import upgrade
@@ -95,8 +96,12 @@ def refuse_newer(directory: Path) -> None:
 class Store:
     """The summary on disk, kept in step with SummaryEvents; thread-safe."""
 
-    def __init__(self, cfg: StoreConfig, *, directory: str | os.PathLike[str] | None = None) -> None:
+    def __init__(self, cfg: StoreConfig, *, directory: str | os.PathLike[str] | None = None,
+                 guard: Callable[[], None] | None = None) -> None:
+        """``guard``: asked before each change is written (``StoreLock.check``); raising ``StoreReplaced`` there
+        makes the store memory-only for good, so it never writes into a folder another process took."""
         self.cfg = cfg
+        self._guard = guard
         self.dir = Path(directory if directory is not None else cfg.dir)
         self.frames_dir = self.dir / "frames"
         self.budget_bytes = int(cfg.disk_budget_mb * 1024 * 1024)
@@ -164,6 +169,11 @@ class Store:
     def _load(self) -> None:
         saved = read_summary_file(self.dir / SUMMARY_FILE)  # a damaged field is dropped alone, with a warning
         indices = saved.summary if saved.summary is not None else self._changes.last_summary()
+        beyond = [i for i in indices if not valid_index(i)]
+        if beyond:  # a change log of a run from before the int32 limit was kept: MAVLink cannot announce them
+            log.warning("store %s: image(s) %s dropped from the summary: past %d, the last index MAVLink carries",
+                        self.dir, beyond, MAX_INDEX)
+            indices = [i for i in indices if valid_index(i)]
         next_index, dive = saved.next_index, saved.dive
         highest = self._highest_index_on_disk()
         self._next_index = max(next_index, highest + 1, self._reservation.load())
@@ -185,15 +195,21 @@ class Store:
                 self.dive = secrets.token_hex(4)
                 log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
                             err.strerror or err, self.dive)
-        if not dive or saved.dropped:
+        if not dive or saved.dropped or beyond:
             self._write_summary()  # the new dive id is fixed now, not at the first frame; a dropped field goes
         self.stats.bytes_on_disk = self._disk_usage()
+        if self._next_index > MAX_INDEX:
+            log.error("store %s: every image index MAVLink can carry (0-%d) is used: no new frame can enter the "
+                      "summary (the one held is still served); move the store aside to start a new one", self.dir,
+                      MAX_INDEX)
 
     def _highest_index_on_disk(self) -> int:
+        """The highest image index a sidecar is named for; one past the int32 limit (a run from before it was
+        kept) counts as the limit, so the next index is ``USED_UP`` and those files are never written over."""
         highest = -1
         for path in self.frames_dir.glob("*.json"):
-            if path.stem.isascii() and path.stem.isdigit() and valid_index(int(path.stem)):
-                highest = max(highest, int(path.stem))
+            if path.stem.isascii() and path.stem.isdigit():
+                highest = max(highest, min(int(path.stem), MAX_INDEX))
         return highest
 
     # ---- what the rest of the companion asks ----------------------------------------------------------------
@@ -204,21 +220,36 @@ class Store:
             return ResumeState([h.frame for h in held], self._next_index,
                                {h.frame.image_index: encoder_of(h.sidecar) for h in held})
 
+    def _still_ours(self) -> bool:
+        """The folder at the path is still the one this run locked (no guard: assumed); if not, memory-only."""
+        if self.health.lost:
+            return False
+        if self._guard is not None:
+            try:
+                self._guard()
+            except OSError as err:
+                self._degrade(err)
+                return False
+        return True
+
     def replace_feature(self, index: int, feature: np.ndarray, encoder: str) -> None:
         """A held frame's sampler feature made again by ``encoder`` (a resume under another encoder): in memory,
-        and on disk unless memory-only (the .npy, then the sidecar naming the encoder)."""
+        and on disk unless memory-only (the .npy, then the sidecar naming the encoder, then summary.json, which
+        lists the sidecars: it names the encoder in use from the start of the run, not from its first frame)."""
         with self._lock:
             held = self._held[index]
             held.frame.feature = feature
             if not isinstance(held.sidecar.get("tags"), dict):
                 held.sidecar["tags"] = {}
             held.sidecar["tags"]["encoder"] = encoder
-            if self.memory_only or not held.on_disk:
+            if not self._still_ours() or self.memory_only or not held.on_disk:
                 return
             try:
                 write_feature_files(self.dir, held)
             except OSError as err:
                 self._degrade(err)
+                return
+            self._write_summary()
 
     @property
     def next_image_index(self) -> int:
@@ -276,9 +307,12 @@ class Store:
     def apply(self, event: SummaryEvent, *, tags: dict[str, Any] | None = None) -> None:
         """Record one summary change: save an added frame, forget a removed one, update the index and the log."""
         with self._lock:
-            if self.health.retry_due():
+            if self._still_ours() and self.health.retry_due():
                 self._recover()
             index = event.frame.image_index
+            if event.kind == "added" and not valid_index(index):  # the pipeline stops at the limit: a last guard
+                log.error("store %s: image index %d not stored: MAVLink carries 0-%d", self.dir, index, MAX_INDEX)
+                return
             if event.kind == "added":
                 sidecar = sidecar_for(event.frame, tags=tags)
                 self._next_index = max(self._next_index, index + 1)
@@ -302,6 +336,8 @@ class Store:
     def _persist_next_index(self) -> None:
         """Before the index is announced (the keeper publishes after ``apply``): an in-place write, which a full
         disk still takes."""
+        if self.health.lost:
+            return  # the path is another store's now: its next_index is not this run's to raise
         try:
             self._reservation.save(self._next_index)
         except OSError as err:
@@ -317,7 +353,7 @@ class Store:
         """Try the disk again if the store is memory-only and a retry is due (the companion calls this once a
         second; ``apply`` does too); True when the store is on disk."""
         with self._lock:
-            if self.health.retry_due():
+            if self.health.retry_due() and self._still_ours():
                 self._recover()
             return not self.memory_only
 
@@ -392,7 +428,9 @@ class Store:
         usage = self._disk_usage()
         if usage > self.budget_bytes:
             keep = set(self._summary)
-            old = sorted({int(p.name[:6]) for p in self.frames_dir.glob("[0-9]*.*") if p.name[:6].isdigit()} - keep)
+            # the index is the name up to its first dot: six digits and more (frame_name pads, never cuts)
+            stems = {p.name.split(".", 1)[0] for p in self.frames_dir.glob("[0-9]*.*")}
+            old = sorted({int(n) for n in stems if n.isascii() and n.isdigit()} - keep)
             for index in old:
                 if usage <= self.budget_bytes:
                     break

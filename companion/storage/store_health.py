@@ -12,6 +12,8 @@ import logging
 import time
 from collections.abc import Callable
 
+from companion.storage.store_lock import StoreReplaced
+
 log = logging.getLogger("companion.storage.store")
 
 RETRY_S = 5.0
@@ -39,6 +41,8 @@ class StoreHealth:
         self.reason = ""
         self.write_errors = 0
         self.recoveries = 0
+        self.lost = False
+        """The store's folder was replaced under the run (``StoreReplaced``): memory-only for good, no retries."""
         self._tried_at = clock()
         self._listeners: list[Listener] = []
 
@@ -48,6 +52,9 @@ class StoreHealth:
     def degrade(self, err: OSError) -> None:
         """A write failed: memory-only from now on; said once until the store is back on disk."""
         self.write_errors += 1
+        if isinstance(err, StoreReplaced):
+            self._lose(err)
+            return
         if self.memory_only:
             return
         self.memory_only = True
@@ -57,9 +64,18 @@ class StoreHealth:
                     self.directory, self.reason)
         self._tell()
 
+    def _lose(self, err: StoreReplaced) -> None:
+        """Said once, as an error: the path is another store's now (or none), so no retry ever writes there."""
+        if self.lost:
+            return
+        self.lost = self.memory_only = True
+        self.reason = "folder replaced"
+        log.error("%s", err.strerror)
+        self._tell()
+
     def retry_due(self) -> bool:
         """True (at most once per ``retry_s``) when a memory-only store should try the disk again."""
-        if not self.memory_only or self.clock() - self._tried_at < self.retry_s:
+        if not self.memory_only or self.lost or self.clock() - self._tried_at < self.retry_s:
             return False
         self._tried_at = self.clock()
         return True

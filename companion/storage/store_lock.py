@@ -6,14 +6,21 @@ before the store is opened and held for the whole run. ``flock`` belongs to the 
 when the holder exits, however it exits (SIGKILL, a power cut's reboot): there is no stale lock to clear by hand.
 The holder writes its pid into the file, so the refusal names who holds it. A store whose folder cannot take the
 lock file (read-only and never used) runs without the lock: such a store is memory-only and writes nothing.
+
+The lock guards one folder, not the path: a folder renamed away (or deleted, or its lock file removed) while a run
+holds it leaves the path free for a new folder and a second process to lock. So the holder checks, before it
+writes (``check``), that the path still leads to the lock file it holds (same device and inode); when it does not,
+the store stops writing there for good (``StoreReplaced``), instead of writing into the other process's store.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import logging
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from companion.errors import UsageError
@@ -25,6 +32,10 @@ LOCK_FILE = "lock"
 
 class StoreInUse(UsageError):
     """Another live process holds the store (exit 2: nothing was started or written)."""
+
+
+class StoreReplaced(OSError):
+    """The store's path no longer leads to the folder this run locked: it writes nothing more there."""
 
 
 class StoreLock:
@@ -68,6 +79,27 @@ class StoreLock:
                           err.strerror or err)
                 return None
 
+    def check(self) -> None:
+        """Raise StoreReplaced unless ``<store>/lock`` is still the file this process holds (nothing to check
+        without a lock: such a store writes nothing). A stat of the path and one of the descriptor: cheap enough
+        before every change."""
+        if self._fd is None:
+            return
+        held = os.fstat(self._fd)
+        try:
+            now = os.stat(self.path)
+        except FileNotFoundError:
+            why = "its lock file is gone: the folder was renamed or deleted, or the lock file removed"
+        except OSError:
+            return  # cannot tell (a failing disk): the store's own writes will say what is wrong
+        else:
+            if (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino):
+                return
+            why = "its lock file is another one: the folder or the lock file was replaced"
+        raise StoreReplaced(errno.ESTALE, f"store {self.dir}: replaced under this run ({why}); this run writes "
+                            f"nothing more there and keeps its summary in memory (what it saved is in the folder "
+                            f"it locked; a restart takes the folder now at the path)")
+
     def release(self) -> None:
         if self._fd is not None:
             os.close(self._fd)  # closing the only descriptor drops the flock
@@ -84,6 +116,23 @@ def check_free(directory: str | os.PathLike[str]) -> None:
         return  # no lock file: no store, or one no merlion of this version ran on
     try:
         _flock_or_refuse(fd, fcntl.LOCK_SH, Path(directory))
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def holding(directory: str | os.PathLike[str]) -> Iterator[None]:
+    """Hold the store at ``directory`` for a moment without changing it (StoreInUse if a live process holds it):
+    the demo moves an earlier run aside inside this, so no run can take that store while it is being moved. No
+    lock file (no store, or one no merlion of this version ran on): nothing to hold, nothing created."""
+    try:
+        fd = os.open(Path(directory) / LOCK_FILE, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        _flock_or_refuse(fd, fcntl.LOCK_EX, Path(directory))
+        yield
     finally:
         os.close(fd)
 

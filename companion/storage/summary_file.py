@@ -3,8 +3,8 @@
 Read whole, one bad value (a next image index of "abc", say) made the store throw the file away: the summary was
 rebuilt from the change log and the dive id was lost, so the surface filed the same dive under a new one. Here
 the summary list, the next image index and the dive id are each taken or dropped on their own, with one warning
-line each. A next index no image index can reach (``index_reservation.MAX_INDEX``) was never handed out and is
-dropped; the frames on disk and ``next_index`` still give the floor.
+line each. A next index past ``index_reservation.USED_UP`` (every index MAVLink carries handed out) was never
+handed out and is dropped; the frames on disk and ``next_index`` still give the floor.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.storage.index_reservation import MAX_INDEX, valid_index
+from companion.storage.index_reservation import MAX_INDEX, USED_UP, valid_index, valid_next
 
 log = logging.getLogger("companion.storage.store")
 
@@ -49,10 +49,10 @@ def read_summary_file(path: Path) -> SavedSummary:
                     summary)
         saved.dropped = True
     claim = data.get("next_image_index", 0)
-    if valid_index(claim):
+    if valid_next(claim):
         saved.next_index = claim
     else:
-        log.warning("%s: next_image_index %.40r is not one MAVLink can announce (0-%d); ignored, the frames on "
-                    "disk give the next one", path, claim, MAX_INDEX)
+        log.warning("%s: next_image_index %.40r is not one MAVLink can announce (0-%d, or %d once all are used); "
+                    "ignored, the frames on disk give the next one", path, claim, MAX_INDEX, USED_UP)
         saved.dropped = True
     return saved

@@ -30,6 +30,7 @@ sampler).
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Collection, Iterable, Sequence
 from contextlib import contextmanager
@@ -61,6 +62,9 @@ from companion.vision.topics import (
     score_matrix,
 )
 from vehicle.autopilot.pose import Pose
+from vehicle.camera.capture_frame import MAX_IMAGE_INDEX
+
+log = logging.getLogger(__name__)
 
 ENHANCE_MODES = ("none", "always", "selective")
 
@@ -188,7 +192,9 @@ class Pipeline:
         self.gate = gate if gate is not None else FrameGate("none")
         self.quiet_s = float(quiet_s)
         """Footage seconds with nothing passing after which an empty topic shows its best frames (stand-ins)."""
-        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0, "duplicates": 0}
+        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0, "duplicates": 0,
+                       "no_index": 0}
+        """``no_index``: frames that would have entered a summary but found every image index used."""
 
     @classmethod
     def from_config(cls, cfg: Config, encoder: Encoder, *, first_image_index: int = 0) -> Pipeline:
@@ -471,11 +477,29 @@ class Pipeline:
                 events.extend(self._show_stand_ins(topic))
         return events
 
+    @property
+    def indices_used_up(self) -> bool:
+        """Every image index MAVLink can carry (``MAX_IMAGE_INDEX``) was handed out: no new frame can enter."""
+        return self.next_image_index > MAX_IMAGE_INDEX
+
+    def _index_left(self) -> bool:
+        """True while an image index is left; the first frame refused for want of one is said, as an error, once."""
+        if not self.indices_used_up:
+            return True
+        if not self.counts["no_index"]:
+            log.error("image index %d was the last MAVLink can carry (CAMERA_IMAGE_CAPTURED.image_index is an "
+                      "int32): no new frame enters the summary; move the store aside to start a new one",
+                      MAX_IMAGE_INDEX)
+        self.counts["no_index"] += 1
+        return False
+
     def _show_stand_ins(self, topic: Topic) -> list[SummaryEvent]:
         """Make the summary show exactly the topic's current candidates (numbering the new ones)."""
         add, gone = topic.below.to_show()
         events = [SummaryEvent("removed", f, self._all_keys()) for f in gone]
         for frame in sorted(add, key=lambda f: f.time_s):
+            if not self._index_left():
+                break
             frame.image_index = self.next_image_index
             self.next_image_index += 1
             topic.below.showing(frame)
@@ -526,6 +550,8 @@ class Pipeline:
 
     def _offer(self, topic: Topic, frame: Frame, result: FrameResult, feature: np.ndarray, image: np.ndarray,
                score: float, pose: Pose | None) -> list[SummaryEvent]:
+        if not self._index_left():
+            return []
         key = self.next_image_index
         decision = topic.sampler.offer(key, feature, prepared=True)
         if not decision.added:

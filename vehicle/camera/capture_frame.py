@@ -12,6 +12,11 @@ import numpy as np
 
 from vehicle.autopilot.pose import Pose
 
+MAX_IMAGE_INDEX = 2**31 - 1
+"""The highest image index there can be: CAMERA_IMAGE_CAPTURED carries ``image_index`` as an int32 (pymavlink
+refuses to pack a higher one). Whoever numbers frames stops there; there is no wrap, which would hand out an
+index clients already hold."""
+
 
 class CaptureFrame(Protocol):
     """A frame to announce, push and serve: its running index, when it was taken, its score, pose and pixels."""

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from vehicle.camera.capture_frame import MAX_IMAGE_INDEX
 from vehicle.camera.captures import CaptureLog
 from vehicle.camera.requests import addressed_to
 
@@ -89,9 +90,11 @@ class CameraComponent:
             mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE, 0, b"")
 
     def capture_status(self) -> mav.MAVLink_camera_capture_status_message:
-        """image_status 0 (idle: captures come from the sampler, not a shutter); image_count counts captures."""
+        """image_status 0 (idle: captures come from the sampler, not a shutter); image_count counts captures, an
+        int32 on the wire: once every image index was used (2^31 captures) it says 2^31-1, the most it can, rather
+        than a message pymavlink cannot pack."""
         return mav.MAVLink_camera_capture_status_message(
-            self.captures.time_boot_ms(), 0, 0, 0.0, 0, float("nan"), self.captures.image_count)
+            self.captures.time_boot_ms(), 0, 0, 0.0, 0, float("nan"), min(self.captures.image_count, MAX_IMAGE_INDEX))
 
     # ---- dispatch -------------------------------------------------------------------------------------------
 

@@ -114,3 +114,18 @@ def test_merlion_run_resumes_a_store_of_another_encoder_and_keeps_sampling(tmp_p
     for i in store_summary(store)["summary"]:
         assert np.load(store / "frames" / f"{i:06d}.npy").shape == (1280,)
         assert json.loads((store / "frames" / f"{i:06d}.json").read_text())["tags"]["encoder"].startswith("imagenet")
+
+
+def test_summary_json_names_the_new_encoder_from_the_start_of_the_run(tmp_path: Path) -> None:
+    """summary.json holds each summary frame's sidecar; before, a resume under another encoder rewrote the frames'
+    own sidecars but left summary.json naming the old encoder (and listing the old sidecars) until the next frame
+    was stored, and forever if the run stored none (or was killed first)."""
+    rng = np.random.default_rng(2)
+    _store(tmp_path, [(rng.random(512), "clip:ViT-B-32"), (rng.random(512), "clip:ViT-B-32")])
+    store = Store(StoreConfig(dir=str(tmp_path)))
+    encoder = CountedEncoder(VisualEncoder(EncoderConfig(name="visual")))
+    refresh_features(store.resume_state(), encoder, lambda im: downscale_for(im, encoder.input_size), store)
+    doc = json.loads((tmp_path / "summary.json").read_text())  # on disk now, before any new frame
+    assert [f["tags"]["encoder"] for f in doc["frames"]] == ["visual", "visual"]
+    for i in (0, 1):
+        assert json.loads((tmp_path / "frames" / f"{i:06d}.json").read_text())["tags"]["encoder"] == "visual"

@@ -75,7 +75,7 @@ def test_a_sidecar_naming_another_image_costs_its_frame_alone(tmp_path: Path, ca
     assert [w for w in _warnings(caplog) if "000001.json: names image 3" in w]
 
 
-@pytest.mark.parametrize("claim", [10**40, 1e40, 2**31, -5, "abc", True, None])
+@pytest.mark.parametrize("claim", [10**40, 1e40, 2**31 + 1, 2.0**31, -5, "abc", True, None])
 def test_a_next_image_index_no_capture_can_carry_is_ignored_and_the_rest_kept(tmp_path: Path, caplog,
                                                                               claim) -> None:
     first = _store(tmp_path)
