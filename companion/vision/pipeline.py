@@ -30,7 +30,6 @@ sampler).
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Collection, Iterable, Sequence
 from contextlib import contextmanager
@@ -43,15 +42,17 @@ from companion.config import Config, as_fraction
 from companion.errors import UsageError
 from companion.sources.frame import Frame
 from companion.vision import distances as dist
-from companion.vision.below_threshold import KEEP, stand_in
 from companion.vision.dive_mean import DiveFrames, DiveWindow
 from companion.vision.encoders.base import Encoder
 from companion.vision.enhancers.base import Enhancer
 from companion.vision.enhancers.factory import make_enhancer
 from companion.vision.events import SummaryEvent, SummaryFrame
+from companion.vision.frame_result import BatchOutcome, FrameResult, raw_behind
 from companion.vision.gate import FrameGate
+from companion.vision.image_indices import ImageIndices
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
+from companion.vision.stand_in_stage import all_keys, finish_events, stand_in_events
 from companion.vision.topics import (
     OuterDive,
     Topic,
@@ -62,45 +63,8 @@ from companion.vision.topics import (
     score_matrix,
 )
 from vehicle.autopilot.pose import Pose
-from vehicle.camera.capture_frame import MAX_IMAGE_INDEX
-
-log = logging.getLogger(__name__)
 
 ENHANCE_MODES = ("none", "always", "selective")
-
-
-@dataclass
-class FrameResult:
-    """What happened to one frame."""
-
-    frame_index: int
-    time_s: float
-    score: float
-    """ss_t of the frame the encoder saw first (the enhanced one in mode ``always``); with several topics the
-    highest of their scores (``topic_scores`` has each)."""
-    passed: bool
-    """ss_t > tau_ss (for at least one topic)."""
-    enhanced: bool = False
-    """An enhanced version was made and scored."""
-    enhanced_score: float | None = None
-    """ss_e, when ``enhanced`` (selective mode)."""
-    offered: bool = False
-    """It reached the sampler."""
-    added: bool = False
-    """It entered the summary."""
-    image_index: int | None = None
-    encoded: bool = True
-    """False: the frame gate skipped it (score is NaN, it passed nothing)."""
-    topic_scores: dict[str, float] = field(default_factory=dict)
-    """ss_t per topic, by name (empty when the gate skipped the frame)."""
-    added_to: list[str] = field(default_factory=list)
-    """The topics whose summary it entered."""
-
-
-@dataclass
-class BatchOutcome:
-    results: list[FrameResult]
-    events: list[SummaryEvent]
 
 
 @dataclass
@@ -143,17 +107,6 @@ def downscale_for(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(image, (nw, nh), interpolation=interp)
 
 
-def raw_behind(frame: Frame, image: np.ndarray, result: FrameResult, topic: str,
-               enhance_mode: str) -> tuple[np.ndarray | None, float | None]:
-    """The raw frame behind a summary image that is an enhanced copy, and its ss_t for the topic (None where the
-    encoder never saw it raw: mode ``always``); (None, None) for a frame shown as captured."""
-    if frame.captured is not None:  # enhanced by the live worker, scored raw by its raw gate
-        return frame.captured.image, frame.captured.scores.get(topic)
-    if image is frame.image:
-        return None, None
-    return frame.image, result.topic_scores.get(topic) if enhance_mode == "selective" else None
-
-
 class Pipeline:
     """Encoder + pre-sampler + optional enhancer + informative sampler per topic, with running image indices."""
 
@@ -186,15 +139,14 @@ class Pipeline:
         self.enhancer = enhancer
         self.enhance_mode = enhance_mode
         self.tau_ses = tau_ses
-        self.next_image_index = int(first_image_index)
+        self.indices = ImageIndices(first_image_index)
         self.encode_size = encoder.input_size
         self.clock = StageClock()
         self.gate = gate if gate is not None else FrameGate("none")
         self.quiet_s = float(quiet_s)
         """Footage seconds with nothing passing after which an empty topic shows its best frames (stand-ins)."""
-        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0, "offered": 0, "added": 0, "duplicates": 0,
-                       "no_index": 0}
-        """``no_index``: frames that would have entered a summary but found every image index used."""
+        self.counts = {"frames": 0, "encoded": 0, "skipped": 0, "passed": 0, "enhanced": 0, "enhanced_passed": 0,
+                       "offered": 0, "added": 0, "duplicates": 0}
 
     @classmethod
     def from_config(cls, cfg: Config, encoder: Encoder, *, first_image_index: int = 0) -> Pipeline:
@@ -307,7 +259,7 @@ class Pipeline:
         return [frame for topic in self.topics for frame in topic.summary]
 
     def _all_keys(self) -> list[int]:
-        return [key for topic in self.topics for key in topic.keys]
+        return all_keys(self.topics)
 
     def restore(self, frames: Iterable[SummaryFrame]) -> list[SummaryEvent]:
         """Resume with stored summary frames (their features and image indices); new indices continue above them.
@@ -330,7 +282,7 @@ class Pipeline:
                 elif f.below_threshold:
                     dropped.append(f)
         if frames:
-            self.next_image_index = max(self.next_image_index, frames[-1].image_index + 1)
+            self.indices.above(frames[-1].image_index)
         events = self._removal_events(removed)
         keys = self._all_keys()
         return events + [SummaryEvent("removed", frame, list(keys)) for frame in dropped]
@@ -448,71 +400,26 @@ class Pipeline:
                         events.extend(self._offer(self.topics[t], frames[i], results[i], feats[row],
                                                   final_images[i], final_scores[i, t],
                                                   poses[i] if poses is not None else None))
-        events.extend(self._stand_ins(frames, results, pooled, passed, final_scores, final_images, poses))
+        events.extend(stand_in_events(self.topics, self.indices, frames, results, pooled, passed, final_scores,
+                                      final_images, poses, self.enhance_mode, self.quiet_s))
         return BatchOutcome(results, events)
 
-    def _stand_ins(self, frames, results, pooled, passed, scores, images, poses) -> list[SummaryEvent]:
-        """Per topic: a pass ends the quiet period (its stand-ins leave); else, while its summary is empty, the
-        batch's best frame may become a stand-in, and stand-ins enter once the quiet period is long enough."""
-        events: list[SummaryEvent] = []
-        for t, topic in enumerate(self.topics):
-            below = topic.below
-            below.seen(frames[0].time_s)
-            hits = np.flatnonzero(passed[:, t])
-            if len(hits):
-                gone = below.passed(frames[hits[-1]].time_s)
-                keys = self._all_keys()
-                events.extend(SummaryEvent("removed", f, list(keys)) for f in gone)
-                continue
-            if topic.sampler.keys:
-                continue
-            below.keep = min(KEEP, topic.sampler.k)
-            i = int(np.argmax(scores[:, t]))
-            below.consider(stand_in(frames[i], images[i], float(scores[i, t]),
-                                    dist.prepare_features(pooled[i:i + 1])[0],
-                                    poses[i] if poses is not None else None, topic.name,
-                                    raw=raw_behind(frames[i], images[i], results[i], topic.name,
-                                                     self.enhance_mode)))
-            if below.due(frames[-1].time_s, self.quiet_s):
-                events.extend(self._show_stand_ins(topic))
-        return events
+    @property
+    def next_image_index(self) -> int:
+        return self.indices.next
+
+    @next_image_index.setter
+    def next_image_index(self, value: int) -> None:
+        self.indices.next = int(value)
 
     @property
     def indices_used_up(self) -> bool:
-        """Every image index MAVLink can carry (``MAX_IMAGE_INDEX``) was handed out: no new frame can enter."""
-        return self.next_image_index > MAX_IMAGE_INDEX
-
-    def _index_left(self) -> bool:
-        """True while an image index is left; the first frame refused for want of one is said, as an error, once."""
-        if not self.indices_used_up:
-            return True
-        if not self.counts["no_index"]:
-            log.error("image index %d was the last MAVLink can carry (CAMERA_IMAGE_CAPTURED.image_index is an "
-                      "int32): no new frame enters the summary; move the store aside to start a new one",
-                      MAX_IMAGE_INDEX)
-        self.counts["no_index"] += 1
-        return False
-
-    def _show_stand_ins(self, topic: Topic) -> list[SummaryEvent]:
-        """Make the summary show exactly the topic's current candidates (numbering the new ones)."""
-        add, gone = topic.below.to_show()
-        events = [SummaryEvent("removed", f, self._all_keys()) for f in gone]
-        for frame in sorted(add, key=lambda f: f.time_s):
-            if not self._index_left():
-                break
-            frame.image_index = self.next_image_index
-            self.next_image_index += 1
-            topic.below.showing(frame)
-            events.append(SummaryEvent("added", frame, self._all_keys()))
-        return events
+        """Every image index MAVLink can carry was handed out: no new frame can enter (``image_indices``)."""
+        return self.indices.used_up
 
     def finish(self) -> list[SummaryEvent]:
         """End of the footage: an empty topic shows its best frames now, however short the quiet period was."""
-        events: list[SummaryEvent] = []
-        for topic in self.topics:
-            if not topic.sampler.keys and topic.below.candidates:
-                events.extend(self._show_stand_ins(topic))
-        return events
+        return finish_events(self.topics, self.indices)
 
     def _score(self, emb: np.ndarray, frames: DiveFrames, judge: OuterDive | None,
                tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -550,14 +457,14 @@ class Pipeline:
 
     def _offer(self, topic: Topic, frame: Frame, result: FrameResult, feature: np.ndarray, image: np.ndarray,
                score: float, pose: Pose | None) -> list[SummaryEvent]:
-        if not self._index_left():
+        if not self.indices.left():
             return []
-        key = self.next_image_index
+        key = self.indices.next
         decision = topic.sampler.offer(key, feature, prepared=True)
         if not decision.added:
             self.counts["duplicates"] += decision.duplicate
             return []
-        self.next_image_index += 1
+        self.indices.take()
         self.counts["added"] += 1
         if not result.added:
             result.added, result.image_index = True, key
