@@ -15,12 +15,9 @@ It speaks through the same ``MavLink`` as the companion (system 1, component 1),
   FS_PILOT_TIMEOUT, FS_GCS_ENABLE, FS_GCS_TIMEOUT, MAV_GCS_SYSID, PILOT_SPEED_UP/DN, with the firmware's defaults;
 - MANUAL_CONTROL counts only from system ``MAV_GCS_SYSID`` (255) and with ``target`` = this vehicle, and it counts
   as that ground station's heartbeat too; anyone else's is ignored (but recorded);
-- pilot-input failsafe: armed and MANUAL_CONTROL stopping for ``FS_PILOT_TIMEOUT`` (3 s) -> "Lost manual control",
-  neutral controls, and with ``FS_PILOT_INPUT`` 2 a disarm; GCS failsafe: once a heartbeat (or MANUAL_CONTROL) from
-  ``MAV_GCS_SYSID`` was seen, those stopping for ``FS_GCS_TIMEOUT`` (5 s) -> "MYGCS: 255, heartbeat lost" (again
-  every 30 s while lost) and, if armed, the ``FS_GCS_ENABLE`` action (default 2: disarm). Each failsafe that acts
-  is reported by STATUSTEXT and recorded in ``failsafes``, and every peer's heartbeat ids and MANUAL_CONTROL
-  senders are recorded, so that tests can prove the companion never takes part in either;
+- the pilot-input and GCS failsafes, in ``vehicle.sim.failsafes`` (told what the vehicle hears, checked each tick);
+  each failsafe that acts is recorded in ``failsafes``, and every peer's heartbeat ids and MANUAL_CONTROL senders
+  are recorded, so that tests can prove the companion never takes part in either;
 - MANUAL_CONTROL flies the vehicle (the pilot takes over from the script): ``z`` below 500 descends (up to
   PILOT_SPEED_DN, or PILOT_SPEED_UP when that is 0), above ascends (up to PILOT_SPEED_UP, 1 m/s), 500 holds depth
   (ALT_HOLD). Arm/disarm and mode changes by command.
@@ -44,7 +41,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from vehicle.link.connection import MavLink
 from vehicle.settings import MavlinkConfig
 from vehicle.sim.dive_profile import DiveProfile, Origin, VehicleState, load_profile
-from vehicle.sim.messages import MODE_NUMBERS, Moment, build_message
+from vehicle.sim.failsafes import Failsafes
+from vehicle.sim.messages import Moment, build_message
 from vehicle.sim.params import GCS_FAILSAFE_ACTIONS, SimParams
 
 log = logging.getLogger(__name__)
@@ -53,8 +51,6 @@ GCS_SYSID = 255
 """MAV_GCS_SYSID's default: the ground station whose heartbeats arm the GCS failsafe."""
 FS_PILOT_TIMEOUT_S = 3.0
 FS_GCS_TIMEOUT_S = 5.0
-GCS_WARN_EVERY_S = 30.0
-"""While the GCS stays lost the firmware repeats its warning this often."""
 
 # Messages the simulator can produce, and the real ArduSub's default rates in Hz (0: only when asked for).
 DEFAULT_RATES: dict[str, float] = {
@@ -135,8 +131,6 @@ class SimVehicle:
         self.commands: list[tuple[int, float, float, int]] = []
         """(command, param1, param2, result) of every COMMAND_LONG handled, for tests and logs."""
         self.data_stream_requests: list[tuple[int, int, int]] = []
-        self.failsafes: list[tuple[float, str]] = []
-        """(seconds since start, "pilot_input" | "gcs") of every failsafe the vehicle went into."""
         self.statustexts: list[tuple[int, str]] = []
         """(severity, text) of every STATUSTEXT sent."""
         self.heartbeat_senders: set[tuple[int, int, int]] = set()
@@ -149,11 +143,9 @@ class SimVehicle:
         self._gcs_origin: Origin | None = None
         self._pilot: tuple[float, float, float, float, float] | None = None
         """Flown, not scripted, since t0: (depth at t0, t0 in profile time, rate down m/s, north, east)."""
-        self._pilot_seen: float | None = None  # clock of the last MANUAL_CONTROL while armed
-        self._gcs_seen: float | None = None  # clock of the last heartbeat or MANUAL_CONTROL from MAV_GCS_SYSID
-        self._gcs_warned: float | None = None  # clock of the last "heartbeat lost" warning
-        self._in_failsafe: set[str] = set()
         self._start = clock()
+        self.failsafe_checks = Failsafes(self.params, self, clock)
+        """The pilot-input and GCS failsafes: told what the vehicle hears, checked on every tick."""
         self._boot = self._start
         self._silent_until = 0.0
         self._intervals: dict[str, float | None] = {}
@@ -175,6 +167,7 @@ class SimVehicle:
     # ------------------------------------------------------------------------------------------ control
     def start(self) -> None:
         self._start = self._boot = self.clock()
+        self.failsafe_checks.start(self._start)
         self.link.start()
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="sim-ardusub", daemon=True)
@@ -208,9 +201,13 @@ class SimVehicle:
             self.reboots += 1
             self._reset_rates(start=now + self.reboot_s)
             self._armed = self._mode = self._gcs_origin = self._pilot = None
-            self._pilot_seen = self._gcs_seen = self._gcs_warned = None
-            self._in_failsafe.clear()
+        self.failsafe_checks.reboot()
         log.info("sim-ardusub: rebooting (back in %.1f s)", self.reboot_s)
+
+    @property
+    def failsafes(self) -> list[tuple[float, str]]:
+        """(seconds since start, "pilot_input" | "gcs") of every failsafe the vehicle went into."""
+        return self.failsafe_checks.events
 
     @property
     def silent(self) -> bool:
@@ -280,7 +277,7 @@ class SimVehicle:
             now = self.clock()
             if self.silent:
                 continue
-            self._check_failsafes(now)
+            self.failsafe_checks.check(now)
             with self._lock:
                 due = [n for n, iv in self._intervals.items() if iv is not None and now >= self._due[n]]
                 for n in due:
@@ -302,7 +299,7 @@ class SimVehicle:
         now = self.clock()
         at = Moment(boot_ms=self.time_boot_ms(), wall_s=self.wall_clock(), since_start_s=now - self._start,
                     origin=self.origin(), surface_pressure_hpa=self.surface_pressure_hpa,
-                    fluid_density=self.fluid_density, failsafe=bool(self._in_failsafe))
+                    fluid_density=self.fluid_density, failsafe=self.failsafe_checks.active)
         return build_message(name, self.state(), at)
 
     # ------------------------------------------------------------------------------------------ commands
@@ -319,17 +316,17 @@ class SimVehicle:
             if src != (self.link.system_id, self.link.component_id):
                 self.heartbeat_senders.add((*src, msg.type))
                 if src[0] == self.params.gcs_sysid():
-                    self._gcs_heard()
+                    self.failsafe_checks.gcs_heard(self.clock())
             return
         if mtype == "MANUAL_CONTROL":
             self.manual_control_senders.add(src)
             if src[0] == self.params.gcs_sysid() and msg.target == self.link.system_id:  # the GCS's, aimed at us
                 self._manual_control(msg)
-                self._gcs_heard()  # "considered to be a 'heartbeat' from the ground station"
+                self.failsafe_checks.gcs_heard(self.clock())  # "considered to be a 'heartbeat' from the GCS"
             return
         if mtype == "SET_MODE":
             if msg.target_system in (0, self.link.system_id):
-                self._set_mode(msg.custom_mode)
+                self.set_mode(msg.custom_mode)
             return
         if mtype == "SET_GPS_GLOBAL_ORIGIN":
             if msg.target_system in (0, self.link.system_id):
@@ -385,91 +382,43 @@ class SimVehicle:
         if cmd == mav2.MAV_CMD_COMPONENT_ARM_DISARM:
             if not math.isfinite(p1):
                 return mav2.MAV_RESULT_DENIED
-            self._set_armed(p1 == 1)
+            self.set_armed(p1 == 1)
             return mav2.MAV_RESULT_ACCEPTED
         if cmd == mav2.MAV_CMD_DO_SET_MODE:
             if not math.isfinite(p2) or int(p2) not in mavutil.mode_mapping_sub:
                 return mav2.MAV_RESULT_DENIED
-            self._set_mode(int(p2))
+            self.set_mode(int(p2))
             return mav2.MAV_RESULT_ACCEPTED
         return mav2.MAV_RESULT_UNSUPPORTED
 
-    # ------------------------------------------------------------------------------------------ pilot, failsafes
-    def _set_armed(self, armed: bool) -> None:
+    # ------------------------------------------------------------------------------------------ pilot
+    def armed_at(self, now: float) -> bool:
+        """Whether the vehicle is armed at ``now`` (its clock): by command, or as the script says."""
+        return self.state_at(now - self._start).armed
+
+    def set_armed(self, armed: bool) -> None:
         if not armed:
-            self._fly(self.clock(), 0.0)  # thrusters off: the script no longer flies it (buoyancy not modelled)
+            self.fly(self.clock(), 0.0)  # thrusters off: the script no longer flies it (buoyancy not modelled)
         with self._lock:
             self._armed = armed
-            self._pilot_seen = None  # the pilot-input timer starts with the first MANUAL_CONTROL after arming
+        self.failsafe_checks.armed_changed()
         log.info("sim-ardusub: %s", "armed" if armed else "disarmed")
 
-    def _set_mode(self, custom_mode: int) -> None:
+    def set_mode(self, custom_mode: int) -> None:
         with self._lock:
             self._mode = mavutil.mode_mapping_sub.get(custom_mode, self._mode)
 
     def _manual_control(self, msg: mav2.MAVLink_message) -> None:
         """The pilot flies: z 0..1000, 500 neutral (holds depth in ALT_HOLD), below 500 descends."""
         now = self.clock()
-        t = now - self._start
-        armed = self.state_at(t).armed
+        armed = self.armed_at(now)
         stick = max(-1.0, min(1.0, (500 - msg.z) / 500.0))  # > 0: down
         speed = self.params.pilot_speed_dn_mps() if stick > 0 else self.params.pilot_speed_up_mps()
         rate = stick * speed if armed else 0.0
-        self._fly(now, rate)
-        with self._lock:
-            if armed:
-                self._pilot_seen = now
-                self._in_failsafe.discard("pilot_input")
+        self.fly(now, rate)
+        self.failsafe_checks.pilot_input(now, armed)
 
-    def _gcs_heard(self) -> None:
-        with self._lock:
-            self._gcs_seen = self.clock()
-            self._in_failsafe.discard("gcs")
-
-    def _check_failsafes(self, now: float) -> None:
-        """ArduSub's failsafe checks (its scheduler runs them at 1-10 Hz; this tick is finer, which is harmless)."""
-        armed = self.state_at(now - self._start).armed
-        value = self.params.value
-        pilot_action, gcs_action = int(value("FS_PILOT_INPUT")), int(value("FS_GCS_ENABLE"))
-        with self._lock:
-            pilot_lost = (pilot_action != 0 and armed and self._pilot_seen is not None
-                          and now - self._pilot_seen > value("FS_PILOT_TIMEOUT")
-                          and "pilot_input" not in self._in_failsafe)
-            gcs_lost = (gcs_action != 0 and self._gcs_seen is not None
-                        and now - self._gcs_seen > value("FS_GCS_TIMEOUT"))
-            gcs_warn = gcs_lost and (self._gcs_warned is None or now - self._gcs_warned > GCS_WARN_EVERY_S)
-            gcs_act = gcs_lost and armed and "gcs" not in self._in_failsafe  # once per loss, and only armed
-            if pilot_lost:
-                self._in_failsafe.add("pilot_input")
-            if gcs_warn:
-                self._gcs_warned = now
-            if gcs_act:
-                self._in_failsafe.add("gcs")
-        # each action first, then the record and the message: whoever sees a failsafe sees what it did
-        if pilot_lost:
-            self._fly(now, 0.0)  # set_neutral_controls()
-            if pilot_action == 2:
-                self._set_armed(False)
-            self.failsafes.append((now - self._start, "pilot_input"))
-            self.statustext(mav2.MAV_SEVERITY_CRITICAL, "Lost manual control")
-        if gcs_act:
-            self._gcs_failsafe_action(now, gcs_action)
-            self.failsafes.append((now - self._start, "gcs"))
-        if gcs_warn:
-            self.statustext(mav2.MAV_SEVERITY_WARNING, f"MYGCS: {self.params.gcs_sysid()}, heartbeat lost")
-
-    def _gcs_failsafe_action(self, now: float, action: int) -> None:
-        """FS_GCS_ENABLE 2: disarm, 3: depth hold (ALT_HOLD), 4: surface; 1 (and any other value) only warns."""
-        if action == 2:
-            self._set_armed(False)
-        elif action == 3:
-            self._set_mode(MODE_NUMBERS["ALT_HOLD"])
-            self._fly(now, 0.0)
-        elif action == 4:  # SURFACE climbs at its own rate; PILOT_SPEED_UP stands in for it
-            self._set_mode(MODE_NUMBERS["SURFACE"])
-            self._fly(now, -self.params.pilot_speed_up_mps())
-
-    def _fly(self, now: float, rate_mps: float) -> None:
+    def fly(self, now: float, rate_mps: float) -> None:
         """From now on the vehicle stays where it is and moves vertically at ``rate_mps`` (down positive)."""
         t = now - self._start
         s = self.state_at(t)

@@ -1,5 +1,5 @@
 """The simulator does what the real ArduSub firmware does (REFERENCE.md): default streams, rate requests, when the
-EKF fields become valid, the pilot-input and GCS failsafes, and depth holding under MANUAL_CONTROL. Peers are
+EKF fields become valid, and depth holding under MANUAL_CONTROL (the failsafes: test_failsafes.py). Peers are
 plain pymavlink connections on loopback UDP, as a ground station or a joystick bridge would be."""
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from tests.vehicle.sim_env import sim_and_peer
 from tests.waiting import wait_until
 from vehicle.errors import UserError as MerlionError
 from vehicle.sim.dive_profile import compile_profile
-from vehicle.sim.vehicle import FS_GCS_TIMEOUT_S, FS_PILOT_TIMEOUT_S
 
 
 def _profile(origin: dict | None = None, armed: bool = True):
@@ -83,57 +82,6 @@ def test_set_message_interval_is_acked_and_the_last_request_from_any_peer_wins()
         assert {a.result for a in peer.of_type("COMMAND_ACK")} == {mav2.MAV_RESULT_ACCEPTED}
         interval(0, 254)  # 0: back to the default
         assert wait_until(lambda: sim.interval("GLOBAL_POSITION_INT") == pytest.approx(1 / 3.2), 2)
-
-
-def test_pilot_input_failsafe_disarms_when_manual_control_stops_and_reports_it():
-    assert FS_PILOT_TIMEOUT_S == 3.0  # the firmware default; the test uses a shorter one to stay quick
-    with sim_and_peer(profile=_profile(None), pilot_timeout_s=0.8) as (sim, peer):
-        time.sleep(1.0)
-        assert sim.failsafes == [], "armed without a joystick ever connected: no pilot-input failsafe"
-        for _ in range(5):
-            peer.send(mav2.MAVLink_manual_control_message(1, 0, 0, 500, 0, 0))
-            time.sleep(0.1)
-        assert sim.state().armed
-        assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["pilot_input"], 3)
-        assert wait_until(lambda: any(m.text == "Lost manual control" and m.severity == mav2.MAV_SEVERITY_CRITICAL
-                                      for m in peer.of_type("STATUSTEXT")), 2)
-        since = time.monotonic()
-        assert wait_until(lambda: peer.of_type("HEARTBEAT", since), 3)
-        after = peer.of_type("HEARTBEAT", since)[-1]
-        assert not after.base_mode & mav2.MAV_MODE_FLAG_SAFETY_ARMED
-        assert after.system_status == mav2.MAV_STATE_CRITICAL  # a failsafe is on until the pilot is back
-        assert sim.manual_control_senders == {(255, 190)}
-        held = sim.state().depth  # disarmed: the scripted descent no longer moves it
-        time.sleep(0.3)
-        assert sim.state().depth == held and sim.state().vd == 0.0
-
-
-def test_gcs_failsafe_after_system_255_heartbeats_stop():
-    assert FS_GCS_TIMEOUT_S == 5.0
-    with sim_and_peer(profile=_profile(None), gcs_timeout_s=0.8, gcs_failsafe="depth_hold") as (sim, peer):
-        time.sleep(1.0)
-        assert sim.failsafes == [], "no GCS seen yet: no GCS failsafe"
-        for _ in range(3):
-            peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
-            time.sleep(0.2)
-        assert (255, 190, mav2.MAV_TYPE_GCS) in sim.heartbeat_senders and sim.failsafes == []
-        assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
-        assert wait_until(lambda: any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT")), 2)
-        assert sim.state().mode == "ALT_HOLD"  # FS_GCS_ENABLE 3 = depth hold: it stops descending
-        held = sim.state().depth
-        time.sleep(0.3)
-        assert sim.state().depth == held > 0 and sim.state().armed
-    # the firmware's default action (FS_GCS_ENABLE 2) disarms
-    with sim_and_peer(profile=_profile(None), gcs_timeout_s=0.5) as (sim, peer):
-        peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
-        assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
-        assert not sim.state().armed
-        # heartbeats from another system (a companion computer) never arm it
-    with sim_and_peer(system=1, profile=_profile(None), gcs_timeout_s=0.5) as (sim, peer):
-        peer.send(mav2.MAVLink_heartbeat_message(mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_INVALID,
-                                                 0, 0, 0, 3))
-        time.sleep(1.2)
-        assert sim.failsafes == [] and (1, 190, mav2.MAV_TYPE_ONBOARD_CONTROLLER) in sim.heartbeat_senders
 
 
 def test_depth_hold_in_alt_hold_and_manual_control_z_below_500_descends():
