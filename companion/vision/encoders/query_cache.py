@@ -38,7 +38,7 @@ from companion.vision.encoders.query_words import ResolvedQuery, Term, resolve_q
 
 log = logging.getLogger(__name__)
 
-FORMAT = 1
+FORMAT = 2
 """The layout of a cache file; raise it when that changes."""
 RESOLVER_MODULES = (query_words, wordnet_nouns, imagenet_synsets)
 """The modules whose code decides what a query resolves to: their source is part of the key."""
@@ -70,9 +70,9 @@ def resolver_key() -> str | None:
 
 
 def to_json(resolved: ResolvedQuery) -> dict:
-    return {"negated": resolved.negated,
+    return {"negated": resolved.negated, "left_out": list(resolved.left_out),
             "terms": [{"phrase": t.phrase, "noun": t.noun, "how": t.how, "classes": list(t.classes),
-                       "names": list(t.names)} for t in resolved.terms]}
+                       "names": list(t.names), "context": t.context} for t in resolved.terms]}
 
 
 def _strings(value: object) -> tuple[str, ...]:
@@ -92,10 +92,12 @@ def from_json(text: str, raw: dict) -> ResolvedQuery:
         if not classes or len(names) != len(classes):
             raise ValueError(f"classes and names differ in {text!r}")
         phrase, noun, how = _strings([t["phrase"], t["noun"], t["how"]])
-        terms.append(Term(phrase, noun, how, tuple(classes), names))
+        if not isinstance(t["context"], bool):
+            raise ValueError(f"bad context in {text!r}")
+        terms.append(Term(phrase, noun, how, tuple(classes), names, t["context"]))
     if not terms or not isinstance(raw["negated"], bool):
         raise ValueError(f"bad entry for {text!r}")
-    return ResolvedQuery(text, tuple(terms), raw["negated"])
+    return ResolvedQuery(text, tuple(terms), raw["negated"], _strings(raw["left_out"]))
 
 
 def read_file(path: Path, key: str) -> dict[str, ResolvedQuery]:

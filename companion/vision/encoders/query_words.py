@@ -26,7 +26,7 @@ from __future__ import annotations
 import difflib
 import functools
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from companion.errors import MerlionError
 from companion.vision.encoders.imagenet_synsets import class_of_offset, class_offsets
@@ -35,6 +35,11 @@ from companion.vision.encoders.wordnet_nouns import WordNetNouns, wordnet_nouns
 NEGATIONS = ("without", "no", "not", "none", "absent", "lacking", "free of", "empty of", "devoid of")
 JOINERS = frozenset("or and with of in on near at over under among by from to plus nor into onto inside "
                     "around beside behind between above below along across".split())
+PLACES = frozenset("in on near at over under among by from into onto inside around beside behind between above "
+                   "below along across".split())
+"""Joining words after which a phrase says where the thing is, not what it is: "a crab on the sea floor"."""
+CONTEXT_WEIGHT = 0.5
+"""What a place phrase's classes weigh against the thing's: "fish near coral" is fish first, coral helping."""
 FILLER = frozenset("""a an the some any many few several lots lot one two three four five plenty number numbers
     image images picture pictures photo photos photograph photographs frame frames scene scenes view views shot shots
     footage video videos clip clips underwater subsea undersea there is are being its their this that these those
@@ -96,6 +101,8 @@ class Term:
     names: tuple[str, ...]
     """Each class's name, in the order of ``classes``: kept with the term so that explaining a query read from
     the cache (``query_cache``) needs no WordNet."""
+    context: bool = False
+    """A place phrase ("on coral"): its classes weigh ``CONTEXT_WEIGHT``."""
 
 
 @dataclass(frozen=True)
@@ -103,14 +110,17 @@ class ResolvedQuery:
     text: str
     terms: tuple[Term, ...]
     negated: bool
+    left_out: tuple[str, ...] = ()
+    """Place phrases that name nothing the encoder can see ("sea floor" in "a crab on the sea floor"): read, said
+    by ``explain``, and left out rather than refusing the thing the query names."""
 
     @property
     def weights(self) -> dict[int, float]:
         """Class index -> weight in (0, 1]: the terms reaching it over the most terms any class is reached by."""
-        counts: dict[int, int] = {}
+        counts: dict[int, float] = {}
         for term in self.terms:
             for c in term.classes:
-                counts[c] = counts.get(c, 0) + 1
+                counts[c] = counts.get(c, 0.0) + (CONTEXT_WEIGHT if term.context else 1.0)
         top = max(counts.values(), default=1)
         return {c: n / top for c, n in sorted(counts.items())}
 
@@ -126,13 +136,17 @@ class ResolvedQuery:
         lines = [f"query {self.text!r}{' (negated)' if self.negated else ''}:"]
         for t in self.terms:
             names = ", ".join(t.names)
-            lines.append(f"  {t.phrase} -> {t.noun} [{t.how}]: {len(t.classes)} classes: {names}")
+            place = f", where it is: weighs {CONTEXT_WEIGHT:g}" if t.context else ""
+            lines.append(f"  {t.phrase} -> {t.noun} [{t.how}{place}]: {len(t.classes)} classes: {names}")
+        for phrase in self.left_out:
+            lines.append(f"  {phrase}: where it is, but nothing the imagenet encoder can see: left out")
         return "\n".join(lines)
 
     def short(self, width: int = 50, prefix: str = "") -> str:
         """A line for a STATUSTEXT: ``{prefix}fish=16: tench,goldfish,...`` cut at ``width`` characters, the
         classes that weigh most first."""
-        head = f"{prefix}{'not ' if self.negated else ''}{'+'.join(t.phrase for t in self.terms)}={len(self.classes)}: "
+        things = "+".join(t.phrase for t in self.terms if not t.context)
+        head = f"{prefix}{'not ' if self.negated else ''}{things}={len(self.classes)}: "
         known = self._names()
         names = ",".join(known[c] for c in sorted(self.weights, key=lambda c: -self.weights[c]))
         line = head + names
@@ -333,18 +347,19 @@ def _seeable_lemmas() -> tuple[str, ...]:
     return tuple(sorted({lemma for o in seeable for lemma in wn.synsets[o].lemmas}))
 
 
-def _chunks(text: str) -> list[tuple[list[str], bool]]:
-    """The query's noun phrases (content words) and whether a negation word came before each."""
+def _chunks(text: str) -> list[tuple[list[str], bool, bool]]:
+    """The query's noun phrases (content words), whether a negation word came before each, and whether it says
+    where the thing is (after a place word, ``PLACES``, once some thing was named: "a crab on the sea floor")."""
     tokens = _WORD.findall(text.lower())
     negations = sorted((tuple(n.split()) for n in NEGATIONS), key=len, reverse=True)
-    out: list[tuple[list[str], bool]] = []
+    out: list[tuple[list[str], bool, bool]] = []
     current: list[str] = []
-    negate = False
+    negate = place = False
     i = 0
 
     def close() -> None:
         if current:
-            out.append((list(current), negate))
+            out.append((list(current), negate, place and any(not c for _, _, c in out)))
             current.clear()
 
     while i < len(tokens):
@@ -358,6 +373,7 @@ def _chunks(text: str) -> list[tuple[list[str], bool]]:
         i += 1
         if not tok or tok in JOINERS or not tok[0].isalpha():
             close()
+            place = place or tok in PLACES
         elif tok not in FILLER:
             current.append(tok)
     close()
@@ -369,15 +385,26 @@ def resolve_query(text: str) -> ResolvedQuery:
 
     Raises MerlionError (one line) when a word resolves to nothing (naming it, with near words), when the query
     names nothing, or when it mixes negated and plain phrases ("fish without divers"), which one probability mass
-    cannot express.
+    cannot express. A place phrase that names nothing the encoder can see is left out (``left_out``), not refused:
+    the thing is still looked for; a word that is not English is refused wherever it stands.
     """
     chunks = _chunks(text)
     if not chunks:  # before WordNet is read: the pre-sampler's generic negative ends here at every start
         raise MerlionError(f"query {text!r} names nothing to look for: name a thing, e.g. 'fish' or 'crab' "
                            f"(or use --encoder clip)")
     wn = wordnet_nouns()
-    terms = [(_resolve_phrase(wn, text, words), negated) for words, negated in chunks]
+    terms: list[tuple[Term, bool]] = []
+    left_out: list[str] = []
+    for words, negated, place in chunks:
+        try:
+            term = _resolve_phrase(wn, text, words)
+        except UnknownWord as err:
+            if not place or err.brief != "not in model":
+                raise
+            left_out.append(" ".join(words))
+            continue
+        terms.append((replace(term, context=True) if place else term, negated))
     if len({negated for _, negated in terms}) > 1:
         raise MerlionError(f"query {text!r} mixes wanted and negated concepts; the imagenet encoder scores one "
                            f"concept set per query: put the negated part in a --negative query")
-    return ResolvedQuery(text, tuple(dict.fromkeys(t for t, _ in terms)), terms[0][1])
+    return ResolvedQuery(text, tuple(dict.fromkeys(t for t, _ in terms)), terms[0][1], tuple(left_out))

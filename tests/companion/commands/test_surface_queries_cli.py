@@ -191,7 +191,8 @@ def test_topics_from_the_surface_reach_a_live_companion_and_the_surface_tool(tmp
 def test_the_live_companion_answers_what_words_resolved_to_and_refuses_an_unknown_word(tmp_path):
     """On the wire, against a real `merlion run` with the packaged encoder: "marine animal" is accepted and the
     companion's STATUSTEXT (on the surface page's status too) names the WordNet classes it was read as; a made-up
-    word is refused, and the refusal names it."""
+    word is refused, and the refusal names it; "a crab on the sea floor" is accepted as a crab (the sea floor, which
+the encoder cannot see, left out)."""
     web_port = free_udp_port()
     hub = UdpHub(outputs=[("127.0.0.1", web_port)]).start()
     try:
@@ -220,6 +221,12 @@ def test_the_live_companion_answers_what_words_resolved_to_and_refuses_an_unknow
             assert done.stderr.strip() == ("merlion: error: the companion 1:100 refused the queries: "
                                            "Queries refused: main: 'blorptang' unknown"), done.stderr
             wait_until(lambda: said("Queries refused: main: 'blorptang'"), 30, "the refusal on the page")
+
+            # the operator's own words, a place the encoder cannot see included: the crab is looked for
+            done = run_merlion("surface-queries", "--connect", hub.url, "--timeout", "30",
+                               "--query", "a crab on the sea floor", "--negative", "no crab", timeout=90)
+            assert done.returncode == 0, done.stderr
+            wait_until(lambda: said("Query crab=4: "), 30, "the crab query's reading on the page")
             assert companion.terminate() == 0, companion.output
     finally:
         hub.stop()

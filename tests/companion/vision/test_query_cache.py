@@ -102,8 +102,8 @@ def test_merlion_score_reads_the_cache_and_scores_with_an_unwritable_one(tmp_pat
 def _falsified(cache: QueryCache, text: str) -> None:
     """Write a cache file whose entry for ``text`` no resolver would give: only the cache can answer it."""
     real = resolve_query(text)
-    fake = {"negated": real.negated, "terms": [{"phrase": text, "noun": "tench", "how": "planted", "classes": [0],
-                                                "names": ["tench"]}]}
+    fake = {"negated": real.negated, "left_out": [], "terms": [{"phrase": text, "noun": "tench", "how": "planted",
+                                                                "classes": [0], "names": ["tench"], "context": False}]}
     cache.path.parent.mkdir(parents=True, exist_ok=True)
     cache.path.write_text(json.dumps({"format": query_cache.FORMAT, "key": cache.key, "queries": {text: fake}}))
 
@@ -135,7 +135,7 @@ def test_the_key_follows_the_resolver_source(tmp_path, monkeypatch):
     assert resolver_key() == before
 
 
-@pytest.mark.parametrize("content", [b"{not json", b"\xff\xfe", b'{"format": 1, "key": "KEY", "queries": '
+@pytest.mark.parametrize("content", [b"{not json", b"\xff\xfe", b'{"format": 2, "key": "KEY", "queries": '
                                      b'{"crab": {"negated": false, "terms": [{"classes": [5000]}]}}}'])
 def test_a_corrupt_cache_file_is_ignored_with_one_line_and_rewritten(tmp_path, caplog, content):
     cache = QueryCache(tmp_path)

@@ -161,3 +161,25 @@ def test_a_real_word_with_no_seeable_relative_gets_no_guess():
 def test_queries_naming_nothing_or_mixing_negation_are_refused(query):
     with pytest.raises(MerlionError):
         resolve_query(query)
+
+
+def test_a_place_the_encoder_cannot_see_is_left_out_and_the_thing_is_still_looked_for():
+    resolved = resolve_query("a crab on the sea floor")
+    assert [t.noun for t in resolved.terms] == ["crab"] and resolved.left_out == ("sea floor",)
+    assert "sea floor: where it is, but nothing the imagenet encoder can see: left out" in resolved.explain()
+    assert resolved.weights == resolve_query("crab").weights
+
+
+def test_a_place_the_encoder_can_see_helps_at_half_weight_rather_than_counting_as_another_thing():
+    near, either = resolve_query("fish near coral"), resolve_query("fish or coral")
+    coral = resolve_query("coral").classes
+    fish = resolve_query("fish").classes
+    assert all(near.weights[c] == 0.5 for c in coral) and all(near.weights[c] == 1.0 for c in fish)
+    assert all(either.weights[c] == 1.0 for c in coral)  # "or" names two things, each in full
+    assert near.short(80).startswith("fish=") and "where it is" in near.explain()
+
+
+@pytest.mark.parametrize("query", ["sea floor", "fish on blorptang"])
+def test_a_place_alone_or_a_word_that_is_not_english_is_still_refused(query):
+    with pytest.raises(UnknownWord):
+        resolve_query(query)
