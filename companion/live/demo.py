@@ -133,6 +133,18 @@ def _page_url(proc: subprocess.Popen, log_path: Path, timeout: float = 30.0) -> 
     return None
 
 
+def _child_failed(name: str, code: int, log_path: Path) -> MerlionError:
+    """A child that stopped at start, as the demo's one error line: the child's own error line (what was wrong, e.g.
+    a port in use), with its exit code (2: bad input)."""
+    try:
+        said = [line for line in log_path.read_text(encoding="utf-8", errors="replace").splitlines()
+                if line.startswith("merlion: error: ")]
+    except OSError:
+        said = []
+    why = said[-1].removeprefix("merlion: error: ") if said else f"exited with code {code}; see {log_path}"
+    return MerlionError(f"{name}: {why}", exit_code=2 if code == 2 else 1)
+
+
 def write_contact_sheet(store: Store, path: Path) -> Path | None:
     """The summary as one image, each frame with its time, score and depth drawn on it (None: cannot write)."""
     tiles = []
@@ -219,6 +231,8 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None, *,
         page = _page_url(surface, logs / "surface.log")
         if page:
             _say(opts, f"merlion demo: surface page at {page} (live while the demo runs)")
+        elif surface.poll() is not None:  # it stopped at start (its page's port taken meanwhile): so does the demo
+            raise _child_failed("surface", surface.returncode, logs / "surface.log")
         else:
             log.warning("the surface tool did not start its page; see %s", logs / "surface.log")
         companion = LiveCompanion(cfg, LiveOptions(store_lock=store_lock))
