@@ -31,3 +31,13 @@ def test_telemetry_command_reports_depth_rates_and_no_position_source(tmp_path):
     assert rates["GLOBAL_POSITION_INT"]["requests"] == 1  # asked once, kept
     assert len([c for c in commands if c[1] == 32.0]) == 3  # the simulator saw the same three requests
     assert "no position source" in done.stderr + done.stdout
+
+
+def test_telemetry_with_no_autopilot_there_ends_with_one_error_line_and_exit_1():
+    endpoint = f"udpin:127.0.0.1:{free_udp_port()}"  # nobody sends here
+    done = run_merlion("telemetry", "--connect", endpoint, "--duration", "3", timeout=60)
+    assert done.returncode == 1, done.stdout + done.stderr
+    errors = [line for line in done.stderr.splitlines() if line.startswith("merlion: error: ")]
+    assert errors == [done.stderr.strip().splitlines()[-1]], done.stderr
+    assert errors[0].startswith(f"merlion: error: {endpoint}: nothing heard from an autopilot in 3 s")
+    assert "Traceback" not in done.stderr
