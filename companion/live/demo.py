@@ -36,11 +36,12 @@ from typing import Any
 import cv2
 
 from companion.atomic_write import atomic_write
-from companion.config import Config, build_config
+from companion.config import Config, SourceConfig, build_config
 from companion.errors import MerlionError, UsageError
 from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
+from companion.sources.factory import check_file_source
 from companion.storage.store import Store
 from companion.storage.store_lock import StoreLock, holding
 from companion.vision.contact_sheet import Tile, contact_sheet
@@ -72,9 +73,9 @@ class DemoOptions:
 
 
 def check_source(opts: DemoOptions) -> None:
-    if opts.source and not opts.source.startswith(("synthetic://", "rtsp://", "udp://", "/dev/")):
-        if not Path(opts.source).expanduser().exists():
-            raise UsageError(f"--source {opts.source}: no such file or folder")
+    """A file or folder that cannot be read (missing, damaged, no images) stops the demo before it starts."""
+    if opts.source:
+        check_file_source(SourceConfig(uri=opts.source, fps=opts.fps), "--source")
 
 
 def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
