@@ -14,7 +14,8 @@ from vehicle.sim.vehicle import SimVehicle
 def test_telemetry_command_reports_depth_rates_and_no_position_source(tmp_path):
     port = free_udp_port()
     cfg = tmp_path / "merlion.yaml"
-    cfg.write_text("telemetry:\n  rate_listen_s: 0.2\n")  # the first second of listening, shortened
+    # the first second of listening, and the 30 s the EKF may take to set its origin, shortened
+    cfg.write_text("telemetry:\n  rate_listen_s: 0.2\n  position_wait_s: 2\n")
     dive = compile_profile({"legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20.0, "rate_mps": 0.5}}]})
     with SimVehicle(f"udpin:127.0.0.1:{port}", dive) as sim:
         done = run_merlion("telemetry", "--connect", f"udpout:127.0.0.1:{port}", "--duration", "10.5", "--json",
