@@ -49,6 +49,9 @@ class TelemetryConfig(_Section):
     rate_grace_s: float = Field(3.0, ge=0.2, le=60)
     """How long an asked-for message may take to arrive at half its rate before it is asked for again (the wait
     then doubles); after three unanswered asks it is declared missing (no DVL or USBL, or a signing autopilot)."""
+    position_wait_s: float = Field(30.0, ge=0, le=600)
+    """No position source (LOCAL_POSITION_NED never comes) is said only once the autopilot has been up this long:
+    ArduSub's EKF sets its origin, and starts sending positions, ~16 s after boot."""
     rate_listen_s: float = Field(1.0, ge=0, le=10)
     """When the autopilot is found, listen this long first: a message already arriving at 80% of its rate or more
     (a ground station may have set it) is not asked for, so the companion never lowers it."""

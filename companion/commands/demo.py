@@ -35,6 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from companion.live.demo import DemoOptions, main
 
     require_positive("--duration", args.duration)
+    from companion.topside.web import check_web_port
+
+    check_web_port(args.web, "127.0.0.1")  # a page port in use stops the demo before anything starts or moves
     if not args.verbose:  # the demo prints its own progress; warnings (e.g. the encoder fallback) still show
         logging.getLogger().setLevel(logging.WARNING)
     return main(DemoOptions(out=args.out, duration=args.duration, source=args.source, tau_ss=args.tau_ss,

@@ -14,7 +14,7 @@ from companion.errors import MerlionError
 from companion.topside.actions import page_mark
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
-from companion.topside.web import WebServer
+from companion.topside.web import WebServer, check_web_port
 from vehicle.link.endpoint import parse_connection
 from vehicle.link.signing import load_key
 
@@ -53,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     require_positive("--push-timeout", args.push_timeout)
     require_resolvable_host("--connect", args.connect)
     check_port_free(args.connect)
+    if args.web is not None:  # before the gallery folder is made or the link opened
+        check_web_port(args.web, args.web_host)
     if args.signing_key:  # before the gallery folder is made
         load_key(args.signing_key)
     options = SurfaceOptions(connect=args.connect, system_id=args.system_id, component_id=args.component_id,
@@ -87,12 +89,18 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
     stop = stop or threading.Event()
     gallery = Gallery(out_dir)
     tool = SurfaceTool(options, gallery)
-    tool.open()
     web = None
-    if web_port is not None:
+    if web_port is not None:  # listening before the link opens: a port taken meanwhile stops nothing half-started
         web = WebServer(tool.snapshot, gallery.root, web_port, host=web_host, full_frame=tool.full_frame,
                         actions={"mark": lambda body: page_mark(tool.actions, body.get("index"), body.get("kind"))}, allowed_hosts=web_allowed_hosts)
         web.start()
+    try:
+        tool.open()
+    except BaseException:
+        if web is not None:
+            web.close()
+        raise
+    if web is not None:
         # the line the demo and tests wait for (the port matters when 0 was asked)
         print(f"merlion surface: live page at {web.url}", flush=True)
     print(f"merlion surface: listening on {options.connect}, gallery in {gallery.root}", flush=True)

@@ -49,4 +49,9 @@ def run(args: argparse.Namespace) -> int:
                              report=None if args.json else lambda line: print(f"telemetry: {line}", flush=True))
     if args.json:
         print(json.dumps(result, default=str), flush=True)
+    if not result["messages"]:  # nothing to show is a failed check, not a quiet success
+        from companion.errors import MerlionError
+
+        raise MerlionError(f"{cfg.mavlink.connection}: nothing heard from an autopilot in "
+                           f"{result['listened_s']:.0f} s (is the vehicle, its router or sim-vehicle sending there?)")
     return 0

@@ -314,7 +314,7 @@ class LiveCompanion:
             pose = self._pose_at(time.time())
             depth = getattr(pose, "depth_m", None) if pose is not None and not pose.stale else None
         if self.surface is not None:
-            self.surface.update_status(fps=self.counters.fps(), score=self.counters.last_score,
+            self.surface.update_status(fps=self.counters.fps(), seen_fps=self.counters.seen_fps(), score=self.counters.last_score,
                                        summary=len(self.store.summary), depth_m=depth)
         self._say_indices_used_up()
         self.notifier.status(self.status_line())
@@ -335,7 +335,7 @@ class LiveCompanion:
         ap = "up" if self.link is not None and self.link.autopilot_alive else "down"
         store = (f"memory-only ({self.store.memory_only_reason})" if self.store is not None and self.store.memory_only
                  else "ok")
-        return (f"source {src}; {c.fps():.1f} fps; seen {c.frames_seen} passed {c.frames_passed}; "
+        return (f"source {src}; {c.rates_text()}; seen {c.frames_seen} passed {c.frames_passed}; "
                 f"summary {self._summary_text()}; dropped {self.queue.dropped}; autopilot {ap}; store {store}")
 
     def _summary_text(self) -> str:

@@ -36,11 +36,12 @@ from typing import Any
 import cv2
 
 from companion.atomic_write import atomic_write
-from companion.config import Config, build_config
+from companion.config import Config, SourceConfig, build_config
 from companion.errors import MerlionError, UsageError
 from companion.live import die_with_parent
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.udp_hub import UdpHub
+from companion.sources.factory import check_file_source
 from companion.storage.store import Store
 from companion.storage.store_lock import StoreLock, holding
 from companion.vision.contact_sheet import Tile, contact_sheet
@@ -72,9 +73,9 @@ class DemoOptions:
 
 
 def check_source(opts: DemoOptions) -> None:
-    if opts.source and not opts.source.startswith(("synthetic://", "rtsp://", "udp://", "/dev/")):
-        if not Path(opts.source).expanduser().exists():
-            raise UsageError(f"--source {opts.source}: no such file or folder")
+    """A file or folder that cannot be read (missing, damaged, no images) stops the demo before it starts."""
+    if opts.source:
+        check_file_source(SourceConfig(uri=opts.source, fps=opts.fps), "--source")
 
 
 def demo_config(opts: DemoOptions, *, hub_url: str) -> Config:
@@ -131,6 +132,18 @@ def _page_url(proc: subprocess.Popen, log_path: Path, timeout: float = 30.0) -> 
             return match.group(1)
         time.sleep(0.1)
     return None
+
+
+def _child_failed(name: str, code: int, log_path: Path) -> MerlionError:
+    """A child that stopped at start, as the demo's one error line: the child's own error line (what was wrong, e.g.
+    a port in use), with its exit code (2: bad input)."""
+    try:
+        said = [line for line in log_path.read_text(encoding="utf-8", errors="replace").splitlines()
+                if line.startswith("merlion: error: ")]
+    except OSError:
+        said = []
+    why = said[-1].removeprefix("merlion: error: ") if said else f"exited with code {code}; see {log_path}"
+    return MerlionError(f"{name}: {why}", exit_code=2 if code == 2 else 1)
 
 
 def write_contact_sheet(store: Store, path: Path) -> Path | None:
@@ -219,6 +232,8 @@ def run_demo(opts: DemoOptions, stop: threading.Event | None = None, *,
         page = _page_url(surface, logs / "surface.log")
         if page:
             _say(opts, f"merlion demo: surface page at {page} (live while the demo runs)")
+        elif surface.poll() is not None:  # it stopped at start (its page's port taken meanwhile): so does the demo
+            raise _child_failed("surface", surface.returncode, logs / "surface.log")
         else:
             log.warning("the surface tool did not start its page; see %s", logs / "surface.log")
         companion = LiveCompanion(cfg, LiveOptions(store_lock=store_lock))

@@ -41,16 +41,31 @@ class LiveCounters:
     inference_errors: int = 0
     recent: deque = field(default_factory=lambda: deque(maxlen=64))
     """Monotonic times of recently scored frames, for the frames/s figure."""
+    recent_seen: deque = field(default_factory=lambda: deque(maxlen=64))
+    """Monotonic times of recently seen frames (what the camera delivered), for the frames/s seen."""
 
     def fps(self, now: float | None = None) -> float:
-        now = time.monotonic() if now is None else now
-        # copy first: the inference thread appends while the status thread asks (iterating a deque that changes
-        # raises RuntimeError); deque.copy() runs in C without letting another thread in
-        times = [t for t in self.recent.copy() if now - t <= 10.0]
-        if len(times) < 2:
-            return 0.0
-        span = max(times[-1] - times[0], 1e-6)
-        return (len(times) - 1) / span
+        """Frames scored per second (the encoder's rate, after the frame gate and drops), not the camera's rate."""
+        return _rate(self.recent, now)
+
+    def seen_fps(self, now: float | None = None) -> float:
+        """Frames seen per second: what the source delivers."""
+        return _rate(self.recent_seen, now)
+
+    def rates_text(self, now: float | None = None) -> str:
+        """"scored 1.7/s of 5.0/s seen": the status figure, said so that nobody takes it for the camera's rate."""
+        return f"scored {self.fps(now):.1f}/s of {self.seen_fps(now):.1f}/s seen"
+
+
+def _rate(recent: deque, now: float | None) -> float:
+    now = time.monotonic() if now is None else now
+    # copy first: the inference thread appends while the status thread asks (iterating a deque that changes
+    # raises RuntimeError); deque.copy() runs in C without letting another thread in
+    times = [t for t in recent.copy() if now - t <= 10.0]
+    if len(times) < 2:
+        return 0.0
+    span = max(times[-1] - times[0], 1e-6)
+    return (len(times) - 1) / span
 
 
 class CaptureLoop(threading.Thread):
@@ -70,6 +85,7 @@ class CaptureLoop(threading.Thread):
             for frame in self.source:
                 self.health.beat("capture")
                 self.counters.frames_seen += 1
+                self.counters.recent_seen.append(time.monotonic())
                 self.queue.put(frame)
                 if self.stop_event.is_set():
                     break

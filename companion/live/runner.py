@@ -11,7 +11,7 @@ from typing import Any
 from companion.config import Config, load_config
 from companion.live.companion import LiveCompanion, LiveOptions
 from companion.live.notify import Notifier
-from companion.sources.factory import check_source_uri
+from companion.sources.factory import check_file_source, check_source_uri
 from vehicle.link.endpoint import parse_connection
 
 log = logging.getLogger(__name__)
@@ -37,6 +37,8 @@ def build(config_path: str | None, overrides: dict[str, Any], environ: Mapping[s
     connection string: exit 2), so that neither the store nor the encoder is touched for a typo."""
     cfg = load_config(config_path, overrides=overrides, environ=dict(environ))
     check_source_uri(cfg.source.uri)
+    # a file or folder that cannot be read now never will be: said at start, not retried for the whole run
+    check_file_source(cfg.source, "--source" if overrides.get("source", {}).get("uri") else "source.uri")
     if cfg.mavlink.connection:
         parse_connection(cfg.mavlink.connection)
     return cfg

@@ -10,7 +10,14 @@ from __future__ import annotations
 import logging
 
 from companion.topside.ftp_client import crc32_mavftp
-from companion.topside.messages import index_dive, index_topics, mftp_path, parse_index, parse_statustext
+from companion.topside.messages import (
+    TAKES_BACK,
+    index_dive,
+    index_topics,
+    mftp_path,
+    parse_index,
+    parse_statustext,
+)
 from companion.topside.surface_state import (
     FTP_INDEX,
     FTP_THUMBNAILS,
@@ -127,6 +134,13 @@ class GallerySync:
         text = text.rstrip("\0")
         with ctx.lock:
             line = {"time": now, "severity": int(msg.severity), "text": text}
+            cleared = TAKES_BACK.get(text)
+            if cleared is not None:  # the condition is over: the page no longer shows it as if it held
+                for lines in (ctx.status.statustext, ctx.status.warnings):
+                    kept = [old for old in lines if old["text"] != cleared]
+                    if len(kept) != len(lines):
+                        lines.clear()
+                        lines.extend(kept)
             ctx.status.statustext.append(line)
             if line["severity"] <= SEVERITY_WARNING:
                 ctx.status.warnings.append(line)

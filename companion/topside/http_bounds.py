@@ -137,6 +137,7 @@ class BoundedHTTPServer(ThreadingHTTPServer):
 
     def __init__(self, address, handler: type[BoundedHandler], *, max_threads: int = MAX_THREADS,
                  max_per_address: int = MAX_PER_ADDRESS, read_deadline_s: float = READ_DEADLINE_S) -> None:
+        self._closed = threading.Event()  # before the bind: a failed bind calls server_close, which sets it
         super().__init__(address, handler)
         self.max_threads = max_threads
         self.max_per_address = max_per_address
@@ -148,7 +149,6 @@ class BoundedHTTPServer(ThreadingHTTPServer):
         self._serving = 0
         self._deadlines: dict[socket.socket, float] = {}
         self._watch_lock = threading.Lock()
-        self._closed = threading.Event()
         self._reaper = threading.Thread(target=self._reap, name="surface-web-reaper", daemon=True)
         self._reaper.start()
 

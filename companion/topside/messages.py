@@ -13,7 +13,12 @@ import re
 from dataclasses import dataclass, field
 
 from companion.topside.gallery import MAX_SUMMARY, Capture, Topic, safe_dive
+from vehicle.autopilot.telemetry import NO_POSITION_TEXT, POSITION_FOUND_TEXT
 from vehicle.protocol.queries import MAX_LINE, MAX_NEGATIVES, MAX_TOPICS, NAME
+
+TAKES_BACK = {POSITION_FOUND_TEXT: NO_POSITION_TEXT}
+"""A status line that clears a condition -> the line that had said it: once the first comes, the page stops
+showing the second (positions arriving after "no position source" was said)."""
 
 MAX_URL = 205
 """Characters of a ``file_url`` kept (CAMERA_IMAGE_CAPTURED's field holds 205): a longer one from index.json is

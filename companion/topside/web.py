@@ -14,10 +14,12 @@ bounded head and path), and bad input is a clean 4xx, never a traceback.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import re
 import secrets
+import socket
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -25,7 +27,7 @@ from http import HTTPStatus
 from importlib import resources
 from pathlib import Path
 
-from companion.errors import MerlionError
+from companion.errors import UsageError
 from companion.topside.http_bounds import MAX_JSON_DEPTH, BoundedHandler, BoundedHTTPServer, json_too_deep
 from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal, trusted_origin
 
@@ -235,6 +237,29 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
     return CorsHandler
 
 
+def web_port_error(port: int, host: str, err: OSError) -> UsageError:
+    """The one line for a page that cannot listen: a port in use (or not ours to take) is a bad ``--web``."""
+    if err.errno == errno.EADDRINUSE:
+        return UsageError(f"--web {port}: port in use ({host}:{port}); choose another, or 0 for any free port")
+    return UsageError(f"--web {port}: cannot listen on {host}:{port} ({err.strerror or err})")
+
+
+def check_web_port(port: int, host: str = "127.0.0.1") -> None:
+    """Before anything starts: the page's port can be had (the same bind options as the server's, so a port held
+    only in TIME_WAIT passes); port 0 always can."""
+    if not 0 <= port <= 65535:
+        raise UsageError(f"--web {port}: not a port (0-65535; 0 picks a free one)")
+    if port == 0:
+        return
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((host, port))
+    except OSError as err:
+        raise web_port_error(port, host, err) from None
+
+
 class WebServer:
     """Serves the live page on ``host:port`` until ``close``; port 0 picks a free one (see ``port``).
 
@@ -258,7 +283,7 @@ class WebServer:
         try:
             self._server = BoundedHTTPServer((host, port), handler)
         except OSError as err:
-            raise MerlionError(f"--web {port}: cannot listen on {host}:{port} ({err.strerror})") from None
+            raise web_port_error(port, host, err) from None
         self.port = self._server.server_address[1]
         self._hosts.port = self.port  # port 0 asked: the one the OS gave
         self._thread = threading.Thread(target=self._server.serve_forever, name="surface-web", daemon=True)

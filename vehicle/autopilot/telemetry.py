@@ -5,8 +5,9 @@
 ``PoseHistory`` and asks for the rates it needs (``RateKeeper``). Depth comes from GLOBAL_POSITION_INT.relative_alt
 when the autopilot sends it, else from SCALED_PRESSURE2 (with the configured fluid density and surface pressure),
 else from VFR_HUD.alt; the source of every sample is recorded. When LOCAL_POSITION_NED never comes (an ArduSub
-without a position source: no DVL, no USBL) it is asked for less and less often, and the companion says so once:
-a log line and a notice (``on_notice``) the live app turns into one STATUSTEXT.
+without a position source: no DVL, no USBL) it is asked for less and less often, and, once the autopilot has been up
+``position_wait_s`` (its EKF sets the origin ~16 s after boot), the companion says so once: a log line and a notice
+(``on_notice``) the live app turns into one STATUSTEXT. Positions that come after that take it back the same ways.
 """
 
 from __future__ import annotations
@@ -33,6 +34,10 @@ log = logging.getLogger(__name__)
 
 GRAVITY = 9.80665
 DEPTH_SOURCES = ("global_position_int", "scaled_pressure2", "vfr_hud")
+NO_POSITION_TEXT = "No position source (no DVL/USBL): depth only"
+"""The STATUSTEXT that says LOCAL_POSITION_NED never came (once the autopilot had time to set its EKF origin)."""
+POSITION_FOUND_TEXT = "Position source found: positions arrive now"
+"""The STATUSTEXT that takes NO_POSITION_TEXT back when LOCAL_POSITION_NED starts arriving after it was sent."""
 _TYPES = ("HEARTBEAT", "SYSTEM_TIME", "ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT",
           "LOCAL_POSITION_NED", "SCALED_PRESSURE2", "VFR_HUD", "SYS_STATUS", "BATTERY_STATUS")
 
@@ -63,7 +68,8 @@ class TelemetrySnapshot:
     clock_offset_s: float | None = None
     autopilot_reboots: int = 0
     position_source: bool | None = None
-    """False once LOCAL_POSITION_NED was asked for and never came (no DVL/USBL), True once it came."""
+    """False once LOCAL_POSITION_NED was asked for and never came, the autopilot up ``position_wait_s`` (no DVL/USBL);
+    True once it came (again: a later arrival clears the False, and says so)."""
     spoofed_ignored: int = 0
     """Unsigned messages claiming to be the autopilot after it was seen signing: ignored (docs/security.md)."""
 
@@ -98,6 +104,12 @@ class VehicleTelemetry:
         self._depth_seen: dict[str, float] = {}
         self._unsubscribe: Callable[[], None] | None = None
         self._changed = threading.Condition()
+        self._position_missing = False
+        """The rate keeper gave up waiting for LOCAL_POSITION_NED; said once the autopilot is up long enough."""
+        self._uptime_s: float | None = None
+        """The autopilot's newest time_boot_ms, in seconds."""
+        self._first_heard: float | None = None
+        """When the autopilot was first heard (monotonic): its uptime's floor when it sends no time_boot_ms."""
         self._boot_epoch_s: float | None = None
         """The autopilot's UTC at its boot (SYSTEM_TIME.time_unix_usec - time_boot_ms), once it has UTC."""
 
@@ -177,14 +189,34 @@ class VehicleTelemetry:
             log.warning("the autopilot never sends %s, asked for %d times", name, self.rates.requests[name]
                         if self.rates is not None else 0)
             return
+        self._position_missing = True
+        self._maybe_no_position()
+
+    def _maybe_no_position(self) -> None:
+        """Say there is no position source, once, when LOCAL_POSITION_NED was given up on and the autopilot has been
+        up ``position_wait_s``: before that its EKF may simply not have its origin yet (~16 s after boot in
+        ArduSub SITL), and the positions start by themselves."""
+        if not self._position_missing:
+            return
+        uptime = self._uptime_s
+        if uptime is None:
+            uptime = 0.0 if self._first_heard is None else time.monotonic() - self._first_heard
+        if uptime < self.cfg.position_wait_s:
+            return
         with self._lock:
-            if self._latest.position_source is False:
-                return  # said once already
+            if self._latest.position_source is not None or not self._position_missing:
+                return  # said once already, or the positions came meanwhile
             self._latest = replace(self._latest, position_source=False)
-        log.warning("no position source: the autopilot never sends LOCAL_POSITION_NED (no DVL or USBL); frames "
-                    "carry depth and attitude only")
+        log.warning("no position source: the autopilot never sends LOCAL_POSITION_NED (no DVL or USBL), up %.0f s; "
+                    "frames carry depth and attitude only", uptime)
         for notify in self._notices:
-            notify("No position source (no DVL/USBL): depth only", mav2.MAV_SEVERITY_INFO)
+            notify(NO_POSITION_TEXT, mav2.MAV_SEVERITY_INFO)
+
+    def _position_found(self) -> None:
+        """LOCAL_POSITION_NED arrives after "no position source" was said: take it back, in the log and the notice."""
+        log.warning("position source found: LOCAL_POSITION_NED arrives now; frames carry position")
+        for notify in self._notices:
+            notify(POSITION_FOUND_TEXT, mav2.MAV_SEVERITY_INFO)
 
     def _sample_time(self, msg: mav2.MAVLink_message, arrival: float) -> float | None:
         """When the autopilot measured ``msg``, in its seconds since boot (None: not placeable yet)."""
@@ -192,6 +224,7 @@ class VehicleTelemetry:
         if boot_ms is None:  # VFR_HUD and friends carry no time: place them at arrival, mapped back
             offset = self.boot_clock.offset
             return None if offset is None else arrival - offset
+        self._uptime_s = boot_ms / 1000.0
         if self.boot_clock.observe(boot_ms, arrival):
             log.warning("autopilot rebooted (time_boot_ms went back to %d): time mapping restarted", boot_ms)
             self.history.clear()
@@ -202,6 +235,8 @@ class VehicleTelemetry:
         if self.link.autopilot is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self.link.autopilot:
             return  # only the autopilot's telemetry (a GCS or replayed camera says nothing about the vehicle)
         arrival = self.clock()
+        if self._first_heard is None:
+            self._first_heard = time.monotonic()
         t = self._sample_time(msg, arrival)
         mtype = msg.get_type()
         update: dict = {}
@@ -258,11 +293,19 @@ class VehicleTelemetry:
                 update["battery_v"] = sum(cells) / 1000.0
             if msg.battery_remaining >= 0:
                 update["battery_pct"] = msg.battery_remaining
+        found = False
         with self._changed:
             with self._lock:
                 self.messages += 1
+                if mtype == "LOCAL_POSITION_NED":
+                    found = self._latest.position_source is False  # said missing: now it is not
+                    self._position_missing = False
                 self._latest = replace(self._latest, time=arrival, **update)
             self._changed.notify_all()
+        if found:
+            self._position_found()
+        elif self._position_missing:
+            self._maybe_no_position()
 
     def _depth(self, update: dict, t: float | None, arrival: float, source: str, depth: float,
                rate_mps: float | None = None) -> None:

@@ -71,6 +71,7 @@ def watch_telemetry(
         telemetry.stop()
         link.stop()
     result: dict[str, object] = {"latest": telemetry.latest.to_dict(), "max_depth_m": max_depth,
+                                 "listened_s": round(time.monotonic() - start, 1),
                                  "link": link.stats(), "messages": telemetry.messages}
     if telemetry.rates is not None:
         result["rates"] = {name: {"asked_hz": hz, "observed_hz": round(telemetry.rates.observed_hz(name), 2),

@@ -23,7 +23,10 @@ EMERGENCY, ALERT, CRITICAL, ERROR, WARNING, NOTICE, INFO, DEBUG = range(8)
 
 # The values sent every second, and what they mean (docs/surface-link.md lists them too).
 NAME_FPS = "MRL_FPS"
-"""Frames per second the pipeline scores."""
+"""Frames per second the pipeline scores (not the camera's rate: the frame gate skips near-duplicates, and a busy
+encoder drops frames; see NAME_SEEN)."""
+NAME_SEEN = "MRL_SEEN"
+"""Frames per second the camera (the source) delivers: MRL_FPS of these are scored."""
 NAME_SCORE = "MRL_SCORE"
 """The last semantic score (positive-query share, 0-1)."""
 NAME_SUMMARY = "MRL_SUMN"
@@ -32,7 +35,7 @@ NAME_LINK = "MRL_LINKBS"
 """Bytes per second the companion put on the wire over the last seconds (link budget in use)."""
 NAME_DEPTH = "MRL_DEPTH"
 """Depth in metres (positive down) of the latest pose; NaN when unknown."""
-VALUE_NAMES = (NAME_FPS, NAME_SCORE, NAME_SUMMARY, NAME_LINK, NAME_DEPTH)
+VALUE_NAMES = (NAME_FPS, NAME_SEEN, NAME_SCORE, NAME_SUMMARY, NAME_LINK, NAME_DEPTH)
 NAME_PUSH = "MRL_PUSH"
 """NAMED_VALUE_INT sent right before each pushed image's handshake: the image index of the frame that follows."""
 
@@ -77,6 +80,7 @@ def camera_text(alive: bool) -> tuple[str, int]:
 @dataclass
 class StatusValues:
     fps: float = math.nan
+    seen_fps: float = math.nan
     score: float = math.nan
     summary: float = 0.0
     link_bps: float = 0.0
@@ -94,7 +98,7 @@ class StatusReporter:
         """When depth_m was measured: its message carries that time, not the send tick's (up to a period later)."""
 
     def update(self, **values: float | None) -> None:
-        """Set any of fps, score, summary, link_bps, depth_m; None means unknown (sent as NaN)."""
+        """Set any of fps, seen_fps, score, summary, link_bps, depth_m; None means unknown (sent as NaN)."""
         with self._lock:
             for key, value in values.items():
                 if not hasattr(self.values, key):
@@ -108,6 +112,7 @@ class StatusReporter:
             v = StatusValues(**vars(self.values))
             depth_ms = self._depth_ms
         now = self._time_boot_ms()
-        return [named_value(NAME_FPS, v.fps, now), named_value(NAME_SCORE, v.score, now),
+        return [named_value(NAME_FPS, v.fps, now), named_value(NAME_SEEN, v.seen_fps, now),
+                named_value(NAME_SCORE, v.score, now),
                 named_value(NAME_SUMMARY, v.summary, now), named_value(NAME_LINK, v.link_bps, now),
                 named_value(NAME_DEPTH, v.depth_m, now if depth_ms is None else depth_ms)]

@@ -9,7 +9,8 @@ const TOKEN = new URLSearchParams(location.search).get("token") || "";
 
 // the companion's NAMED_VALUE_FLOAT names, as a pilot reads them: label, decimals, unit
 const VALUE_LABELS = {
-  MRL_FPS: ["Frames", 1, "fps"],
+  MRL_FPS: ["Frames", 1, "/s"],
+  MRL_SEEN: ["Seen", 1, "/s"],
   MRL_SCORE: ["Score", 2, ""],
   MRL_SUMN: ["Summary", 0, "frames"],
   MRL_LINKBS: ["Link", 0, "B/s"],
@@ -47,7 +48,12 @@ function positionText(frame) {
   return Math.abs(frame.lat).toFixed(5) + "\u00b0" + ns + " " + Math.abs(frame.lon).toFixed(5) + "\u00b0" + ew;
 }
 
-function valueText(name, value) {
+function valueText(name, value, values) {
+  // frames scored, not the camera's rate: said beside what the camera delivers (MRL_SEEN)
+  if (name === "MRL_FPS") {
+    const seen = values ? values.MRL_SEEN : undefined;
+    return ["Frames", "scored " + fmt(value, 1, "/s") + (known(seen) ? " of " + fmt(seen, 1, "/s") + " seen" : "")];
+  }
   const label = VALUE_LABELS[name];
   if (!label) return [name, known(value) ? Number(value).toFixed(2) : "?"];
   return [label[0], known(value) ? Number(value).toFixed(label[1]) + (label[2] ? " " + label[2] : "") : "?"];
@@ -290,8 +296,9 @@ function render(state) {
     "thumbnails: push " + link.pushed_ok + " ok (" + link.verified + " CRC-checked) / " + link.pushed_lost
     + " lost, FTP " + link.ftp_ok + " ok / " + link.ftp_failed + " failed";
   const values = document.getElementById("values");
-  values.replaceChildren(...Object.keys(comp.values).sort().map((name) => {
-    const [label, text] = valueText(name, comp.values[name]);
+  const shown = Object.keys(comp.values).sort().filter((name) => name !== "MRL_SEEN" || !("MRL_FPS" in comp.values));
+  values.replaceChildren(...shown.map((name) => {
+    const [label, text] = valueText(name, comp.values[name], comp.values);
     const span = el("span");
     span.appendChild(el("b", "", label));
     span.appendChild(document.createTextNode(" " + text));

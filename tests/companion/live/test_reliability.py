@@ -66,22 +66,23 @@ def test_autopilot_silent_then_back_then_rebooted(tmp_path: Path, vehicle) -> No
     assert companion.terminate() == 0, companion.output
 
 
-def test_source_missing_then_returning_then_ending_keeps_the_process_up(tmp_path: Path, vehicle) -> None:
+def test_source_lost_then_returning_keeps_the_process_up(tmp_path: Path, vehicle) -> None:
     hub, sim, listener = vehicle
-    clip = tmp_path / "camera.avi"
+    clip = write_clip(tmp_path / "camera.avi")  # there at start: a file that cannot be read at start is refused
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(tmp_path / "store")},
                        source={"retry_initial_s": 1.0, "retry_max_s": 2.5}, health={"stall_after_s": 1.5})
-    companion = Companion("--config", str(cfg), "--source", str(clip))
+    companion = Companion("--config", str(cfg), "--source", str(clip), "--loop")
+    companion.wait_for("companion running")
+    away = clip.rename(tmp_path / "away.avi")  # gone at its next pass, as a camera unplugged mid-dive
     companion.wait_for("retrying in 2.0 s")
     companion.wait_for("retrying in 2.5 s")
     assert "stuck" not in companion.output, "waiting for a camera must not stop the watchdog"
-    write_clip(tmp_path / "partial.avi").rename(clip)  # appears whole, as a camera coming back
-    companion.wait_for("back after")
-    companion.wait_for("ended after")
     wait_until(lambda: any("Camera lost" in t for t in listener.texts()), 30, "the camera-lost STATUSTEXT")
-    # the surface link keeps serving after the source ended: status values keep coming
+    # the surface link keeps serving while the source is gone: status values keep coming
     count = len(listener.of_type("NAMED_VALUE_FLOAT"))
-    wait_until(lambda: len(listener.of_type("NAMED_VALUE_FLOAT")) > count + 5, 30, "status after the source ended")
+    wait_until(lambda: len(listener.of_type("NAMED_VALUE_FLOAT")) > count + 5, 30, "status while the source is gone")
+    away.rename(clip)  # back whole, as a camera plugged in again
+    companion.wait_for("back after")
     assert companion.alive()
     assert companion.terminate() == 0, companion.output
     assert store_summary(tmp_path / "store")["summary"]

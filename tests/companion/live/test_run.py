@@ -79,11 +79,12 @@ def test_run_tags_frames_stores_them_sends_captures_and_stops_cleanly_then_resum
         assert (all(v is None for v in reported) if pose["stale"] else any(v is not None for v in reported)), pose
     features = {i: np.load(store / "frames" / f"{i:06d}.npy") for i in before["summary"]}
 
-    # restart on a source that is not there (yet): the resumed summary is served, nothing is lost or renumbered
-    second = Companion("--config", str(cfg), "--source", str(tmp_path / "camera-not-plugged.mp4"))
-    second.wait_for("resuming with")
-    second.wait_for("retrying in")
-    assert second.terminate() == 0, second.output
+    # restart on a file that is not there: refused at start (a file does not come back, unlike a camera), and the
+    # store is left as it was: nothing lost or renumbered
+    missing = tmp_path / "not-there.mp4"
+    second = run_merlion("run", "--config", str(cfg), "--source", str(missing), "--duration", "5", timeout=60)
+    assert second.returncode == 2, second.stderr
+    assert second.stderr.strip() == f"merlion: error: --source {missing}: no such file or folder"
     after = Store(StoreConfig(dir=str(store)))
     assert after.summary == before["summary"]
     assert after.next_image_index == before["next_image_index"]

@@ -45,7 +45,7 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
         surface.publish(SummaryEvent("added", frames[5], summary=[5]))
         surface.publish(SummaryEvent("added", frames[6], summary=[5, 6]))
         surface.publish(SummaryEvent("added", frames[7], summary=[5, 6, 7]))
-        surface.update_status(fps=4.8, score=0.66, summary=2, depth_m=23.0)
+        surface.update_status(fps=4.8, seen_fps=10.0, score=0.66, summary=2, depth_m=23.0)
         surface.publish(SummaryEvent("removed", frames[7], summary=[5, 6]))
         surface.event("Camera lost, retrying", st.WARNING)
 
@@ -76,7 +76,9 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
             # for a pilot: labels with units, warnings apart from summary news, local time beside UTC
             values = page.wait_for("document.getElementById('values').innerText.includes('B/s')"
                                    " && document.getElementById('values').innerText")
-            assert re.search(r"Frames\s+4\.8 fps", values) and re.search(r"Depth\s+23\.0 m", values), values
+            # frames scored, said beside the camera's rate (never "4.8 fps", which reads as the camera's)
+            assert re.search(r"Frames\s+scored 4\.8/s of 10\.0/s seen", values), values
+            assert re.search(r"Depth\s+23\.0 m", values) and "Seen" not in values, values
             assert re.search(r"Link\s+\d+ B/s", values) and "MRL_" not in values, values
             assert page.wait_for("document.getElementById('warnings').innerText.includes('Camera lost')")
             assert "Summary" not in page.evaluate("document.getElementById('warnings').innerText")

@@ -20,7 +20,7 @@ from vehicle.sim.vehicle import SimVehicle
 def test_missing_local_position_backs_off_exponentially_and_is_announced_once():
     port = free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))
-    tel = VehicleTelemetry(link, TelemetryConfig(), rate_options={"grace_s": 0.25, "backoff_max_s": 1.0})
+    tel = VehicleTelemetry(link, TelemetryConfig(position_wait_s=0), rate_options={"grace_s": 0.25, "backoff_max_s": 1.0})
     notices: list[tuple[str, int]] = []
     tel.on_notice(lambda text, severity: notices.append((text, severity)))
     tel.start()
@@ -49,7 +49,8 @@ def test_missing_local_position_backs_off_exponentially_and_is_announced_once():
         link.send(mav2.MAVLink_set_gps_global_origin_message(1, 12500000, 1038000000, 0, 0))
         assert tel.wait_for(lambda s: s.position_source is True and s.north_m is not None, 5)
         assert wait_until(lambda: not tel.rates.missing, 5)
-        assert len(notices) == 1
+        assert wait_until(lambda: len(notices) == 2, 5), notices  # and says so: the positions arrive now
+        assert notices[1] == ("Position source found: positions arrive now", mav2.MAV_SEVERITY_INFO)
     finally:
         sim.stop()
         tel.stop()

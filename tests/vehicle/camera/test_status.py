@@ -27,9 +27,10 @@ def test_lines_and_names_follow_the_rules():
     with pytest.raises(ValueError):
         st.status_text("x", 9)
     rep = st.StatusReporter(lambda: 5)
-    rep.update(fps=4.8, depth_m=None)
+    rep.update(fps=4.8, seen_fps=10.0, depth_m=None)
     values = {m.name: m.value for m in rep.messages()}
     assert values["MRL_FPS"] == pytest.approx(4.8) and math.isnan(values["MRL_DEPTH"])
+    assert values["MRL_SEEN"] == pytest.approx(10.0)  # the camera's rate beside the scored one
     with pytest.raises(TypeError):
         rep.update(nonsense=1)
 

@@ -71,7 +71,7 @@ def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_pa
     store = tmp_path / "store"
     # the companion asks for what the firmware sends anyway: GLOBAL_POSITION_INT 3.2 Hz, SCALED_PRESSURE2 1 Hz
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)},
-                       telemetry={"position_hz": 3.2, "pressure_hz": 1.0})
+                       telemetry={"position_hz": 3.2, "pressure_hz": 1.0, "position_wait_s": 5.0})
     companion = Companion("--config", str(cfg))
     try:
         companion.wait_for("autopilot heartbeat up")
