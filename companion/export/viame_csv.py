@@ -20,7 +20,7 @@ from companion.export.records import FrameRecord
 HEADER = ["# 1: Detection or Track-id", "2: Video or Image Identifier", "3: Unique Frame Identifier",
           "4-7: Img-bbox(TL_x", "TL_y", "BR_x", "BR_y)", "8: Detection or Length Confidence",
           "9: Target Length (0 or -1 if invalid)", "10-11+: Repeated Species", "Confidence Pairs or Attributes"]
-ATTRIBUTES = ("dive", "frame", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
+ATTRIBUTES = ("dive", "frame", "source", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
               "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon", "topic")
 
 

@@ -1,7 +1,7 @@
 """A folder of still images in natural order (frame2 before frame10), one frame per image.
 
 Stills carry no clock, so image i gets ``time_s = i / fps``: the folder plays as a camera at the target rate
-and nothing is subsampled away. Unreadable images are skipped and counted in ``lost``.
+and nothing is subsampled away; ``origin(index)`` names the file a frame came from, which a summary keeps. Unreadable images are skipped and counted in ``lost``.
 """
 
 from __future__ import annotations
@@ -64,6 +64,11 @@ class FolderSource(FrameSource):
         self.files = list_images(self.folder)
         if not self.files:
             raise MerlionError(f"{self.folder}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in this folder")
+
+    def origin(self, index: int) -> str | None:
+        """The name of the image that frame ``index`` was read from (indices count every file, readable or not,
+        and keep counting round a loop)."""
+        return self.files[index % len(self.files)].name if index >= 0 else None
 
     def __iter__(self) -> Iterator[Frame]:
         pacer = Pacer(self.realtime)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -168,7 +169,11 @@ def test_truncated_video_is_summarized_and_the_loss_reported(tmp_path):
     doc = json.loads((tmp_path / "out" / "summary.json").read_text())
     stats = doc["params"]["stats"]
     assert stats["frames_lost"] > 0 and stats["frames_seen"] > 0
-    assert f"{stats['frames_lost']} lost" in proc.stdout
+    # each count in its unit: frames kept at --fps, lost ones at the video's own rate (and as seconds)
+    assert f"from {stats['frames_seen']} frames read at 2 fps (" in proc.stdout, proc.stdout
+    assert (f"; {stats['frames_lost']} frames of the video at its own 10 fps ({stats['frames_lost'] / 10:.1f} s) "
+            f"could not be decoded;") in proc.stdout, proc.stdout
+    assert not re.search(r"\b1 frames", proc.stdout + proc.stderr)
 
 
 def test_a_clip_no_frame_passes_keeps_its_best_frames_marked_below_threshold(tmp_path):
@@ -187,4 +192,9 @@ def test_a_clip_no_frame_passes_keeps_its_best_frames_marked_below_threshold(tmp
     assert all(0 <= f["score"] <= doc["params"]["tau_ss"] for f in frames)
     assert doc["params"]["topics"][0]["below_threshold"] is True and doc["params"]["topics"][0]["frames"] == len(frames)
     assert all((out / f["file"]).is_file() for f in frames)
-    assert f"{len(frames)} below the threshold, the best seen" in proc.stdout
+    n = len(frames)
+    said = (f"{n} summary frame{'s' * (n > 1)} from {doc['params']['stats']['frames_seen']} frames read at 10 fps (nothing passed the query; the "
+            f"{n} best frame{'s are' if n > 1 else ' is'} kept, marked below the threshold)")
+    assert said in proc.stdout, proc.stdout
+    assert "no more distinct views that passed" not in proc.stdout  # nothing passed: no contradiction after it
+    assert doc["params"]["short"] == [f"main: {said.split('(')[1].rstrip(')')}"]
