@@ -25,7 +25,7 @@ import cv2
 from tqdm import tqdm
 
 from companion.config import Config
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.sources.base import FrameSource
 from companion.sources.factory import open_source
 from companion.sources.folder import FolderSource
@@ -84,14 +84,14 @@ def sheet_name(topic: str, several_topics: bool) -> str:
 
 def _check_out_dir(out_dir: Path, force: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
-        raise MerlionError(f"{out_dir}: exists and is not a directory")
+        raise UsageError(f"{out_dir}: exists and is not a directory")
     if out_dir.exists() and not force:
-        raise MerlionError(f"{out_dir}: already exists; use --force to replace it")
+        raise UsageError(f"{out_dir}: already exists; use --force to replace it")
     parent = out_dir.parent
     if parent.exists() and not parent.is_dir():
-        raise MerlionError(f"{out_dir}: {parent} is a file, not a folder")
+        raise UsageError(f"{out_dir}: {parent} is a file, not a folder")
     if not parent.is_dir():
-        raise MerlionError(f"{out_dir}: parent directory {parent} does not exist")
+        raise UsageError(f"{out_dir}: parent directory {parent} does not exist")
 
 
 def _progress(total: int | None, enabled: bool | None):
