@@ -179,6 +179,9 @@ def read_records(source: str | Path) -> list[FrameRecord]:
     path = Path(source)
     if path.is_file() and path.name == "summary.json":
         path = path.parent
+    if path.is_file():
+        raise UsageError(f"{source}: a file, not a store, summary or campaign folder (give the folder that "
+                         f"merlion summarize, archive or run wrote)")
     if not path.is_dir():
         raise UsageError(f"{source}: not a store, summary or campaign folder (no such folder)")
     if (path / "manifest.json").is_file():
