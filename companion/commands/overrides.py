@@ -69,9 +69,10 @@ def topic_option(text: str) -> dict[str, Any]:
     return {"name": name.strip(), "positive": parts[0], "negatives": parts[1:]}
 
 
-def add_topic_option(p: argparse.ArgumentParser) -> None:
+def add_topic_option(p: argparse.ArgumentParser, each: str = "each with its own summary") -> None:
+    """``each``: what every topic gets from this command (a summary; a score per image for ``score``)."""
     p.add_argument("--topic", metavar="NAME=POSITIVE[;NEGATIVE...]", action="append", type=topic_option,
-                   help="follow several topics at once, each with its own summary (repeatable; replaces --query), "
+                   help=f"follow several topics at once, {each} (repeatable; replaces --query), "
                         "e.g. --topic 'fish=underwater image with fish;underwater image without fish'")
 
 
