@@ -198,3 +198,21 @@ def test_a_clip_no_frame_passes_keeps_its_best_frames_marked_below_threshold(tmp
     assert said in proc.stdout, proc.stdout
     assert "no more distinct views that passed" not in proc.stdout  # nothing passed: no contradiction after it
     assert doc["params"]["short"] == [f"main: {said.split('(')[1].rstrip(')')}"]
+
+
+def test_an_mp4_cut_before_its_index_says_why_and_how_to_recover(tmp_path):
+    """The survey's index (moov) is at its end, as most recorders write it: a copy cut short cannot be opened at
+    all, and the one line says that a recording cut short leaves an MP4 without its index, and what to do."""
+    data = shared_file(SURVEY).read_bytes()
+    assert data.find(b"moov") > len(data) // 2  # the index is written last in this file
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[:200_000])
+    proc = run_merlion("summarize", str(cut), "--out", str(tmp_path / "out"), "--encoder", "visual")
+    assert proc.returncode == 1  # the work fails on a damaged video (README: exit 1)
+    line = one_error_line(proc.stderr)
+    assert line.startswith(f"merlion: error: {cut}: cannot be opened as a video: an MP4 without its index")
+    assert "recording cut short" in line and "untrunc" in line and ".mkv" in line
+    other = tmp_path / "notes.mp4"
+    other.write_text("not a video")
+    proc = run_merlion("summarize", str(other), "--out", str(tmp_path / "out"), "--encoder", "visual")
+    assert "(unknown format, or damaged beyond reading)" in one_error_line(proc.stderr)
