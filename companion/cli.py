@@ -12,8 +12,10 @@ import argparse
 import importlib
 import logging
 import pkgutil
+import re
 import sys
 from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 from companion import __version__, commands
 from companion.config import ConfigError
@@ -24,8 +26,27 @@ log = logging.getLogger("merlion")
 AddCommand = Callable[..., argparse.ArgumentParser]
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a bad argument is the one line every other bad input gets (``merlion: error: summarize -k:
+    invalid int value: 'abc' (see merlion summarize --help)``), exit 2, not the whole usage above it; the
+    subcommands' parsers are of this class too (argparse makes them with the parent's class)."""
+
+    def error(self, message: str) -> NoReturn:
+        command = self.prog.removeprefix("merlion").strip()
+        what, why = message, ""
+        if match := re.match(r"argument (\S+): (.*)$", message, re.S):
+            what, why = match.groups()
+        elif match := re.match(r"the following arguments are required: (.*)$", message, re.S):
+            what, why = match.group(1), "required"
+        elif match := re.match(r"unrecognized arguments: (.*)$", message, re.S):
+            what, why = match.group(1), "unknown option or extra argument"
+        line = " ".join(p for p in (command, what) if p) + (f": {why}" if why else "")
+        hint = f"merlion {command} --help" if command else "merlion --help"
+        self.exit(2, f"merlion: error: {line} (see {hint})\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="merlion",
         description="MERLION Companion: language-guided online informative frame sampling for underwater vehicles.",
     )
@@ -44,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
                 groups[group] = gp.add_subparsers(dest=f"{group}_command", metavar="COMMAND")
             where = groups[group]
         sub = where.add_parser(name, help=help, description=help)
+        sub.set_defaults(parser=sub)  # an option no parser knew is blamed on this subcommand, not on merlion
         return sub
 
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
@@ -61,7 +83,9 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        getattr(args, "parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2

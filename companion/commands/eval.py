@@ -80,7 +80,7 @@ def register(add_command) -> None:
     p.add_argument("--holdout", action="store_true",
                    help="with --data: a learned head (the fish head) is retrained without each group and scores "
                         "that group, so no figure comes from a group the head learned from; also the head's score "
-                        "centred by each dive's running mean, every choice nested")
+                        "centred by each dive's running mean, every choice nested (slow: tens of minutes on 2 cores)")
     p.add_argument("--marks", type=int, metavar="N", help="with --data: in each group the first N positive and N "
                                                           "negative frames become marks; the rest are scored with "
                                                           "and without them (with --holdout: by the held-out head)")
@@ -90,7 +90,9 @@ def register(add_command) -> None:
                         "summarised over all (default 3)")
     p.add_argument("--config", help="YAML configuration (encoder and queries)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="override encoder.name")
-    p.add_argument("--query", help="the label that counts as positive (default: fish when present, else any)")
+    p.add_argument("--query", metavar="LABEL",
+                   help="a label name, not a text query as elsewhere: the label that counts as positive (default: "
+                        "fish when present, else any); the text queries come from --config")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_auroc)
 

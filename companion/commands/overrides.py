@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from companion.errors import UsageError
+
 Overrides = dict[str, dict[str, Any]]
 
 ENCODER_OPTIONS = ("model", "weights", "pretrained", "precision", "batch")
@@ -24,8 +26,26 @@ def put(over: Overrides, section: str, key: str, value: Any) -> None:
         over.setdefault(section, {})[key] = value
 
 
+def check_queries(positive: str | None, negatives: list[str] | None, where: str = "--query") -> None:
+    """An empty query, or a negative that is the positive itself, is refused in words the user typed: the
+    library's "String should have at least 1 character" names no fix, and a negative equal to the positive scores
+    every frame 0.5 in silence (a softmax over two equal queries)."""
+    if positive is not None and not positive.strip():
+        raise UsageError(f"{where}: empty (name a thing to look for, e.g. 'fish')")
+    option = "--negative" if where == "--query" else f"{where}: negative"
+    for negative in negatives or []:
+        if not negative.strip():
+            raise UsageError(f"{option}: empty (name what the wanted frames do not show, or leave it out)")
+        if positive is not None and " ".join(negative.lower().split()) == " ".join(positive.lower().split()):
+            raise UsageError(f"{option} {negative!r}: the same as the positive query, so every frame would "
+                             f"score 0.5; give a different negative or leave it out")
+
+
 def put_queries_and_encoder(over: Overrides, args: argparse.Namespace) -> None:
     """--query/--negative (or --topic) and --encoder with its options (those the command defines)."""
+    check_queries(args.query, args.negative)
+    for topic in getattr(args, "topic", None) or []:
+        check_queries(topic["positive"], topic["negatives"], where=f"--topic {topic['name']}")
     put(over, "queries", "positive", args.query)
     if args.query is not None and not getattr(args, "topic", None):
         put(over, "queries", "topics", [])  # the command line's one query replaces topics a config file lists
@@ -49,9 +69,10 @@ def topic_option(text: str) -> dict[str, Any]:
     return {"name": name.strip(), "positive": parts[0], "negatives": parts[1:]}
 
 
-def add_topic_option(p: argparse.ArgumentParser) -> None:
+def add_topic_option(p: argparse.ArgumentParser, each: str = "each with its own summary") -> None:
+    """``each``: what every topic gets from this command (a summary; a score per image for ``score``)."""
     p.add_argument("--topic", metavar="NAME=POSITIVE[;NEGATIVE...]", action="append", type=topic_option,
-                   help="follow several topics at once, each with its own summary (repeatable; replaces --query), "
+                   help=f"follow several topics at once, {each} (repeatable; replaces --query), "
                         "e.g. --topic 'fish=underwater image with fish;underwater image without fish'")
 
 

@@ -18,7 +18,7 @@ def register(add_command) -> None:
     p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
     p.add_argument("--negative", metavar="TEXT", action="append",
                    help="negative query, repeatable (with --query and no --negative: a generic negative)")
-    add_topic_option(p)
+    add_topic_option(p, "each image scored against each (the highest first, then one score per topic)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores images")
     p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file (or open_clip model folder)")

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from companion.commands.overrides import Overrides, add_summary_options, put_summary_options
+
+if TYPE_CHECKING:
+    from companion.vision.summarize import SummaryRun
 
 
 def register(add_command) -> None:
@@ -38,12 +41,46 @@ def run(args: argparse.Namespace) -> int:
     cfg = explained_config(args, over)
     with blamed_queries(cfg, config=args.config, overrides=over):
         result = summarize(cfg, args.out, force=args.force, like=args.like, unlike=args.unlike)
-    lost = f", {result.frames_lost} lost" if result.frames_lost else ""
-    sheets = ", ".join(t["contact_sheet"] for t in result.document["params"]["topics"])
-    below = sum(f["below_threshold"] for f in result.document["frames"])
-    below_text = f"; {below} below the threshold, the best seen" if below else ""
-    print(f"{result.out_dir}: {len(result.document['frames'])} summary frames from {result.frames_seen} "
-          f"({result.frames_passed} passed the query{lost}{below_text}); see summary.json and {sheets}")
-    for note in result.document["params"]["short"]:
-        print(f"{result.out_dir}: {note}")
+    for line in closing_lines(result):
+        print(f"{result.out_dir}: {line}")
     return 0
+
+
+def closing_lines(result: SummaryRun) -> list[str]:
+    """What came out, each count in a unit it names: frames kept from a video (at the kept rate, which is what
+    ``from N`` counts) and lost frames at the video's own rate; images of a folder."""
+    from companion.vision.summarize import plural
+
+    doc = result.document
+    stats, topics = doc["params"]["stats"], doc["params"]["topics"]
+    fps = doc["params"]["fps"]
+    if result.stills:
+        read = plural(result.frames_seen, "image")
+    elif result.source_fps:
+        read = f"{plural(result.frames_seen, 'frame')} read at {min(fps, result.source_fps):g} fps"
+    else:
+        read = plural(result.frames_seen, "frame")
+    below = [t for t in topics if t["below_threshold"]]
+    if result.frames_passed == 0 and below and len(topics) == 1:
+        n = topics[0]["frames"]
+        what = (f"nothing passed the query; the {plural(n, 'best frame')} {'is' if n == 1 else 'are'} kept, "
+                f"marked below the threshold")
+        notes = []  # said here already
+    else:
+        what = f"{result.frames_passed} passed the query"
+        if below:
+            what += f"; {sum(t['frames'] for t in below)} below the threshold, the best seen"
+        notes = doc["params"]["short"]
+    if stats.get("frames_skipped"):
+        what += f"; {stats['frames_skipped']} skipped by the frame gate"
+    lost = ""
+    if result.frames_lost and result.stills:
+        lost = f"; {plural(result.frames_lost, 'image')} could not be read"
+    elif result.frames_lost and result.source_fps:
+        lost = (f"; {plural(result.frames_lost, 'frame')} of the video at its own {result.source_fps:g} fps "
+                f"({result.frames_lost / result.source_fps:.1f} s) could not be decoded")
+    elif result.frames_lost:
+        lost = f"; {plural(result.frames_lost, 'frame')} could not be decoded"
+    sheets = ", ".join(t["contact_sheet"] for t in topics)
+    frames = plural(len(doc["frames"]), "summary frame")
+    return [f"{frames} from {read} ({what}){lost}; see summary.json and {sheets}", *notes]

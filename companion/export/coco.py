@@ -16,7 +16,7 @@ from typing import Any
 from companion.export.paths import relative_url
 from companion.export.records import FrameRecord
 
-EXTRA = ("dive", "frame", "time_s", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
+EXTRA = ("dive", "frame", "source", "time_s", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
          "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon", "query", "topic", "score")
 
 

@@ -26,6 +26,8 @@ def image_record(record: FrameRecord, url: str, imaging_type: str | None = None)
     """One FathomNet ``Image`` as a JSON object (fields that are not known are left out, as FathomNet does)."""
     tags = [_tag("dive", record.dive), _tag("frame", record.frame), _tag("query", record.query),
             _tag("topic", record.topic), _tag("score", round(record.score, 6))]
+    if record.source is not None:
+        tags.insert(2, _tag("source", record.source))
     for key in ("heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "altitude_m", "capture_utc", "autopilot_utc",
                 "time_boot_ms", "time_s"):
         value = getattr(record, key)

@@ -52,6 +52,8 @@ class FrameRecord:
     lat: float | None = None
     """Only when valid: the autopilot had a position origin, in range, not 0/0."""
     lon: float | None = None
+    source: str | None = None
+    """The still's own file name, for a summary of an image folder (``summary.json`` frames' ``source``)."""
 
     @property
     def best_utc(self) -> str | None:
@@ -151,7 +153,8 @@ def _summary_records(folder: Path, doc: dict, dive: str) -> list[FrameRecord]:
             image=image, dive=dive, frame=entry.whole("index", position), width=width, height=height,
             score=entry.number("score", 0.0), topic=topic,
             query=queries.get(topic, str(params.get("query", ""))), time_s=_number(data.get("time_s")),
-            capture_utc=iso_utc(_number(tag.get("wall_time"))), **_pose_fields(tag.get("pose"))))
+            capture_utc=iso_utc(_number(tag.get("wall_time"))), source=entry.text("source") or None,
+            **_pose_fields(tag.get("pose"))))
     return out
 
 
@@ -176,6 +179,9 @@ def read_records(source: str | Path) -> list[FrameRecord]:
     path = Path(source)
     if path.is_file() and path.name == "summary.json":
         path = path.parent
+    if path.is_file():
+        raise UsageError(f"{source}: a file, not a store, summary or campaign folder (give the folder that "
+                         f"merlion summarize, archive or run wrote)")
     if not path.is_dir():
         raise UsageError(f"{source}: not a store, summary or campaign folder (no such folder)")
     if (path / "manifest.json").is_file():

@@ -20,7 +20,7 @@ from companion.export.records import FrameRecord
 HEADER = ["# 1: Detection or Track-id", "2: Video or Image Identifier", "3: Unique Frame Identifier",
           "4-7: Img-bbox(TL_x", "TL_y", "BR_x", "BR_y)", "8: Detection or Length Confidence",
           "9: Target Length (0 or -1 if invalid)", "10-11+: Repeated Species", "Confidence Pairs or Attributes"]
-ATTRIBUTES = ("dive", "frame", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
+ATTRIBUTES = ("dive", "frame", "source", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
               "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon", "topic")
 
 
@@ -30,9 +30,16 @@ def _species(record: FrameRecord) -> str:
     return name.lstrip("(") or "summary"
 
 
-def _value(value: object) -> str:
+DECIMALS = {"lat": 7, "lon": 7, "depth_m": 3, "altitude_m": 3, "heading_deg": 2, "roll_deg": 2, "pitch_deg": 2,
+            "yaw_deg": 2}
+"""Fixed decimals, never exponents: 7 for lat/lon (~1 cm; ``.7g`` cut 151.2152967 to 151.2153, ~5 m), mm for
+depth and altitude, 0.01 degree for angles (``.7g`` wrote a heading of 0 as 4.720046e-10)."""
+
+
+def _value(key: str, value: object) -> str:
     if isinstance(value, float):
-        return f"{value:.7g}" if abs(value) < 1e6 else f"{value:.10g}"
+        text = f"{value:.{DECIMALS.get(key, 6)}f}"
+        return "0" + text[2:] if text.startswith("-0") and not text.strip("-0.") else text  # no "-0.00"
     return str(value).replace(" ", "_")  # DIVE's attribute value is the rest of the cell; keep it one word
 
 
@@ -43,7 +50,7 @@ def render(records: list[FrameRecord], out: Path) -> str:
     for n, r in enumerate(records):
         row: list[object] = [n, relative_url(r.image, out), n, 0, 0, r.width, r.height, f"{r.score:.6f}", -1,
                              _species(r), f"{r.score:.6f}"]
-        row += [f"(atr) {key} {_value(getattr(r, key))}" for key in ATTRIBUTES
+        row += [f"(atr) {key} {_value(key, getattr(r, key))}" for key in ATTRIBUTES
                 if getattr(r, key) is not None and getattr(r, key) != ""]
         writer.writerow(row)
     return buf.getvalue()

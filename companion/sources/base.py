@@ -22,6 +22,10 @@ class FrameSource(ABC):
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...
 
+    def origin(self, index: int) -> str | None:
+        """The file a frame came from, when the source is made of separate files (an image folder); else None."""
+        return None
+
     def close(self) -> None:  # noqa: B027 - sources without a device need no close
         """Release the device or file; safe to call twice."""
 

@@ -1,7 +1,8 @@
 """A video file through OpenCV's FFmpeg backend (H.264, HEVC, MJPEG, ...), subsampled to the target rate.
 
 A corrupt or truncated file yields what can be decoded; frames the container announces but that never decode
-are counted in ``lost``. Only a file from which nothing at all decodes is an error.
+are counted in ``lost``. Only a file from which nothing at all decodes is an error, and so is an MP4 cut short
+before its index (``moov``) was written: nothing can open it, and the error says so (``mp4_index``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from companion.errors import MerlionError, UsageError
 from companion.sources.base import FrameSource
 from companion.sources.ffmpeg_log import opening
 from companion.sources.frame import Frame
+from companion.sources.mp4_index import missing_mp4_index, no_index_message
 from companion.sources.subsample import Pacer, RateSubsampler
 
 log = logging.getLogger(__name__)
@@ -52,6 +54,8 @@ class VideoSource(FrameSource):
             cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             cap.release()
+            if missing_mp4_index(self.path):
+                raise MerlionError(no_index_message(self.path))
             raise MerlionError(f"{self.path}: cannot be opened as a video (unknown format, or damaged beyond reading)")
         return cap
 

@@ -1,4 +1,5 @@
-"""A contact sheet: the summary frames in a grid, each labelled with its time and score, for a glance at a dive."""
+"""A contact sheet: the summary frames in a grid, each labelled with its time (a still: its file name) and score,
+for a glance at a dive."""
 
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ class Tile:
     score: float
     depth_m: float | None = None
     """Drawn when known (the live companion's frames carry a pose)."""
+    label: str | None = None
+    """Drawn instead of the time when given: a still's file name (stills have no clock of their own)."""
 
 
 def format_time(seconds: float) -> str:
@@ -28,6 +31,15 @@ def format_time(seconds: float) -> str:
     minutes, sec = divmod(max(0.0, seconds), 60.0)
     hours, minutes = divmod(int(minutes), 60)
     return f"{hours}:{minutes:02d}:{sec:04.1f}" if hours else f"{minutes}:{sec:04.1f}"
+
+
+def fit_text(name: str, tail: str, width: int, font: int, scale: float, thick: int) -> str:
+    """``name + tail`` shortened in the middle of ``name`` (``7117_Car...f000006.jpg``) until it fits ``width``."""
+    text, keep = name + tail, len(name)
+    while keep > 4 and cv2.getTextSize(text, font, scale, thick)[0][0] > width:
+        keep -= 1
+        text = f"{name[:keep // 2]}...{name[len(name) - (keep - keep // 2):]}{tail}"
+    return text
 
 
 def contact_sheet(tiles: Sequence[Tile], *, tile_width: int = 320, columns: int | None = None,
@@ -58,8 +70,12 @@ def contact_sheet(tiles: Sequence[Tile], *, tile_width: int = 320, columns: int 
         x, y = pad + c * (tile_width + pad), head + pad + r * (cell_h + pad)
         interp = cv2.INTER_AREA if tile.image.shape[1] > tile_width else cv2.INTER_LINEAR
         sheet[y:y + h, x:x + tile_width] = cv2.resize(tile.image, (tile_width, h), interpolation=interp)
-        label = f"t {format_time(tile.time_s)}   score {tile.score:.2f}"
+        tail = f"   score {tile.score:.2f}"
         if tile.depth_m is not None and math.isfinite(tile.depth_m):
-            label += f"   {tile.depth_m:.1f} m"
+            tail += f"   {tile.depth_m:.1f} m"
+        if tile.label is None:
+            label = f"t {format_time(tile.time_s)}{tail}"
+        else:
+            label = fit_text(tile.label, tail, tile_width - 8, font, scale, thick)
         cv2.putText(sheet, label, (x + 4, y + h + 17), font, scale, TEXT, thick, cv2.LINE_AA)
     return sheet

@@ -25,9 +25,10 @@ import cv2
 from tqdm import tqdm
 
 from companion.config import Config
-from companion.errors import MerlionError
+from companion.errors import MerlionError, UsageError
 from companion.sources.base import FrameSource
 from companion.sources.factory import open_source
+from companion.sources.folder import FolderSource
 from companion.sources.frame_feed import FrameFeed
 from companion.vision.contact_sheet import Tile, contact_sheet
 from companion.vision.encoders.base import Encoder
@@ -50,6 +51,10 @@ class SummaryRun:
     frames_seen: int
     frames_passed: int
     frames_lost: int
+    stills: bool = False
+    """The source was an image folder: frames are images, ``frames_lost`` unreadable ones."""
+    source_fps: float | None = None
+    """A video's own frame rate: ``frames_lost`` counts frames at this rate, ``frames_seen`` at the kept rate."""
 
 
 def expected_frames(source: FrameSource) -> int | None:
@@ -79,14 +84,14 @@ def sheet_name(topic: str, several_topics: bool) -> str:
 
 def _check_out_dir(out_dir: Path, force: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
-        raise MerlionError(f"{out_dir}: exists and is not a directory")
+        raise UsageError(f"{out_dir}: exists and is not a directory")
     if out_dir.exists() and not force:
-        raise MerlionError(f"{out_dir}: already exists; use --force to replace it")
+        raise UsageError(f"{out_dir}: already exists; use --force to replace it")
     parent = out_dir.parent
     if parent.exists() and not parent.is_dir():
-        raise MerlionError(f"{out_dir}: {parent} is a file, not a folder")
+        raise UsageError(f"{out_dir}: {parent} is a file, not a folder")
     if not parent.is_dir():
-        raise MerlionError(f"{out_dir}: parent directory {parent} does not exist")
+        raise UsageError(f"{out_dir}: parent directory {parent} does not exist")
 
 
 def _progress(total: int | None, enabled: bool | None):
@@ -95,9 +100,10 @@ def _progress(total: int | None, enabled: bool | None):
 
 
 def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: list[SummaryFrame],
-                   stats: dict) -> dict:
+                   stats: dict, origin: Callable[[int], str | None] | None = None) -> dict:
     """summary.json: the issue's schema, frames in time order (with several topics, the topics' frames together,
-    each naming its topic; ``params.topics`` describes every topic)."""
+    each naming its topic; ``params.topics`` describes every topic). ``origin``: the source file of a frame index
+    (an image folder's stills), written as each frame's ``source``."""
     several = len(pipeline.topics) > 1
     topics = [{"name": t.name, "query": t.presampler.positive, "negatives": t.presampler.negatives,
                "tau_ss": t.presampler.tau_ss, "frames": sum(f.topic == t.name for f in frames),
@@ -122,20 +128,39 @@ def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: li
             "topics": topics,
             "short": short_notes(topics, pipeline.sampler.k),
         },
-        "frames": [
-            {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
+        "frames": [_frame_entry(f, several, origin)
+                   for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index, f.topic))],
+    }
+
+
+def _frame_entry(f: SummaryFrame, several: bool, origin: Callable[[int], str | None] | None) -> dict:
+    entry = {"index": f.frame_index, "time_s": round(f.time_s, 4), "score": round(float(f.score), 6),
              "raw_score": None if f.raw_score is None else round(float(f.raw_score), 6),
              "file": frame_file(f, several), "topic": f.topic, "below_threshold": f.below_threshold}
-            for f in sorted(frames, key=lambda f: (f.time_s, f.frame_index, f.topic))
-        ],
-    }
+    name = origin(f.frame_index) if origin is not None else None
+    if name is not None:
+        entry["source"] = name  # a still: its own file, the one thing that finds it again (its time is made up)
+    return entry
+
+
+def plural(n: int, noun: str) -> str:
+    """``1 frame``, ``2 frames``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def short_notes(topics: list[dict], k: int) -> list[str]:
     """One sentence per topic holding fewer than K frames: the dive had fewer distinct views that passed the
-    query (duplicates never take a place), so the summary is smaller rather than padded with copies."""
-    return [f"{t['name']}: {t['frames']} of K={k} frames, the video has no more distinct views that passed "
-            f"the query" for t in topics if t["frames"] < k]
+    query (duplicates never take a place), so the summary is smaller rather than padded with copies; or nothing
+    passed at all, and the few frames shown are the best ones below the threshold."""
+    notes = []
+    for t in topics:
+        if t["below_threshold"]:
+            notes.append(f"{t['name']}: nothing passed the query; the {plural(t['frames'], 'best frame')} "
+                         f"{'is' if t['frames'] == 1 else 'are'} kept, marked below the threshold")
+        elif t["frames"] < k:
+            notes.append(f"{t['name']}: {t['frames']} of K={k} frames, the video has no more distinct views that "
+                         f"passed the query")
+    return notes
 
 
 def _write(out_tmp: Path, document: dict, frames: list[SummaryFrame]) -> None:
@@ -150,7 +175,9 @@ def _write(out_tmp: Path, document: dict, frames: list[SummaryFrame]) -> None:
     for topic in topics:
         ordered = sorted((f for f in frames if f.topic == topic["name"]), key=lambda f: (f.time_s, f.frame_index))
         title = f"{document['source']}  |  {topic['name'] + ': ' if several else ''}{topic['query']}"
-        sheet = contact_sheet([Tile(f.image, f.time_s, f.score) for f in ordered], title=title)
+        names = {e["index"]: e.get("source") for e in document["frames"] if e["topic"] == topic["name"]}
+        tiles = [Tile(f.image, f.time_s, f.score, label=names.get(f.frame_index)) for f in ordered]
+        sheet = contact_sheet(tiles, title=title)
         path = out_tmp / topic["contact_sheet"]
         if not cv2.imwrite(str(path), sheet, [cv2.IMWRITE_JPEG_QUALITY, 90]):
             raise MerlionError(f"{path}: could not write the contact sheet")
@@ -196,11 +223,21 @@ def summarize(cfg: Config, out_dir: str | Path, *, force: bool = False, encoder:
             shutil.rmtree(out_tmp, ignore_errors=True)
 
 
+def stills_ungated(cfg: Config, source: FrameSource) -> Config:
+    """An image folder's stills are separate photos, not a video's near-identical neighbours: the frame gate (made
+    for a slowly moving camera) would skip most of them. It stays off for a folder unless the configuration sets
+    ``gate:`` itself."""
+    if not isinstance(source, FolderSource) or "gate" in cfg.model_fields_set:
+        return cfg
+    return cfg.model_copy(update={"gate": cfg.gate.model_copy(update={"mode": "none"})})
+
+
 def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder | None,
                     progress: bool | None, like: Sequence[str | Path], unlike: Sequence[str | Path],
                     on_results: Callable[[Sequence[FrameResult]], None] | None = None) -> SummaryRun:
     like_images, unlike_images = read_mark_images(like, "--like"), read_mark_images(unlike, "--unlike")
     source = open_source(cfg.source, realtime=False)
+    cfg = stills_ungated(cfg, source)
     if encoder is None:
         encoder = make_encoder(cfg.encoder)
     pipeline = Pipeline.from_config(cfg, encoder)
@@ -224,13 +261,14 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
                     "below_threshold", ", ".join(sorted({e.frame.topic for e in stand_ins if e.kind == "added"})))
     lost = int(getattr(source, "lost", 0))
     if lost:
-        log.warning("%s: %d frames could not be decoded and were skipped", cfg.source.uri, lost)
+        log.warning("%s: %s could not be decoded and %s skipped", cfg.source.uri, plural(lost, "frame"),
+                    "was" if lost == 1 else "were")
     frames = pipeline.summary
     stats = {"frames_seen": seen, "frames_passed": passed, "frames_lost": lost,
              "frames_added": pipeline.counts["added"], "frames_encoded": pipeline.counts["encoded"],
              "frames_skipped": pipeline.counts["skipped"], "frames_duplicate": pipeline.counts["duplicates"],
              "encoder_images": pipeline.clock.items.get("encode", 0) + pipeline.clock.items.get("reencode", 0)}
-    document = build_document(cfg, encoder, pipeline, frames, stats)
+    document = build_document(cfg, encoder, pipeline, frames, stats, origin=source.origin)
     if like or unlike:
         document["params"]["marks"] = {"like": [str(p) for p in like], "unlike": [str(p) for p in unlike]}
     try:
@@ -238,4 +276,5 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
         _move_into_place(out_tmp, out_dir)
     except OSError as err:
         raise MerlionError(f"{out_dir}: cannot write the summary ({err.strerror or err})") from None
-    return SummaryRun(out_dir, document, seen, passed, lost)
+    return SummaryRun(out_dir, document, seen, passed, lost, stills=isinstance(source, FolderSource),
+                      source_fps=getattr(source, "source_fps", None))

@@ -22,7 +22,6 @@ from typing import Any
 import yaml
 
 from vehicle.errors import UsageError
-from vehicle.errors import UserError as MerlionError
 
 _EARTH_RADIUS_M = 6378137.0
 ORIGIN_AFTER_S = 16.0
@@ -90,7 +89,7 @@ class DiveProfile:
     def __init__(self, keyframes: list[Keyframe], *, origin: Origin | None, loop: bool, armed: bool = True,
                  sway_deg: float = 3.0) -> None:
         if len(keyframes) < 2:
-            raise MerlionError("dive profile: needs at least one leg that takes time")
+            raise UsageError("dive profile: needs at least one leg that takes time")
         self.keyframes = keyframes
         self.origin = origin
         self.loop = loop
@@ -134,28 +133,28 @@ class DiveProfile:
 def _number(leg: str, data: dict[str, Any], key: str, default: float | None, *, positive: bool = True) -> float:
     value = data.get(key, default)
     if value is None:
-        raise MerlionError(f"dive profile: leg {leg!r} needs {key}")
+        raise UsageError(f"dive profile: leg {leg!r} needs {key}")
     try:
         value = float(value)
     except (TypeError, ValueError):
-        raise MerlionError(f"dive profile: leg {leg!r} {key} must be a number, got {value!r}") from None
+        raise UsageError(f"dive profile: leg {leg!r} {key} must be a number, got {value!r}") from None
     if positive and value <= 0:
-        raise MerlionError(f"dive profile: leg {leg!r} {key} must be > 0, got {value}")
+        raise UsageError(f"dive profile: leg {leg!r} {key} must be > 0, got {value}")
     if value < 0 and key in ("to_m", "depth_m"):
-        raise MerlionError(f"dive profile: leg {leg!r} {key} must be >= 0 (depth, positive down), got {value}")
+        raise UsageError(f"dive profile: leg {leg!r} {key} must be >= 0 (depth, positive down), got {value}")
     return value
 
 
 def compile_profile(data: dict[str, Any], *, origin_name: str = "dive profile") -> DiveProfile:
     """Turn the YAML mapping into keyframes; errors name the leg and key."""
     if not isinstance(data, dict):
-        raise MerlionError(f"{origin_name}: top level must be a mapping with 'legs'")
+        raise UsageError(f"{origin_name}: top level must be a mapping with 'legs'")
     unknown = set(data) - {"origin", "loop", "legs", "armed", "sway_deg"}
     if unknown:
-        raise MerlionError(f"{origin_name}: unknown key {sorted(unknown)[0]!r}")
+        raise UsageError(f"{origin_name}: unknown key {sorted(unknown)[0]!r}")
     legs = data.get("legs")
     if not isinstance(legs, list) or not legs:
-        raise MerlionError(f"{origin_name}: 'legs' must be a non-empty list")
+        raise UsageError(f"{origin_name}: 'legs' must be a non-empty list")
     origin = None
     if data.get("origin") is not None:
         o = data["origin"]
@@ -163,9 +162,9 @@ def compile_profile(data: dict[str, Any], *, origin_name: str = "dive profile") 
             origin = Origin(float(o["lat"]), float(o["lon"]), float(o.get("alt_m", 0.0)),
                             float(o.get("after_s", ORIGIN_AFTER_S)))
         except (TypeError, KeyError, ValueError, AttributeError):
-            raise MerlionError(f"{origin_name}: origin needs numeric lat and lon (and alt_m, after_s)") from None
+            raise UsageError(f"{origin_name}: origin needs numeric lat and lon (and alt_m, after_s)") from None
         if origin.after_s < 0:
-            raise MerlionError(f"{origin_name}: origin.after_s must be >= 0, got {origin.after_s}")
+            raise UsageError(f"{origin_name}: origin.after_s must be >= 0, got {origin.after_s}")
     frames = [Keyframe(0.0, 0.0, 0.0, 0.0, 0.0, "MANUAL")]
 
     def add(dt: float, north: float, east: float, depth: float, mode: str) -> None:
@@ -176,14 +175,14 @@ def compile_profile(data: dict[str, Any], *, origin_name: str = "dive profile") 
 
     for i, leg in enumerate(legs):
         if not isinstance(leg, dict) or len(leg) != 1:
-            raise MerlionError(f"{origin_name}: leg {i + 1} must be one of {sorted(_LEG_KEYS)} with its settings")
+            raise UsageError(f"{origin_name}: leg {i + 1} must be one of {sorted(_LEG_KEYS)} with its settings")
         kind, args = next(iter(leg.items()))
         args = args or {}
         if kind not in _LEG_KEYS:
-            raise MerlionError(f"{origin_name}: leg {i + 1}: unknown kind {kind!r} (one of {sorted(_LEG_KEYS)})")
+            raise UsageError(f"{origin_name}: leg {i + 1}: unknown kind {kind!r} (one of {sorted(_LEG_KEYS)})")
         if not isinstance(args, dict) or set(args) - _LEG_KEYS[kind]:
             bad = sorted(set(args) - _LEG_KEYS[kind]) if isinstance(args, dict) else [args]
-            raise MerlionError(f"{origin_name}: leg {i + 1} ({kind}): unknown setting {bad[0]!r}")
+            raise UsageError(f"{origin_name}: leg {i + 1} ({kind}): unknown setting {bad[0]!r}")
         last = frames[-1]
         name = f"{i + 1} ({kind})"
         if kind in ("descend", "ascend"):
@@ -241,5 +240,5 @@ def load_profile(path: str | Path | None) -> DiveProfile:
     except FileNotFoundError:
         raise UsageError(f"{p}: no such dive profile") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise MerlionError(f"{p}: cannot read dive profile ({type(err).__name__})") from None
+        raise UsageError(f"{p}: cannot read dive profile ({type(err).__name__})") from None
     return compile_profile(data, origin_name=str(p))

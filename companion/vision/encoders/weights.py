@@ -94,12 +94,12 @@ def resolve_clip_weights(model: str, weights: str | None, tag: str | None) -> Re
             raise UsageError(f"CLIP weights {path}: no such file; {how_to_get(model, tag)}")
         return ResolvedWeights(path=path, source="file")
     if not tag:
-        raise MerlionError(f"no CLIP weights for {model}: encoder.weights and encoder.pretrained are both unset; "
+        raise UsageError(f"no CLIP weights for {model}: encoder.weights and encoder.pretrained are both unset; "
                            f"{how_to_get(model, None)}")
     cfg = pretrained_cfg(model, tag)
     path = cached_checkpoint(model, tag)
     if path is None:
-        raise MerlionError(f"no CLIP weights for {model} ({tag}) in the local cache; {how_to_get(model, tag)}")
+        raise UsageError(f"no CLIP weights for {model} ({tag}) in the local cache; {how_to_get(model, tag)}")
     return ResolvedWeights(path=path, source=f"cache:{tag}", preprocess=_preprocess_overrides(cfg))
 
 

@@ -50,10 +50,10 @@ def test_an_unresolvable_host_fails_at_once_naming_it(tmp_path, command):
 
 
 @pytest.mark.parametrize("args, message", [
-    (("--query", ""), "merlion: error: --query: queries.positive: String should have at least 1 character (got '')"),
+    (("--query", ""), "merlion: error: --query: empty (name a thing to look for, e.g. 'fish')"),
     (("--query", "a" * 301), "merlion: error: --query: queries.positive: String should have at most 300 characters"),
     (("--query", "fish", "--negative", ""),
-     "merlion: error: --negative: queries.negatives.0: String should have at least 1 character (got '')"),
+     "merlion: error: --negative: empty (name what the wanted frames do not show, or leave it out)"),
 ])
 def test_an_empty_or_overlong_query_is_one_line_naming_the_option(tmp_path, args, message) -> None:
     image = tmp_path / "frame.png"

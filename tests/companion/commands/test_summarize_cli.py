@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -168,7 +169,11 @@ def test_truncated_video_is_summarized_and_the_loss_reported(tmp_path):
     doc = json.loads((tmp_path / "out" / "summary.json").read_text())
     stats = doc["params"]["stats"]
     assert stats["frames_lost"] > 0 and stats["frames_seen"] > 0
-    assert f"{stats['frames_lost']} lost" in proc.stdout
+    # each count in its unit: frames kept at --fps, lost ones at the video's own rate (and as seconds)
+    assert f"from {stats['frames_seen']} frames read at 2 fps (" in proc.stdout, proc.stdout
+    assert (f"; {stats['frames_lost']} frames of the video at its own 10 fps ({stats['frames_lost'] / 10:.1f} s) "
+            f"could not be decoded;") in proc.stdout, proc.stdout
+    assert not re.search(r"\b1 frames", proc.stdout + proc.stderr)
 
 
 def test_a_clip_no_frame_passes_keeps_its_best_frames_marked_below_threshold(tmp_path):
@@ -187,4 +192,27 @@ def test_a_clip_no_frame_passes_keeps_its_best_frames_marked_below_threshold(tmp
     assert all(0 <= f["score"] <= doc["params"]["tau_ss"] for f in frames)
     assert doc["params"]["topics"][0]["below_threshold"] is True and doc["params"]["topics"][0]["frames"] == len(frames)
     assert all((out / f["file"]).is_file() for f in frames)
-    assert f"{len(frames)} below the threshold, the best seen" in proc.stdout
+    n = len(frames)
+    said = (f"{n} summary frame{'s' * (n > 1)} from {doc['params']['stats']['frames_seen']} frames read at 10 fps (nothing passed the query; the "
+            f"{n} best frame{'s are' if n > 1 else ' is'} kept, marked below the threshold)")
+    assert said in proc.stdout, proc.stdout
+    assert "no more distinct views that passed" not in proc.stdout  # nothing passed: no contradiction after it
+    assert doc["params"]["short"] == [f"main: {said.split('(')[1].rstrip(')')}"]
+
+
+def test_an_mp4_cut_before_its_index_says_why_and_how_to_recover(tmp_path):
+    """The survey's index (moov) is at its end, as most recorders write it: a copy cut short cannot be opened at
+    all, and the one line says that a recording cut short leaves an MP4 without its index, and what to do."""
+    data = shared_file(SURVEY).read_bytes()
+    assert data.find(b"moov") > len(data) // 2  # the index is written last in this file
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[:200_000])
+    proc = run_merlion("summarize", str(cut), "--out", str(tmp_path / "out"), "--encoder", "visual")
+    assert proc.returncode == 1  # the work fails on a damaged video (README: exit 1)
+    line = one_error_line(proc.stderr)
+    assert line.startswith(f"merlion: error: {cut}: cannot be opened as a video: an MP4 without its index")
+    assert "recording cut short" in line and "untrunc" in line and ".mkv" in line
+    other = tmp_path / "notes.mp4"
+    other.write_text("not a video")
+    proc = run_merlion("summarize", str(other), "--out", str(tmp_path / "out"), "--encoder", "visual")
+    assert "(unknown format, or damaged beyond reading)" in one_error_line(proc.stderr)

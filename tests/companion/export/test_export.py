@@ -230,3 +230,22 @@ def test_bad_input_is_one_line_and_exit_2_and_never_overwrites_the_store(store, 
     proc = run_merlion("export", str(broken), "--format", "csv", "--out", str(tmp_path / "b.csv"))
     assert proc.returncode == 2 and "000001.jpg: frame image missing" in one_error_line(proc.stderr)
     assert not (tmp_path / "b.csv").exists()
+
+
+def test_viame_csv_writes_fixed_decimals_not_rounded_or_exponent_numbers(campaign, tmp_path):
+    """``.7g`` wrote lon 151.2152967 as 151.2153 (~5 m off) and a heading of ~0 as 4.720046e-10."""
+    dive = tmp_path / "dive1"
+    shutil.copytree(campaign / "dive1", dive)
+    tags = json.loads((dive / "tags.json").read_text())
+    for f in tags["frames"]:
+        f["pose"] |= {"lat": -33.8567844, "lon": 151.2152967, "heading_deg": 4.720046e-10, "depth_m": 12.3456789,
+                      "yaw": 4.720046e-10, "roll": -1e-12, "pitch": math.radians(-3.14159)}
+    (dive / "tags.json").write_text(json.dumps(tags))
+    out = tmp_path / "dive.csv"
+    export(dive, "csv", out)
+    attrs = dive_rows(out)[0]["attrs"]
+    assert (attrs["lat"], attrs["lon"]) == ("-33.8567844", "151.2152967")
+    assert (attrs["heading_deg"], attrs["yaw_deg"], attrs["roll_deg"], attrs["pitch_deg"]) == (
+        "0.00", "0.00", "0.00", "-3.14")
+    assert attrs["depth_m"] == "12.346"
+    assert "e-" not in out.read_text()

@@ -117,4 +117,4 @@ def test_threshold_zero_keeps_every_frame_offline(tmp_path: Path) -> None:
     done = run_merlion("summarize", str(folder), "--encoder", "visual", "--threshold", "0",
                        "--out", str(tmp_path / "out"), timeout=120)
     assert done.returncode == 0, done.stderr
-    assert "summary frames from 5 (5 passed the query)" in done.stdout, done.stdout
+    assert "summary frames from 5 images (5 passed the query)" in done.stdout, done.stdout
