@@ -7,7 +7,7 @@ import logging
 import math
 import time
 
-from companion.topside.gallery import Capture
+from companion.topside.capture import Capture
 from companion.topside.offline_page import write_offline_page
 from companion.topside.surface_state import SurfaceContext
 

@@ -15,7 +15,7 @@ import logging
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.topside.gallery import Capture
+from companion.topside.capture import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
 from companion.topside.surface_state import (
