@@ -15,6 +15,7 @@ from collections import deque
 from pathlib import Path
 
 from companion.topside.capture import Capture
+from companion.topside.gallery_json import capture_text, list_text
 from companion.topside.thumbnail_files import forget_thumbnail, move_thumbnail
 
 log = logging.getLogger("merlion.surface")
@@ -38,6 +39,10 @@ class DiveArchive:
         self.dives: list[str] = []
         self.dropped = 0
         """Captures of earlier dives forgotten beyond ``max_archived`` (their thumbnails deleted)."""
+        self._texts: deque[str] = deque()
+        """Each archived capture's gallery.json text (an archived capture never changes), beside ``captures``."""
+        self._text: str | None = None
+        """The whole ``archived`` list's text, until the archive changes."""
 
     def load(self, data: dict) -> None:
         """What gallery.json kept (``archived``, ``dives``, ``archived_dropped``); a bad value raises for the
@@ -45,6 +50,8 @@ class DiveArchive:
         self.captures = deque(Capture.from_dict(item) for item in data.get("archived", []))
         self.dives = [str(d) for d in data.get("dives", [])]
         self.dropped = int(data.get("archived_dropped") or 0)
+        self._texts = deque(capture_text(c) for c in self.captures)
+        self._text = None
 
     def knows(self, dive: str) -> bool:
         return dive in self.dives
@@ -58,6 +65,8 @@ class DiveArchive:
             move_thumbnail(self.root, cap, f"{folder}/{'summary' if cap.in_summary else 'removed'}")
             cap.in_summary = False
             self.captures.append(cap)
+            self._texts.append(capture_text(cap))
+        self._text = None
 
     def start_dive(self, previous: str | None, dive: str) -> None:
         """``dive`` is now shown, ``previous`` (if any) filed: both are remembered."""
@@ -71,6 +80,7 @@ class DiveArchive:
         dropped = 0
         while len(self.captures) > self.max_archived:
             forget_thumbnail(self.root, self.captures.popleft())
+            self._texts.popleft()
             dropped += 1
         changed = bool(dropped)
         if dropped:
@@ -78,8 +88,15 @@ class DiveArchive:
                 log.warning("more than %d captures of earlier dives: the first archived are forgotten, thumbnails "
                             "and all (archived_dropped)", self.max_archived)
             self.dropped += dropped
+            self._text = None
         if len(self.dives) > self.max_dives:
             gone = set([d for d in self.dives if d != current][: len(self.dives) - self.max_dives])
             self.dives = [d for d in self.dives if d not in gone]
             changed = True
         return changed
+
+    def text(self) -> str:
+        """The ``archived`` list as gallery.json holds it (joined again only after the archive changed)."""
+        if self._text is None:
+            self._text = list_text(list(self._texts))
+        return self._text

@@ -46,7 +46,9 @@ from companion.atomic_write import atomic_write
 from companion.errors import MerlionError
 from companion.topside.capture import Capture, Topic, safe_dive
 from companion.topside.dive_archive import MAX_ARCHIVED, MAX_DIVES, DiveArchive
+from companion.topside.gallery_json import GalleryText, capture_text
 from companion.topside.gallery_log import LOG_COLUMNS, MAX_LOG_ROWS, GalleryLog
+from companion.topside.gallery_writer import GalleryWriter
 from companion.topside.thumbnail_files import move_thumbnail
 
 __all__ = ["LOG_COLUMNS", "MAX_ARCHIVED", "MAX_DIVES", "MAX_HISTORY", "MAX_LOG_ROWS", "MAX_SUMMARY", "Capture",
@@ -95,6 +97,9 @@ class Gallery:
         """The dive now shown (None until a companion names one)."""
         self._topics: list[Topic] = []
         self._json = self.root / "gallery.json"
+        self._texts: dict[int, str] = {}
+        """Each current capture's gallery.json text, until it changes (``_persist`` forgets it)."""
+        self._writer = GalleryWriter(self._json)
         self._load()
         self.log = GalleryLog(self.root / "log.csv", max_log_rows)
 
@@ -165,23 +170,28 @@ class Gallery:
     # --- writing -------------------------------------------------------------------------------------------
 
     def defer_writes(self, every_s: float) -> None:
-        """Rewrite gallery.json at most every ``every_s`` seconds (log.csv still gets its row at once). Each rewrite
-        is the whole file, fsynced twice: a companion announcing captures as fast as it can had the tool write it
-        once per message, the work growing with every capture. Whoever sets this calls ``flush_due`` often and
-        ``flush`` at the end, so the last state is always written."""
+        """Rewrite gallery.json at most every ``every_s`` seconds, on the writer thread (log.csv still gets its row
+        at once, here). Each rewrite is the whole file, fsynced twice: a companion announcing captures as fast as it
+        can had the tool write it once per message, the work growing with every capture. Whoever sets this calls
+        ``flush_due`` often and ``flush`` at the end, so the last state is always written."""
         self.write_every_s = every_s
 
     def flush_due(self) -> None:
-        """Write gallery.json if a change waits and the interval has passed."""
+        """Hand gallery.json's state to the writer if a change waits and the interval has passed."""
         with self._lock:
             if self._json_due and self._clock() - self._json_at >= self.write_every_s:
                 self._write_json()
 
     def flush(self) -> None:
-        """Write gallery.json now if a change waits."""
+        """Write gallery.json now if a change waits, and return once the latest state is on disk."""
         with self._lock:
             if self._json_due:
                 self._write_json()
+        self._writer.wait()
+
+    def wait_written(self, timeout: float | None = None) -> None:
+        """Return once every state handed to the writer thread is on disk (TimeoutError after ``timeout``)."""
+        self._writer.wait(timeout)
 
     def add_full(self, image_index: int, data: bytes, dive: str | None) -> Path:
         path = self.full_path(image_index, dive)
@@ -205,6 +215,7 @@ class Gallery:
             if self._captures:
                 self.archive.file_away(self._captures.values(), self.dive)
                 self._captures = {}
+                self._texts.clear()
                 self._in_summary.clear()
                 self._history.clear()
             self.archive.start_dive(self.dive, dive)
@@ -331,6 +342,7 @@ class Gallery:
         while len(self._history) > self.max_history:
             index, _ = self._history.popitem(last=False)
             cap = self._captures.pop(index)
+            self._texts.pop(index, None)
             if cap.thumbnail:
                 (self.root / cap.thumbnail).unlink(missing_ok=True)
             dropped += 1
@@ -382,24 +394,30 @@ class Gallery:
     def _persist(self, event: str, cap: Capture) -> None:
         """Caller holds the lock. JSON first (the state, unless written less than ``write_every_s`` ago: then it
         waits for ``flush_due``), then the CSV row (the history)."""
+        self._texts.pop(cap.image_index, None)
         self._json_due = True
         if self._clock() - self._json_at >= self.write_every_s:
             self._write_json()
         self.log.append(event, cap, self.dive)
 
     def _write_json(self) -> None:
-        """Caller holds the lock."""
-        doc = {
-            "updated": time.time(),
-            "dive": self.dive,
-            "dives": self.archive.dives,
-            "summary": sorted(i for i, c in self._captures.items() if c.in_summary),
-            "captures": [c.to_dict() for _, c in sorted(self._captures.items())],
-            "archived": [c.to_dict() for c in self.archive.captures],
-            "topics": [t.to_dict() for t in self._topics],
-            "history_dropped": self.history_dropped,
-            "archived_dropped": self.archive.dropped,
-        }
-        atomic_write(self._json, json.dumps(doc, indent=1))
+        """Caller holds the lock. The state as text (each capture's kept until it changes): written here when the
+        gallery writes through, else handed to the writer thread, which owns the file."""
+        texts, captures = self._texts, self._captures
+        state = GalleryText(
+            updated=time.time(),
+            dive=self.dive,
+            dives=tuple(self.archive.dives),
+            summary=tuple(sorted(i for i, c in captures.items() if c.in_summary)),
+            captures=tuple(texts.get(i) or texts.setdefault(i, capture_text(captures[i])) for i in sorted(captures)),
+            archived=self.archive.text(),
+            topics=tuple(t.to_dict() for t in self._topics),
+            history_dropped=self.history_dropped,
+            archived_dropped=self.archive.dropped,
+        )
+        if self.write_every_s > 0:
+            self._writer.hand_over(state)
+        else:
+            self._writer.write_now(state)
         self._json_due, self._json_at = False, self._clock()
         self.json_writes += 1
