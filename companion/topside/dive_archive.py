@@ -3,7 +3,8 @@ the dive ids seen, both bounded whoever sends.
 
 A capture or an index naming a dive never seen before files the current dive here; a late message of a dive
 remembered here is ignored. Past ``MAX_ARCHIVED`` captures the first archived is forgotten and its thumbnail deleted
-(a dive folder left empty goes too), counted in ``dropped``; past ``MAX_DIVES`` ids the oldest is forgotten. A sender
+(a dive folder left empty goes too), counted in ``dropped``, and so is its full frame; once a dive's last archived
+capture goes, its folder of full frames (``full/<dive>/``) goes too; past ``MAX_DIVES`` ids the oldest is forgotten. A sender
 without the key that names a new dive in every capture grew both for good. The ``Gallery`` owns the archive and
 calls it under its own lock.
 """
@@ -11,10 +12,11 @@ calls it under its own lock.
 from __future__ import annotations
 
 import logging
-from collections import deque
+import shutil
+from collections import Counter, deque
 from pathlib import Path
 
-from companion.topside.capture import Capture
+from companion.topside.capture import Capture, safe_dive
 from companion.topside.gallery_json import capture_text, list_text
 from companion.topside.thumbnail_files import forget_thumbnail, move_thumbnail
 
@@ -43,6 +45,8 @@ class DiveArchive:
         """Each archived capture's gallery.json text (an archived capture never changes), beside ``captures``."""
         self._text: str | None = None
         """The whole ``archived`` list's text, until the archive changes."""
+        self._per_dive: Counter[str] = Counter()
+        """Archived captures by dive folder name (``unknown`` for none)."""
 
     def load(self, data: dict) -> None:
         """What gallery.json kept (``archived``, ``dives``, ``archived_dropped``); a bad value raises for the
@@ -51,6 +55,7 @@ class DiveArchive:
         self.dives = [str(d) for d in data.get("dives", [])]
         self.dropped = int(data.get("archived_dropped") or 0)
         self._texts = deque(capture_text(c) for c in self.captures)
+        self._per_dive = Counter(c.dive or "unknown" for c in self.captures)
         self._text = None
 
     def knows(self, dive: str) -> bool:
@@ -66,6 +71,7 @@ class DiveArchive:
             cap.in_summary = False
             self.captures.append(cap)
             self._texts.append(capture_text(cap))
+            self._per_dive[cap.dive or "unknown"] += 1
         self._text = None
 
     def start_dive(self, previous: str | None, dive: str) -> None:
@@ -79,8 +85,10 @@ class DiveArchive:
         ``max_dives`` ids the oldest other than ``current`` is forgotten. True if anything was."""
         dropped = 0
         while len(self.captures) > self.max_archived:
-            forget_thumbnail(self.root, self.captures.popleft())
+            cap = self.captures.popleft()
             self._texts.popleft()
+            forget_thumbnail(self.root, cap)
+            self._forget_full_frames(cap, current)
             dropped += 1
         changed = bool(dropped)
         if dropped:
@@ -100,3 +108,23 @@ class DiveArchive:
         if self._text is None:
             self._text = list_text(list(self._texts))
         return self._text
+
+    def _forget_full_frames(self, cap: Capture, current: str | None) -> None:
+        """The full frame fetched of a forgotten capture, and ``full/<dive>/`` once none of its dive is archived.
+        Never the current dive's (a dive id forgotten and named again is current while its old captures wait
+        here); a dive id that is no safe name (a hand-edited gallery.json) names no folder."""
+        dive = cap.dive or "unknown"
+        self._per_dive[dive] -= 1
+        last = self._per_dive[dive] <= 0
+        if last:
+            del self._per_dive[dive]
+        if dive == (current or "unknown"):
+            return
+        try:
+            folder = self.root / "full" / safe_dive(dive)
+        except ValueError:
+            return
+        if last:
+            shutil.rmtree(folder, ignore_errors=True)
+        else:
+            (folder / f"{int(cap.image_index)}.jpg").unlink(missing_ok=True)

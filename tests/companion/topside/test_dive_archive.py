@@ -62,3 +62,47 @@ def test_load_takes_what_gallery_json_kept(tmp_path):
     assert archive.captures[0].image_index == 4 and archive.dives == ["a1", "b2"] and archive.dropped == 7
     archive.load({})
     assert not archive.captures and archive.dives == [] and archive.dropped == 0
+
+
+def test_full_frames_go_with_their_captures_and_the_folder_with_the_dives_last(tmp_path):
+    archive = DiveArchive(tmp_path, max_archived=2)
+    for dive in ("a1", "b2"):
+        (tmp_path / "full" / dive).mkdir(parents=True)
+        for name in ("0.jpg", "1.jpg", "99.jpg"):  # 99: a frame whose capture was forgotten while its dive was on
+            (tmp_path / "full" / dive / name).write_bytes(b"full")
+    archive.file_away(_dive_with_thumbnails(tmp_path, "a1", range(2)), "a1")
+    archive.file_away(_dive_with_thumbnails(tmp_path, "b2", range(1)), "b2")
+    archive.bound("c3")  # a1/0 goes: its full frame too, the rest of a1 stays
+    assert sorted(p.name for p in (tmp_path / "full/a1").iterdir()) == ["1.jpg", "99.jpg"]
+    archive.file_away(_dive_with_thumbnails(tmp_path, "b2", range(1, 2)), "b2")
+    archive.bound("c3")  # a1's last capture goes: its whole folder
+    assert not (tmp_path / "full/a1").exists()
+    assert sorted(p.name for p in (tmp_path / "full/b2").iterdir()) == ["0.jpg", "1.jpg", "99.jpg"]
+
+
+def test_the_current_dives_full_frames_stay_even_when_old_captures_of_its_id_go(tmp_path):
+    archive = DiveArchive(tmp_path, max_archived=0)
+    (tmp_path / "full/a1").mkdir(parents=True)
+    (tmp_path / "full/a1/0.jpg").write_bytes(b"full")
+    archive.file_away(_dive_with_thumbnails(tmp_path, "a1", range(1)), "a1")
+    archive.bound("a1")  # the id came back and is current: full/a1 is the current dive's now
+    assert (tmp_path / "full/a1/0.jpg").exists() and not archive.captures
+
+
+def test_a_gallery_deletes_a_dives_full_frames_when_the_dive_leaves_the_archive(tmp_path):
+    from companion.topside.gallery import Gallery
+
+    g = Gallery(tmp_path, max_archived=2)
+    g.use_dive("a1")
+    g.announce(Capture(image_index=0))
+    g.announce(Capture(image_index=1))
+    full = g.add_full(1, b"full frame", "a1")
+    g.use_dive("b2")
+    g.announce(Capture(image_index=0))
+    g.add_full(0, b"full frame", "b2")
+    assert full.exists() and g.archived_dropped == 0
+    g.use_dive("c3")  # a1's two and b2's one archived: a1's first goes, its full frame stays
+    assert full.exists()
+    g.announce(Capture(image_index=0))
+    g.use_dive("d4")  # c3's one archived: a1's last goes, and full/a1 with it
+    assert not (tmp_path / "full/a1").exists() and (tmp_path / "full/b2/0.jpg").exists()
