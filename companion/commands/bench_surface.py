@@ -1,4 +1,5 @@
-"""``merlion bench surface``: surface-link payload efficiency and time for a summary to reach the surface."""
+"""``merlion bench surface``: surface-link payload efficiency and time for a summary to reach the surface; with
+``--gallery``, what rewriting gallery.json at every cap costs the surface tool's receive loop."""
 
 from __future__ import annotations
 
@@ -8,10 +9,31 @@ import tempfile
 from pathlib import Path
 
 
+def run_gallery(args: argparse.Namespace) -> int:
+    from companion.bench import gallery_bench as gb
+
+    with tempfile.TemporaryDirectory() as tmp:
+        r = gb.measure_gallery(Path(tmp) / "gallery", seconds=args.gallery)
+    print(f"gallery at every cap: {r['captures']} captures ({r['summary']} in the summary), {r['archived']} archived "
+          f"of {r['dives']} dives, gallery.json {r['gallery_json_bytes'] / 1e6:.1f} MB, opened in {r['open_s']} s",
+          flush=True)
+    print(f"one change written through: {r['rewrite_s']} s on the caller", flush=True)
+    print(f"receive loop, {r['loop_seconds']} s of changes at a 0.25 s throttle: {r['loop_changes']} changes "
+          f"({r['changes_per_s']}/s of {r['rate']:.0f} asked), {r['rewrites']} rewrites; the loop spent "
+          f"{r['loop_share_busy']:.1%} of its time in the gallery, {r['loop_share_writing']:.1%} in the calls that "
+          f"rewrote gallery.json (worst {r['worst_stall_s']} s); last state on disk: {r['last_state_on_disk']} "
+          f"(final flush {r['final_flush_s']} s)", flush=True)
+    if args.json:
+        print(json.dumps({"gallery": r}))
+    return 0 if r["last_state_on_disk"] else 1
+
+
 def run(args: argparse.Namespace) -> int:
     from companion.bench import surface_bench as sb
     from companion.errors import MerlionError
 
+    if args.gallery:
+        return run_gallery(args)
     try:
         images = sb.load_frames(args.source, args.frames)
     except ValueError as err:
@@ -56,5 +78,8 @@ def register(add_command) -> None:
     p.add_argument("--no-pull", action="store_true", help="skip the MAVLink FTP download measurement")
     p.add_argument("--window", type=float, default=0, metavar="S",
                    help="also saturate the link for S seconds (>= 11) and report the wire rate over every 10 s window")
+    p.add_argument("--gallery", type=float, default=0, metavar="S",
+                   help="instead of the link: fill a gallery to every cap and run the receive loop's gallery.json "
+                        "rewrites for S seconds")
     p.add_argument("--json", action="store_true", help="print the result as one JSON line at the end")
     p.set_defaults(func=run)

@@ -12,7 +12,8 @@ import math
 import re
 from dataclasses import dataclass, field
 
-from companion.topside.gallery import MAX_SUMMARY, Capture, Topic, safe_dive
+from companion.topside.capture import Capture, Topic, safe_dive
+from companion.topside.gallery import MAX_SUMMARY
 from vehicle.autopilot.telemetry import NO_POSITION_TEXT, POSITION_FOUND_TEXT
 from vehicle.protocol.queries import MAX_LINE, MAX_NEGATIVES, MAX_TOPICS, NAME
 
@@ -54,7 +55,7 @@ _DIVE = re.compile(r"/summary/([^/]+)/\d+\.\w+$")
 
 def dive_of(url: str | None) -> str | None:
     """The dive id in a thumbnail URL (``mftp://summary/<dive>/<n>.jpg``); None when it names none; ValueError
-    when what stands there is not a safe name (``gallery.safe_dive``: it becomes a folder in DIR)."""
+    when what stands there is not a safe name (``capture.safe_dive``: it becomes a folder in DIR)."""
     match = _DIVE.search(url or "")
     return safe_dive(match.group(1)) if match and match.group(1) not in ("full", "raw") else None
 

@@ -7,7 +7,7 @@ import logging
 import math
 import time
 
-from companion.topside.gallery import Capture
+from companion.topside.capture import Capture
 from companion.topside.offline_page import write_offline_page
 from companion.topside.surface_state import SurfaceContext
 
@@ -47,6 +47,7 @@ class PageState:
                 "unsigned_ignored": s.unsigned_ignored, "unpaired_dropped": s.unpaired_dropped,
                 "requests_refused": s.requests_refused,
                 "waiting_overflow": s.waiting_overflow, "fetches_dropped": s.fetches_dropped,
+                "bound_dropped": s.bound_dropped,
                 "inbox_dropped": s.inbox_dropped, "values_dropped": s.values_dropped,
                 "unsigned_sources": {f"{a}/{b}": n for (a, b), n in sorted(s.unsigned_sources.items())},
             }

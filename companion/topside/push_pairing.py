@@ -15,10 +15,11 @@ import logging
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.topside.gallery import Capture
+from companion.topside.capture import Capture
 from companion.topside.gallery_sync import GallerySync
 from companion.topside.messages import capture_from_message
 from companion.topside.surface_state import (
+    MAX_BOUND,
     MAX_UNPAIRED,
     MAX_WAITING,
     REQUEST_BURST,
@@ -175,12 +176,26 @@ class PushPairing:
         self._bind(handshake_no, index)
 
     def _bind(self, handshake_no: int, index: int) -> None:
+        """A push is capture ``index``'s: stored (or fetched) now if it already ended, else remembered until it
+        does. (A push that had ended was remembered too, for good: a sender pushing before each capture grew
+        ``bound`` by one a capture.)"""
         p = self.ctx.pairing
-        p.bound[handshake_no] = index
         if handshake_no in p.orphans:
             self._store_push(index, p.orphans.pop(handshake_no))
-        elif handshake_no in p.lost_push:
+            return
+        if handshake_no in p.lost_push:
             self.sync.fetch_thumbnail(index, partial=p.lost_push.pop(handshake_no))
+            return
+        dropped = p.bind(handshake_no, index)
+        if dropped:
+            with self.ctx.lock:
+                self.ctx.status.bound_dropped += len(dropped)
+                first = self.ctx.status.bound_dropped == len(dropped)
+            if first:
+                log.warning("more than %d pushes paired and still arriving: the oldest pairings are forgotten and "
+                            "their frames fetched by FTP (bound_dropped)", MAX_BOUND)
+            for lost in dropped:
+                self.sync.fetch_thumbnail(lost)
 
     def on_push_result(self, result: PushedImage | Abandoned | LostHandshake | None) -> None:
         ctx, p = self.ctx, self.ctx.pairing

@@ -33,6 +33,12 @@ MAX_UNPAIRED = 16
 pushes it, so a handful covers a reordering; more are a sender pushing images nobody announced, which grew without
 bound (each up to the push cap). The oldest go first, as ``early`` handshakes do."""
 
+MAX_BOUND = MAX_UNPAIRED
+"""Pushes paired with a capture and still arriving (``PairingState.bound``). The companion pushes one image at a
+time and a handshake is paired once, so one or two are bound at once; as for pushes no capture claims, 16 cover
+any reordering. Past it the oldest pairing is forgotten and its capture fetched by FTP (its push, should it
+finish, then waits unpaired)."""
+
 MAX_WAITING = 256
 """Captures waiting for their push at once. The companion pushes each frame right after announcing it, so a few wait
 (a summary filling up at a dive's start, a few dozen); a sender announcing captures without end made the queue
@@ -125,6 +131,8 @@ class LinkStatus:
     """Captures that stopped waiting for a push beyond ``MAX_WAITING`` (fetched by FTP instead)."""
     fetches_dropped: int = 0
     """Thumbnail fetches forgotten beyond ``MAX_FETCHES`` waiting."""
+    bound_dropped: int = 0
+    """Pairings of a push still arriving with its capture forgotten beyond ``MAX_BOUND`` (fetched by FTP)."""
 
 
 @dataclass
@@ -138,7 +146,7 @@ class PairingState:
     expected: dict[int, int] = field(default_factory=dict)
     """Thumbnail bytes by image index, from the latest index.json (JPEG only)."""
     bound: dict[int, int] = field(default_factory=dict)
-    """Handshake number -> image index."""
+    """Handshake number -> image index, for pushes still arriving (``MAX_BOUND`` at most, see ``bind``)."""
     orphans: dict[int, PushedImage] = field(default_factory=dict)
     """Finished pushes not yet paired."""
     lost_push: dict[int, Abandoned] = field(default_factory=dict)
@@ -178,6 +186,16 @@ class PairingState:
         while len(pending) > MAX_UNPAIRED:
             del pending[next(iter(pending))]
             dropped += 1
+        return dropped
+
+    def bind(self, handshake_no: int, index: int) -> list[int]:
+        """Remember that the push ``handshake_no``, still arriving, is capture ``index``'s; past ``MAX_BOUND``
+        the oldest pairings are forgotten: their image indices, for the caller to fetch by FTP."""
+        self.bound[handshake_no] = index
+        dropped = []
+        while len(self.bound) > MAX_BOUND:
+            oldest = next(iter(self.bound))
+            dropped.append(self.bound.pop(oldest))
         return dropped
 
     def drop_waiting(self, gone) -> None:

@@ -26,3 +26,12 @@ def test_bench_surface_bad_source_is_one_line():
     proc = run_merlion("bench", "surface", "--source", "/nonexistent/video.mp4", timeout=60)
     assert proc.returncode != 0
     assert proc.stderr.strip().splitlines()[-1].startswith("merlion: error: source /nonexistent/video.mp4")
+
+
+def test_bench_surface_gallery_fills_every_cap_and_reports_the_loops_share():
+    proc = run_merlion("bench", "surface", "--gallery", "1", "--json", timeout=180)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])["gallery"]
+    assert (result["captures"], result["summary"], result["archived"], result["dives"]) == (12288, 8192, 4096, 256)
+    assert result["last_state_on_disk"] and result["loop_changes"] > 0 and result["rewrites"] >= 1
+    assert 0 <= result["loop_share_writing"] <= result["loop_share_busy"] <= 1

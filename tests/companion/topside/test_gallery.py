@@ -152,12 +152,14 @@ def test_deferred_writes_rewrite_gallery_json_once_per_interval_and_always_the_l
     g.defer_writes(0.25)
     for i in range(50):
         g.announce(Capture(image_index=i))
+    g.wait_written()  # the writer thread owns the file
     assert g.json_writes == 1 and json.loads((tmp_path / "gallery.json").read_text())["summary"] == [0]
     assert len(list(csv.DictReader((tmp_path / "log.csv").open()))) == 50  # the history still has every event
     g.flush_due()
     assert g.json_writes == 1  # not yet: the interval has not passed
     now[0] += 0.25
     g.flush_due()
+    g.wait_written()
     assert g.json_writes == 2 and len(Gallery(tmp_path).captures()) == 50
     g.remove(3)
     g.flush()  # the end of a run: the last state, at once

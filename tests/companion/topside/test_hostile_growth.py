@@ -295,3 +295,30 @@ def test_an_index_beyond_what_a_companion_can_hold_is_refused_and_its_strings_ar
     assert cap.topic is None and cap.file_url is None
     [cap] = parse_index(json.dumps({"frames": [{"image_index": 1, "topic": "fish"}]}).encode())
     assert cap.topic == "fish" and cap.file_url is None
+
+
+def test_pushes_paired_after_they_ended_are_not_remembered_and_pairings_are_bounded(surface):
+    """A push before its capture (no marker) waits unpaired, and the capture that then claims it stores it; the
+    pairing (handshake -> capture) was remembered all the same, for good: 40 such pushes left 40. Now none, and
+    however many are paired while still arriving, 16 at most are kept (``MAX_BOUND``)."""
+    from companion.topside.surface_state import MAX_BOUND, PairingState
+
+    tool, port = surface
+    peer = CompanionPeer(port)
+    peer.tree.remove("/summary/index.json")
+    try:
+        meet(peer)
+        for i in range(40):
+            peer.push(bytes([i]) * 600, 20, 20)  # pushed first, then announced
+            assert wait_until(lambda i=i: tool.images.completed == i + 1, 10)
+            peer.send(_raw_capture(i))
+            assert wait_until(lambda i=i: (c := tool.gallery.get(i)) is not None and c.thumbnail is not None, 10)
+    finally:
+        peer.close()
+    assert tool.ctx.pairing.bound == {} and tool.status.pushed_ok == 40
+    assert (tool.gallery.root / tool.gallery.get(39).thumbnail).read_bytes() == bytes([39]) * 600
+
+    pairing = PairingState()
+    dropped = [pairing.bind(n, 1000 + n) for n in range(1, 41)]
+    assert MAX_BOUND == 16 and list(pairing.bound) == list(range(25, 41))
+    assert sum(dropped, []) == list(range(1001, 1025))  # the oldest pairings first
