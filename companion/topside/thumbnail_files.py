@@ -9,10 +9,29 @@ from pathlib import Path
 from companion.topside.capture import Capture
 
 
+def inside(root: Path, rel: str) -> Path | None:
+    """``root / rel`` when it stays inside ``root`` (links followed), else None: a thumbnail path read back from
+    gallery.json (a file anyone with the folder can edit) never moves or deletes a file elsewhere."""
+    path = Path(rel)
+    if not rel or path.is_absolute() or ".." in path.parts:
+        return None
+    full = root / path
+    try:
+        real_root = root.resolve()
+        if real_root not in full.resolve().parents:
+            return None
+    except (OSError, RuntimeError):
+        return None
+    return full
+
+
 def move_thumbnail(root: Path, cap: Capture, folder: str) -> None:
     """Keep ``cap``'s thumbnail in ``folder`` (relative to ``root``), the folder that matches its state."""
     if cap.thumbnail:
-        src = root / cap.thumbnail
+        src = inside(root, cap.thumbnail)
+        if src is None:  # not ours to move: the capture keeps no thumbnail
+            cap.thumbnail = None
+            return
         rel = f"{folder}/{Path(cap.thumbnail).name}"
         if src.exists():
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -24,7 +43,9 @@ def forget_thumbnail(root: Path, cap: Capture) -> None:
     """Delete ``cap``'s thumbnail, and the folders under ``dives/`` that leaves empty."""
     if not cap.thumbnail:
         return
-    path = root / cap.thumbnail
+    path = inside(root, cap.thumbnail)
+    if path is None:  # outside DIR: never deleted
+        return
     path.unlink(missing_ok=True)
     dives, folder = root / "dives", path.parent
     while dives in folder.parents:
