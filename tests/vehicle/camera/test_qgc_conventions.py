@@ -172,6 +172,14 @@ def statustext_sites() -> list[tuple[str, str, int]]:
              if "sim" not in p.relative_to(REPO).parts]
     for path in files:
         tree = ast.parse(path.read_text(encoding="utf-8"))
+        # a line kept in a module constant (NO_POSITION_TEXT = "...") is audited by its words
+        constants = {t.id: n.value.value for n in tree.body if isinstance(n, ast.Assign)
+                     and isinstance(n.value, ast.Constant) and isinstance(n.value.value, str)
+                     for t in n.targets if isinstance(t, ast.Name)}
+
+        def text_of(arg: ast.expr) -> str:
+            return constants.get(arg.id, arg.id) if isinstance(arg, ast.Name) else ast.unparse(arg)
+
         for node in ast.walk(tree):
             if not isinstance(node, ast.Call):
                 continue
@@ -191,11 +199,11 @@ def statustext_sites() -> list[tuple[str, str, int]]:
                     (k.value for k in node.keywords if k.arg == "severity"), None)
                 severity = st.INFO if sev_node is None else _severity_of(sev_node)
                 assert severity is not None, f"{where}: a STATUSTEXT whose severity this audit cannot read"
-                sites.append((where, ast.unparse(node.args[0]), severity))
+                sites.append((where, text_of(node.args[0]), severity))
             elif name in ("MAVLink_statustext_message", "statustext_send") and path.name != "status.py":
                 severity = _severity_of(node.args[0])
                 assert severity is not None, f"{where}: a STATUSTEXT whose severity this audit cannot read"
-                sites.append((where, ast.unparse(node.args[1]), severity))
+                sites.append((where, text_of(node.args[1]), severity))
     return sites
 
 
