@@ -97,8 +97,10 @@ class RateKeeper:
         self._arrivals: dict[str, deque[float]] = {name: deque() for name in self.wanted}
         self._inbox: queue.SimpleQueue[tuple[str, float] | None] = queue.SimpleQueue()
         """(message, arrival time) from the receive thread, or _RESET: drained by the rates thread alone."""
-        self._windows: dict[str, tuple[float, ...]] = {}
-        """Arrival times in the window, as the rates thread last saw them (replaced whole, read by any thread)."""
+        self._published: tuple[float, dict[str, tuple[float, ...]]] = (clock(), {})
+        """(when, arrival times in the window then), as the rates thread last saw them: replaced whole, read by any
+        thread. Rates are counted up to ``when``, not up to the reader's now, or a reader a second after the last
+        wake (or after the keeper stopped) would count a window missing its last second."""
         self._asked_at: dict[str, float] = {}
         self._backoff: dict[str, float] = {}
         self._check_at: dict[str, float] = {}  # when each asked-for message is next looked at
@@ -136,17 +138,18 @@ class RateKeeper:
 
     def heard_hz(self, name: str, since: float) -> float:
         """Messages per second since ``since`` (at most ``window_s`` back), from what the rates thread last took in."""
-        now = self.clock()
-        since = max(since, now - self.window_s)
-        if now <= since:
+        when, windows = self._published
+        since = max(since, when - self.window_s)
+        if when <= since:
             return 0.0
-        return sum(1 for t in self._windows.get(name, ()) if t >= since) / (now - since)
+        return sum(1 for t in windows.get(name, ()) if t >= since) / (when - since)
 
     def observed_hz(self, name: str) -> float:
-        """Messages per second over the last ``window_s`` seconds, from the arrivals the rates thread took in at its
-        last wake (at most a second ago); safe from any thread, as it changes nothing."""
-        cutoff = self.clock() - self.window_s
-        return sum(1 for t in self._windows.get(name, ()) if t >= cutoff) / self.window_s
+        """Messages per second over the ``window_s`` seconds up to the rates thread's last wake (at most a second
+        ago while it runs; its stop when stopped); safe from any thread, as it changes nothing."""
+        when, windows = self._published
+        cutoff = when - self.window_s
+        return sum(1 for t in windows.get(name, ()) if t >= cutoff) / self.window_s
 
     # ------------------------------------------------------------------------------------------- internals
     def _on_message(self, msg: mav2.MAVLink_message) -> None:
@@ -192,11 +195,12 @@ class RateKeeper:
                 if mtype in self.missing:
                     self.missing.discard(mtype)
                     log.info("rates: %s arrives now", mtype)
-        cutoff = self.clock() - self.window_s
+        now = self.clock()
+        cutoff = now - self.window_s
         for q in self._arrivals.values():
             while q and q[0] < cutoff:
                 q.popleft()
-        self._windows = {name: tuple(q) for name, q in self._arrivals.items()}
+        self._published = (now, {name: tuple(q) for name, q in self._arrivals.items()})
 
     def _run(self) -> None:
         while not self._stop.is_set():
