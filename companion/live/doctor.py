@@ -216,8 +216,7 @@ def check_signing(cfg: Config, wait_s: float) -> Check:
 def check_encoder(cfg: Config) -> Check:
     enc = cfg.encoder
     if enc.name in ("clip", "auto"):
-
-        ok, why = clip_weights_available(enc.model, enc.weights, enc.pretrained)
+        ok, why = clip_weights_available(enc.model, enc.weights, enc.pretrained, quick=enc.name == "auto")
         if ok:
             return Check("encoder", OK, f"CLIP {enc.model} weights found")
         if enc.name == "clip":

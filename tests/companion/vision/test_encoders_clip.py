@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -224,6 +225,32 @@ def test_auto_falls_back_to_the_packaged_encoder_loudly(caplog):
         enc = make_encoder(EncoderConfig(name="auto", weights=None, pretrained=None))
     assert enc.name == "imagenet:efficientnet-lite0"
     assert any("packaged imagenet" in r.getMessage() and "--weights" in r.getMessage() for r in caplog.records)
+
+
+def test_auto_with_empty_caches_never_imports_open_clip_and_a_cached_file_is_looked_up(tmp_path, monkeypatch):
+    """The packaged-encoder start every new user meets skips open_clip (2.3 s); anything in a cache takes the
+    full look-up, which the cached-tag test below follows to the checkpoint."""
+    from huggingface_hub import constants
+
+    from companion.vision.encoders.weights import caches_hold_checkpoints
+
+    image = tmp_path / "frame.png"
+    cv2.imwrite(str(image), np.full((64, 64, 3), 90, np.uint8))
+    env = {"HOME": str(tmp_path), "HF_HOME": str(tmp_path / "hf")}
+    done = subprocess.run([sys.executable, "-X", "importtime", "-m", "companion", "score", str(image)],
+                          capture_output=True, text=True, timeout=120, env={**os.environ, **env},
+                          cwd=Path(__file__).resolve().parents[3])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "using the packaged imagenet encoder" in done.stderr and "in the local cache" in done.stderr
+    imported = [line.rsplit("|", 1)[-1].strip() for line in done.stderr.splitlines() if line.startswith("import time:")]
+    assert "efficientnet_lite_pytorch" in imported and "open_clip" not in imported and "torch" in imported
+
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path / "hub"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert not caches_hold_checkpoints()
+    (tmp_path / ".cache" / "clip").mkdir(parents=True)
+    (tmp_path / ".cache" / "clip" / "ViT-B-32.pt").write_bytes(b"x")
+    assert caches_hold_checkpoints()
 
 
 def test_missing_weights_file_is_a_one_line_error(tmp_path):

@@ -177,7 +177,7 @@ def statustext_sites() -> list[tuple[str, str, int]]:
                      and isinstance(n.value, ast.Constant) and isinstance(n.value.value, str)
                      for t in n.targets if isinstance(t, ast.Name)}
 
-        def text_of(arg: ast.expr) -> str:
+        def text_of(arg: ast.expr, constants: dict[str, str] = constants) -> str:
             return constants.get(arg.id, arg.id) if isinstance(arg, ast.Name) else ast.unparse(arg)
 
         for node in ast.walk(tree):
