@@ -118,15 +118,30 @@ def extra_without(extra: Extra | None, group: str) -> Extra | None:
     return extra[0][keep], extra[1][keep], extra[2][keep]
 
 
+Fits = dict[frozenset, tuple[np.ndarray, np.ndarray, list]]
+"""Ridge fits by the groups left out of their training rows: inside one ``nested_holdout`` the fit without {g, h}
+is met twice (g reported and h held out to choose its lambda, and the other way round), on the very same rows."""
+
+
 def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
-                    lambdas: Sequence[float] = LAMBDAS, extra: Extra | None = None) -> dict[float, np.ndarray]:
-    """For every lambda, each frame's ridge score from a fit without its group (no calibration: ranks only)."""
+                    lambdas: Sequence[float] = LAMBDAS, extra: Extra | None = None, *,
+                    fits: Fits | None = None, without: frozenset = frozenset()) -> dict[float, np.ndarray]:
+    """For every lambda, each frame's ridge score from a fit without its group (no calibration: ranks only).
+    ``fits``: fits already made on the same rows, by the groups left out (``without`` those of the caller)."""
     out = {lam: np.zeros(len(y)) for lam in lambdas}
     for g in group_names(groups):
         held = _held(groups, g)
-        mean, scale, fits = _ridge_all(*with_extra(x[~held], y[~held], extra_without(extra, g)), lambdas)
+        key = without | {g}
+        if fits is None or key not in fits:
+            made = _ridge_all(*with_extra(x[~held], y[~held], extra_without(extra, g)), lambdas)
+            if fits is None:
+                mean, scale, per_lambda = made
+            else:
+                fits[key] = made
+        if fits is not None:
+            mean, scale, per_lambda = fits[key]
         z = (x[held] - mean) / scale
-        for lam, (w, offset) in zip(lambdas, fits, strict=True):
+        for lam, (w, offset) in zip(lambdas, per_lambda, strict=True):
             out[lam][held] = z @ w + offset
     return out
 
@@ -137,9 +152,10 @@ def group_mean_auroc(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> f
 
 
 def choose_lambda(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Sequence[float] = LAMBDAS,
-                  extra: Extra | None = None) -> float:
+                  extra: Extra | None = None, *, fits: Fits | None = None,
+                  without: frozenset = frozenset()) -> float:
     """The ridge strength whose leave-one-group-out scores have the best mean per-group AUROC."""
-    scores = held_out_scores(x, y, groups, lambdas, extra)
+    scores = held_out_scores(x, y, groups, lambdas, extra, fits=fits, without=without)
     return max(lambdas, key=lambda lam: (group_mean_auroc(scores[lam], y, groups), lam))
 
 
@@ -150,10 +166,11 @@ def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Se
     y = np.asarray(y, dtype=bool)
     out = np.zeros(len(y))
     chosen: dict[str, float] = {}
+    fits: Fits = {}  # each inner fit is needed twice: made once (13 groups: 78 fits, not 156)
     for g in group_names(groups):
         held = _held(groups, g)
         extra_g = extra_without(extra, g)
-        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_g)
+        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_g, fits=fits, without=frozenset({g}))
         head = fit(*with_extra(x[~held], y[~held], extra_g), lam, calibrate=int((~held).sum()))
         out[held] = 1.0 / (1.0 + np.exp(-(x[held] @ head.w + head.b)))
         chosen[str(g)] = lam

@@ -107,6 +107,30 @@ def test_held_out_scores_never_use_the_held_out_group():
     assert set(chosen) == {"g0", "g1", "g2", "g3"} and group_mean_auroc(probs, y, g) > 0.9
 
 
+def test_nested_holdout_fits_each_pair_of_left_out_groups_once_with_the_same_result(monkeypatch):
+    """The fit without {g, h} serves g reported and h held out, and the other way round: made once, used twice,
+    and the scores are exactly those of choosing each lambda and fitting afresh (shared sources, extra rows)."""
+    import companion.evaluation.head_training as head_training
+
+    x, y, g = _synthetic(3)
+    g = np.where(g == "g3", "g2+g3", g)  # a source shared by two groups: held out with either
+    rng = np.random.default_rng(4)
+    extra = (rng.normal(0, 1, (20, 20)), np.ones(20, bool), np.array(["g0", "g1", "g2", "g3"] * 5))
+    expected, chose = np.zeros(len(y)), {}
+    for name in ("g0", "g1", "g2", "g3"):
+        held = np.array([name in grp.split("+") for grp in g])
+        lam = choose_lambda(x[~held], y[~held], g[~held], (1.0, 10.0), head_training.extra_without(extra, name))
+        head = fit(*head_training.with_extra(x[~held], y[~held], head_training.extra_without(extra, name)), lam,
+                   calibrate=int((~held).sum()))
+        expected[held], chose[name] = 1.0 / (1.0 + np.exp(-(x[held] @ head.w + head.b))), lam
+    made = []
+    ridge = head_training._ridge_all
+    monkeypatch.setattr(head_training, "_ridge_all", lambda *a: made.append(len(a[1])) or ridge(*a))
+    probs, chosen = nested_holdout(x, y, g, (1.0, 10.0), extra)
+    assert np.array_equal(probs, expected) and chosen == chose
+    assert len(made) == 6 + 4  # the 6 pairs of 4 groups (12 inner uses) and the 4 reported groups' heads
+
+
 def test_train_head_records_what_it_was_trained_on():
     x, y, g = _synthetic()
     frames = [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
