@@ -33,6 +33,7 @@ def test_missing_source_and_bad_options_are_one_line_errors(tmp_path):
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray not installed (the archive extra)")
 # local Ray (ray.init without an address) joins any Ray instance running on this machine: never beside
 # test_archive_ray's cluster on another xdist worker (tests/conftest.py)
+@pytest.mark.slow
 @pytest.mark.xdist_group("ray")
 def test_gpus_asked_where_there_are_none_is_refused_not_a_hang(tmp_path):
     proc = run_merlion("archive", str(shared_file("survey/survey_480x270.mp4")), "--out", str(tmp_path / "out"),

@@ -25,6 +25,7 @@ def test_scaling_and_estimate_come_from_the_runs():
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray not installed (the archive extra)")
 # local Ray (ray.init without an address) joins any Ray instance running on this machine: never beside
 # test_archive_ray's cluster on another xdist worker (tests/conftest.py)
+@pytest.mark.slow
 @pytest.mark.xdist_group("ray")
 def test_bench_archive_json_last_line():
     proc = run_merlion("bench", "archive", str(shared_file("survey/survey_480x270.mp4")), "--encoder", "visual",

@@ -21,6 +21,7 @@ def survey_10fps():
     return case
 
 
+@pytest.mark.slow
 def test_the_gated_survey_summary_covers_the_ungated_segments_within_002_srum(survey_10fps):
     cfg = load_config(None, overrides={"encoder": {"name": "imagenet"}, "queries": {"tau_ss": 0.0}})
     row = compare_case(cfg, survey_10fps, make_encoder(cfg.encoder))
@@ -37,6 +38,7 @@ def imagenet_cfg_encoder():
     return cfg, make_encoder(cfg.encoder)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, most_calls", [("ROV clip 2 30 fps", 16), ("ROV clip 1 looped x6", 36)])
 def test_a_short_clip_and_a_loop_keep_the_ungated_segments(imagenet_cfg_encoder, name, most_calls):
     """A 1-s clip (16 frames) and the same clip looped six times: a gate that only samples by time encoded 2 of 16

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tests.conftest import run_merlion
 
 
+@pytest.mark.slow
 def test_every_param_set_is_echoed_and_the_round_trip_is_reported() -> None:
     done = run_merlion("bench", "params", "--count", "4", "--encoder", "visual", "--json", timeout=180)
     assert done.returncode == 0, done.stderr

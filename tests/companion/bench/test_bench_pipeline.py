@@ -38,6 +38,7 @@ def test_bench_pipeline_json_last_line():
     assert float(said[1]) == pytest.approx(vs if said[2] == "less" else 1 / vs, abs=0.011), (cpu_line, vs)
 
 
+@pytest.mark.slow
 def test_paper_loop_baseline_runs_clip_in_fp32_whatever_the_run_uses(tmp_path):
     """An int8 run is compared with the paper's fp32 loop (a second model built for it), on the same frames."""
     torch.manual_seed(0)

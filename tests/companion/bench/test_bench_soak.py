@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tests.conftest import run_merlion
 
 
+@pytest.mark.slow
 def test_soak_reports_fps_drops_memory_and_latency_as_json() -> None:
     done = run_merlion("bench", "soak", "--minutes", "0.1", "--fps", "10", "--encoder", "visual", "--json",
                        timeout=180)
@@ -23,6 +26,7 @@ def test_soak_reports_fps_drops_memory_and_latency_as_json() -> None:
     assert abs(result["scored_vs_encoder"] - result["scored_fps"] / result["encoder_fps"]) < 0.01
 
 
+@pytest.mark.slow
 def test_soak_without_the_gate_scores_every_frame_it_takes() -> None:
     done = run_merlion("bench", "soak", "--duration", "5", "--fps", "8", "--encoder", "visual", "--gate", "none",
                        "--json", timeout=180)

@@ -89,6 +89,7 @@ def test_eval_labels_refuses_an_oracle_larger_than_the_labelled_frames(k) -> Non
         f"merlion: error: --k {k}: must be from 1 to the 93 labelled frames of {labels}"]
 
 
+@pytest.mark.slow
 def test_options_that_would_be_ignored_or_found_late_are_refused_at_once(tmp_path) -> None:
     (tmp_path / "afile").write_text("kept\n")
     cases = [

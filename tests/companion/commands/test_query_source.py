@@ -25,6 +25,7 @@ def _cfg(tmp_path: Path, text: str) -> str:
 
 @pytest.mark.parametrize("case", ["--query", "--negative", "config positive", "config topic", "run topic",
                                   "environment"])
+@pytest.mark.slow
 def test_an_unknown_query_word_is_blamed_on_the_setting_that_gave_it(tmp_path, case):
     image = str(shared_file("suim/images/n_l_12_.jpg"))
     if case == "--query":

@@ -188,6 +188,7 @@ def test_topics_from_the_surface_reach_a_live_companion_and_the_surface_tool(tmp
         hub.stop()
 
 
+@pytest.mark.slow
 def test_the_live_companion_answers_what_words_resolved_to_and_refuses_an_unknown_word(tmp_path):
     """On the wire, against a real `merlion run` with the packaged encoder: "marine animal" is accepted and the
     companion's STATUSTEXT (on the surface page's status too) names the WordNet classes it was read as; a made-up

@@ -66,6 +66,7 @@ def test_shared_data_split_by_source():
     assert {f.group for f in frames} <= set(GROUPS.values())
 
 
+@pytest.mark.slow
 def test_eval_auroc_by_source_with_the_visual_baseline_is_chance(tmp_path):
     shared_file("suim/labels.csv")
     r = run_merlion("eval", "auroc", "--data", str(SHARED_DATA), "--encoder", "visual", "--json")
@@ -89,6 +90,7 @@ def test_eval_auroc_by_source_with_the_visual_baseline_is_chance(tmp_path):
     ("frame_index,fish_present\n0,0\n1,1\n", "survey_480x270_labels.csv: 2 rows, but survey_480x270.mp4 has more frames"),
     ("frame_index,fish\n0,0\n", "survey_480x270_labels.csv: needs a header with fish_present and one row per frame"),
 ])
+@pytest.mark.slow
 def test_a_broken_data_folder_is_one_line_naming_the_file(tmp_path, labels, message):
     """A data folder with the survey's label file missing, short or without its column (was a traceback)."""
     shared_file("survey/survey_480x270.mp4")

@@ -236,6 +236,7 @@ def _small_data(root: Path, *, boxes: bool = True) -> Path:
     return data
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_train_head_and_eval_auroc_learn_from_pasted_fish_end_to_end(tmp_path):
     shared_file("aquarium_fish/frames/000006.xml")

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from companion.live.udp_hub import UdpHub
 from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
 from tests.companion.topside.live_page import page_state, surface_with_page
@@ -20,6 +22,7 @@ ROV_CLIP = "rov_clips/V4361_20211006T163856Z_h265_1sec.mp4"
 """Real deep-sea ROV footage (1080p) with no fish in it, played in a loop."""
 
 
+@pytest.mark.slow
 def test_nothing_passing_shows_the_best_frames_and_tells_the_surface(tmp_path):
     web_port = free_udp_port()
     hub = UdpHub(outputs=[("127.0.0.1", web_port)]).start()

@@ -7,11 +7,13 @@ import re
 from pathlib import Path
 
 import cv2
+import pytest
 
 from tests.conftest import run_merlion
 from tests.waiting import wait_until
 
 
+@pytest.mark.slow
 def test_short_demo_leaves_gallery_store_and_report(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     # the packaged encoder (what a fresh machine has), a quick dive, and a low threshold so a short run fills

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from companion.live.demo import set_aside_previous_run
 from tests.conftest import run_merlion
 
@@ -29,6 +31,7 @@ def test_an_earlier_run_is_moved_aside_whole_and_an_empty_folder_is_left_alone(t
     assert again is not None and again != moved and (again / "report.json").is_file() and moved.is_dir()
 
 
+@pytest.mark.slow
 def test_a_second_demo_starts_fresh_and_says_where_the_first_went(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     earlier_run(out)

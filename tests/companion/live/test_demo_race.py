@@ -13,6 +13,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.companion.live.test_demo_fresh import earlier_run
 from tests.conftest import REPO
 
@@ -47,6 +49,7 @@ def _check(tmp_path: Path, out: Path, first: subprocess.Popen, second: subproces
     assert "in use by" not in (out / "logs" / "surface.log").read_text()
 
 
+@pytest.mark.slow
 def test_two_demos_started_at_once_do_not_move_or_write_over_each_other(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     earlier_run(out)

@@ -50,6 +50,7 @@ def _signing_line(output: str) -> str:
     return next(line for line in output.splitlines() if " signing " in f" {line} ")
 
 
+@pytest.mark.slow
 def test_merlion_doctor_fails_an_unsigned_or_wrongly_keyed_companion_beside_a_signing_autopilot(tmp_path: Path):
     """Issue 24 item 8: ArduSub with a key drops everything an unsigned companion sends; doctor says so and fails."""
     port = free_udp_port()

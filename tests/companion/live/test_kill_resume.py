@@ -15,6 +15,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from companion.atomic_write import TMP_PREFIX
 from companion.config import StoreConfig
@@ -49,6 +50,7 @@ def _added(store: Path) -> list[int]:
     return out
 
 
+@pytest.mark.slow
 def test_sigkill_at_five_random_moments_then_the_dive_goes_on(tmp_path: Path) -> None:
     store = tmp_path / "store"
     # no semantic gate (tau_ss 0) and room in the summary (k 40): every frame that is not a near-duplicate enters

@@ -82,6 +82,7 @@ def _fish(frame: dict, labels: dict[int, int]) -> bool:
     return labels[frame["frame_index"] % len(labels)] == 1
 
 
+@pytest.mark.slow
 def test_marks_from_the_surface_steer_what_the_companion_keeps(tmp_path: Path, survey, hub) -> None:
     video, labels = survey
     hub, listener = hub

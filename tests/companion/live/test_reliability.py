@@ -43,6 +43,7 @@ def depth_values(listener: Listener) -> list[float]:
     return [m.value for m in listener.of_type("NAMED_VALUE_FLOAT") if m.name == "MRL_DEPTH"]
 
 
+@pytest.mark.slow
 def test_autopilot_silent_then_back_then_rebooted(tmp_path: Path, vehicle) -> None:
     hub, sim, listener = vehicle
     cfg = write_config(tmp_path / "c.yaml", mavlink={"connection": hub.url, "heartbeat_timeout_s": 1.5},
@@ -66,6 +67,7 @@ def test_autopilot_silent_then_back_then_rebooted(tmp_path: Path, vehicle) -> No
     assert companion.terminate() == 0, companion.output
 
 
+@pytest.mark.slow
 def test_source_lost_then_returning_keeps_the_process_up(tmp_path: Path, vehicle) -> None:
     hub, sim, listener = vehicle
     clip = write_clip(tmp_path / "camera.avi")  # there at start: a file that cannot be read at start is refused

@@ -6,6 +6,8 @@ from __future__ import annotations
 import re
 import time
 
+import pytest
+
 from companion.live.loops import LiveCounters
 from tests.conftest import run_merlion
 
@@ -20,6 +22,7 @@ def test_counters_say_scored_of_seen() -> None:
     assert c.rates_text(now) == "scored 5.0/s of 10.0/s seen"
 
 
+@pytest.mark.slow
 def test_the_companion_status_line_says_scored_of_seen(tmp_path) -> None:
     done = run_merlion("run", "--mavlink", "none", "--source", "synthetic://dive?seconds=8&width=160&height=96",
                        "--store", str(tmp_path / "store"), "--duration", "8", timeout=180)

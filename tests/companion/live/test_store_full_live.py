@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from pymavlink import mavutil
 
 from companion.config import StoreConfig
@@ -26,6 +27,7 @@ def _texts(listener, needle: str, start: int = 0) -> list:
     return [m for m in listener.messages[start:] if m.get_type() == "STATUSTEXT" and needle in str(m.text)]
 
 
+@pytest.mark.slow
 def test_a_full_store_is_reported_once_recovered_and_no_index_comes_twice(tmp_path: Path, dive) -> None:
     hub, _gcs, listener = dive
     with tiny_tmpfs(tmp_path / "mnt", "size=4m") as mnt:

@@ -10,6 +10,8 @@ import json
 import time
 from pathlib import Path
 
+import pytest
+
 from tests.companion.live_harness import Companion, store_summary, wait_until, write_config
 
 
@@ -17,6 +19,7 @@ def _lines(path: Path) -> list[dict]:
     return [json.loads(x) for x in path.read_text().splitlines()] if path.exists() else []
 
 
+@pytest.mark.slow
 def test_a_run_whose_store_folder_is_replaced_stops_writing_there(tmp_path: Path) -> None:
     store = tmp_path / "store"
     common = {"mavlink": {"connection": None}, "queries": {"tau_ss": 0}, "sampler": {"k": 4},

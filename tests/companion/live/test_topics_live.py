@@ -65,6 +65,7 @@ def _sidecar_topics(store: Path) -> dict[int, str]:
             (json.loads(p.read_text()) for p in (store / "frames").glob("*.json"))}
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)  # its waits add up to over 300 s on a loaded machine: each wait names what it missed
 def test_two_topics_two_summaries_one_encoder_pass_resume_and_upload(tmp_path: Path, video: Path, dive) -> None:
     hub, gcs, listener = dive

@@ -193,6 +193,7 @@ def stream_rtp(path, port: int) -> subprocess.Popen:
          f"rtp://127.0.0.1:{port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed (apt-get install ffmpeg)")
 def test_rtp_h264_stream_is_received_lost_and_reopened(monkeypatch) -> None:
     clip = shared_file("aquarium_fish/fish.mp4")

@@ -25,6 +25,7 @@ from vehicle.camera import status as st
 DIVE = "5e1f0c2a"
 
 
+@pytest.mark.slow
 def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
     chromium_or_skip()
     port = free_udp_port()

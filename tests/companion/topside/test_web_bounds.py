@@ -112,6 +112,7 @@ def test_bad_input_is_a_clean_4xx(surface):
     assert _request(port, "GET", "/api/state")[0] == 200  # and it still serves
 
 
+@pytest.mark.slow
 def test_three_hundred_slow_bodies_do_not_pin_threads(surface):
     port = surface.web
     before = _threads(surface.proc.pid)

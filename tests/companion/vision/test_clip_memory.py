@@ -46,6 +46,7 @@ def test_no_text_tower_is_held_after_loading_nor_after_encoding_queries(ckpt, pr
     assert enc.encode_images([np.zeros((120, 160, 3), np.uint8)]).shape == (1, enc._dim)
 
 
+@pytest.mark.slow
 def test_queries_are_encoded_in_a_child_once_then_come_from_the_disk_cache(ckpt, tmp_path):
     path, net = ckpt
     cfg = EncoderConfig(name="clip", device="cpu", model=SMALL, weights=path, precision="fp32", cache_dir=str(tmp_path))

@@ -62,6 +62,7 @@ def _spread_queries(encoder: ClipEncoder, images: list[np.ndarray]) -> np.ndarra
     return encoder.encode_images(images[::-1])
 
 
+@pytest.mark.slow
 def test_score_cli_loads_the_checkpoint_given_with_weights(small_ckpt, small_fp32, images, tmp_path):
     files = [shared_file("suim/images/f_r_1965_.jpg"), shared_file("suim/images/n_l_12_.jpg")]
     cpu = tmp_path / "cpu.yaml"  # compared with the CPU encoder to 1e-5: a GPU host's cuDNN may round otherwise
@@ -169,6 +170,7 @@ def test_a_checkpoint_of_another_architecture_is_a_one_line_error(small_ckpt):
 @pytest.mark.slow
 @pytest.mark.parametrize(("precision", "bound"), [("fp32", 0.85), ("fp16-weights", 0.45), ("bf16", 0.45),
                                                   ("int8", 0.7)])
+@pytest.mark.slow
 def test_loading_holds_one_copy_of_the_weights(tmp_path, precision, bound):
     """open_clip's loader held checkpoint and model at once (~2x the file); the mmap'd load of the image tower
     alone (the text tower is never read at load) stays well under the file's size (image tower ~58% of it). In

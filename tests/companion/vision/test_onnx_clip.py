@@ -89,6 +89,7 @@ def test_numpy_preprocessing_equals_open_clip_s_transform(images):
         assert diff.max() < 10 * one_step and diff.mean() < 0.25 * one_step
 
 
+@pytest.mark.slow
 def test_onnx_embeddings_equal_torch_fp32_and_the_first_start_exported_in_a_child(onnx_enc, torch_enc, images):
     assert not onnx_enc.cached and onnx_enc.child_peaks_mb["export"] > 0
     got, want = onnx_enc.encode_images(images), torch_enc.encode_images(images)
@@ -179,6 +180,7 @@ def test_the_onnx_session_takes_as_many_threads_as_omp_num_threads_sets(onnx_enc
     assert again.cached and again._session.get_session_options().intra_op_num_threads == wanted
 
 
+@pytest.mark.slow
 def test_replaced_weights_export_afresh(onnx_enc, ckpt, cache_dir, tmp_path):
     again = make_encoder(_cfg(ckpt, cache_dir))
     assert again.cached and again.child_peaks_mb == {}
@@ -188,6 +190,7 @@ def test_replaced_weights_export_afresh(onnx_enc, ckpt, cache_dir, tmp_path):
     assert not make_encoder(_cfg(str(other), cache_dir)).cached
 
 
+@pytest.mark.slow
 def test_bench_pipeline_reports_the_main_process_peaks_and_the_children_s_apart(ckpt, tmp_path):
     """First start with the ONNX runtime: the export and query children's peaks are their own JSON field."""
     proc = run_merlion("bench", "pipeline", str(shared_file("survey/survey_480x270.mp4")), "--encoder", "clip",

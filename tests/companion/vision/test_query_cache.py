@@ -84,6 +84,7 @@ def test_a_query_naming_nothing_is_refused_without_reading_wordnet(tmp_path, no_
     assert "wordnet parsed: 0" in refused.stderr
 
 
+@pytest.mark.slow
 def test_merlion_score_reads_the_cache_and_scores_with_an_unwritable_one(tmp_path, no_wordnet):
     """A real ``merlion score``: with a cache folder it cannot create it still explains and scores (one warning);
     with the cache filled by another process it scores the same without any WordNet file."""

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from companion.config import MavlinkConfig, TelemetryConfig
 from tests.conftest import free_udp_port
 from tests.vehicle.sim_env import FAST_LINK
@@ -15,6 +17,7 @@ from vehicle.sim.dive_profile import compile_profile
 from vehicle.sim.vehicle import SimVehicle
 
 
+@pytest.mark.slow
 def test_depth_tags_within_5_cm_during_a_half_metre_per_second_descent_at_firmware_rates():
     port = free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))

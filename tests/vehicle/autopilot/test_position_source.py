@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.config import MavlinkConfig, TelemetryConfig
@@ -17,6 +18,7 @@ from vehicle.sim.dive_profile import compile_profile
 from vehicle.sim.vehicle import SimVehicle
 
 
+@pytest.mark.slow
 def test_missing_local_position_backs_off_exponentially_and_is_announced_once():
     port = free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))

@@ -87,7 +87,8 @@ def test_the_surface_page_stops_showing_no_position_source_once_positions_arrive
         return [line["text"] for line in tool.snapshot()["companion"]["statustext"]]
 
     try:
-        peer.heartbeat()
+        # until the tool answers (its heartbeat) it may not be listening yet, and a STATUSTEXT is sent once
+        assert wait_until(lambda: peer.heartbeat() or any(m.get_type() == "HEARTBEAT" for m in peer.received), 10)
         peer.send(mav2.MAVLink_statustext_message(mav2.MAV_SEVERITY_INFO, NO_POSITION_TEXT.encode()))
         assert wait_until(lambda: NO_POSITION_TEXT in texts(), 10), texts()
         peer.send(mav2.MAVLink_statustext_message(mav2.MAV_SEVERITY_INFO, POSITION_FOUND_TEXT.encode()))

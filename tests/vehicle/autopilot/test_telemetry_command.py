@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tests.conftest import free_udp_port, run_merlion
 from vehicle.sim.dive_profile import compile_profile
 from vehicle.sim.vehicle import SimVehicle
 
 
+@pytest.mark.slow
 def test_telemetry_command_reports_depth_rates_and_no_position_source(tmp_path):
     port = free_udp_port()
     cfg = tmp_path / "merlion.yaml"

@@ -45,6 +45,7 @@ def downlink(tmp_path):
             p.close()
 
 
+@pytest.mark.slow
 def test_a_parameter_list_flood_starves_nothing_and_is_reported_once(downlink):
     surface, gcs, stranger, floods = downlink
     flood = Repeater(stranger, lambda: [mav2.MAVLink_param_request_list_message(*COMPANION)], 20)

@@ -88,6 +88,7 @@ def _peer(port: int, peers: list[Peer], system: int, component: int, key: bytes 
     return peer
 
 
+@pytest.mark.slow
 def test_a_restarted_client_reusing_seq_numbers_gets_the_new_files_bytes(plain):
     """Issue 25 item 1: download 5.jpg from seq 0, restart (same ids, new socket, seq 0) and download 4.jpg."""
     port, surface, peers = plain

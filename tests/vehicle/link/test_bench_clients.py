@@ -9,6 +9,7 @@ import pytest
 from tests.conftest import run_merlion
 
 
+@pytest.mark.slow
 def test_bench_link_clients_reports_corruption_and_stalls():
     result = run_merlion("bench", "link", "--clients", "2", "--duration", "3", "--json", timeout=180)
     assert result.returncode == 0, result.stderr

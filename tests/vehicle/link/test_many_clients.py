@@ -72,6 +72,7 @@ def _mavsdk_client(port: int, duration_s: float, out: dict) -> None:
         sdk.destroy()
 
 
+@pytest.mark.slow
 def test_companion_serves_many_ground_stations_at_once(tmp_path: Path) -> None:
     hub = UdpHub().start()
     sim = subprocess.Popen([sys.executable, "-m", "companion", "-q", "sim-vehicle", "--connect", hub.url,

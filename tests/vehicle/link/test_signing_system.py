@@ -205,6 +205,7 @@ def test_a_signed_write_recorded_before_a_sigkill_is_a_replay_after_the_restart(
     assert second.terminate() == 0, second.output
 
 
+@pytest.mark.slow
 def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nobody_else(setup) -> None:
     """Issue 24 item 8: the simulated ArduSub signs and drops everything unsigned; the companion has no key."""
     key_file, hub, sim, store, cfg, stations = setup

@@ -12,6 +12,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from companion.live.udp_hub import UdpHub
@@ -61,6 +62,7 @@ def _tagged_frames(store: Path) -> list[dict]:
     return [f for f in frames if f.get("pose") and f["pose"].get("depth_m") is not None]
 
 
+@pytest.mark.slow
 def test_live_companion_never_looks_like_a_gcs_and_tags_depth_within_5_cm(tmp_path: Path) -> None:
     listener = Listener()
     hub = UdpHub(outputs=[("127.0.0.1", listener.port)]).start()
