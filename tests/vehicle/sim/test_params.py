@@ -106,7 +106,8 @@ def test_failsafes_and_pilot_speed_follow_the_parameters_set_over_the_wire():
         # failsafe, 3 s, comes later)
         assert wait_until(lambda: [kind for _t, kind in sim.failsafes] == ["gcs"], 3)
         assert sim.state().mode == "SURFACE" and sim.state().vd == pytest.approx(-1.0)
-        assert any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT"))
+        # the record is made before the warning is sent: the warning is still on its way over UDP
+        assert wait_until(lambda: any(m.text == "MYGCS: 255, heartbeat lost" for m in peer.of_type("STATUSTEXT")), 2)
 
 
 def test_manual_control_counts_only_from_the_ground_station_and_aimed_at_this_vehicle():
