@@ -214,7 +214,8 @@ the encoder cannot see, left out)."""
             wait_until(lambda: said("Query marine animal="), 30, "the companion's reading of the query on the page")
             line = said("Query marine animal=")[0]
             assert line.startswith("Query marine animal=26: great white shark,") and len(line) <= 50, line
-            assert said("Query not marine animal=26: ")
+            # the negative's line is the next STATUSTEXT, sent after the positive's: it may still be on its way
+            wait_until(lambda: said("Query not marine animal=26: "), 30, "the negative query's reading on the page")
 
             done = run_merlion("surface-queries", "--connect", hub.url, "--timeout", "30",
                                "--query", "fish or blorptang", "--negative", "no fish", timeout=90)

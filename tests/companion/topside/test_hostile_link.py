@@ -504,7 +504,9 @@ def test_captures_jumping_ahead_ask_again_for_16_lost_captures_and_then_one_a_se
             peer.send(captured_message(summary_frame(20 * i), 0))
         assert wait_until(lambda: tool.gallery.get(980) is not None, 20)
         assert wait_until(lambda: requests() >= 16, 5)
-        time.sleep(0.2)  # what the tool sent has reached the peer
+        # capture 980 is filed before the 16 it skipped are asked for (or refused), and what the tool sent may still
+        # be on its way to the peer: wait until each of the 784 asks was received or refused
+        assert wait_until(lambda: requests() + tool.status.requests_refused == 784, 5)
         elapsed = time.monotonic() - started
         sent = requests()
     finally:

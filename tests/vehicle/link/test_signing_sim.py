@@ -83,11 +83,12 @@ def test_setup_signing_from_a_ground_station_turns_signing_on(tmp_path):
         gcs.sendto(arm.pack(signed), ("127.0.0.1", port))
         assert wait_until(lambda: len(sim.commands) == 1, 5)
         assert sim.link.signing.rejected == {(255, 190): 1}
-        parser = mav2.MAVLink(None)
-        data, _ = gcs.recvfrom(4096)
-        while not parser.parse_buffer(data):
-            data, _ = gcs.recvfrom(4096)
-        assert data[2] & mav2.MAVLINK_IFLAG_SIGNED  # and what the sim sends is signed
+        # the command is recorded before its ACK is sent: wait for the ACK (not 50 ms), and judge what the sim sends
+        # from its first signed packet on (one sent while SETUP_SIGNING was being handled may predate the key)
+        gcs.settimeout(5)
+        heard = _until_ack(gcs, SET_MESSAGE_INTERVAL)
+        flags = [bool(m.get_msgbuf()[2] & mav2.MAVLINK_IFLAG_SIGNED) for m in heard]
+        assert flags[-1] and all(flags[flags.index(True):])  # and what the sim sends is signed
     finally:
         gcs.close()
         sim.stop()
