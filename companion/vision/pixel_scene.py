@@ -4,12 +4,12 @@ The scene residual on the network's features (``scene_memory``) looks through 32
 pixels wide in green haze (DeepFish habitat 7393) is lost in them: it stays ranked below chance. In the pixels
 the same fish stands out plainly against the dive's background, the way a fixed camera's motion detector sees
 it. So each frame, at 112x64 (a quarter of the encoder's 448x256 input), is compared with the dive's causal
-running mean and spread of the same small image (``running_mean``: this frame included, plain up to ``tau`` frames
-and exponential after), and gives 12 numbers: the largest, 99th-percentile and mean absolute change, and the
-largest "blob" contrast (a box mean of the change minus that of a box five times wider, so a swaying root or a
+running mean of the frames before it (``RunningMean.take``: a frame is not its own background), plain up to
+``tau`` frames and exponential after, and gives 12 numbers: the largest, 99th-percentile and mean absolute
+change, and the largest "blob" contrast (a box mean of the change minus that of a box five times wider, so a swaying root or a
 whole-frame shift counts less than a compact spot) at three sizes; then the same six on the change divided by
-the dive's running spread (the square root of the running mean squared change plus its mean over the frame:
-a spot where the scene is usually still counts more). They are appended to the scene
+the dive's running spread (the square root of the running mean squared change, this frame's included, plus its
+mean over the frame: a spot where the scene is usually still counts more). They are appended to the scene
 residual and read by the same scene head, which learns from the data how far to trust them (a moving ROV
 changes every pixel, a fixed camera few). Measured held out on the shared data: docs/encoders.md.
 
@@ -73,8 +73,9 @@ class PixelScene:
     def features(self, pixels: np.ndarray, *, join: bool = True) -> np.ndarray:
         """(N, 64, 112, 3) small frames in order -> (N, 12), NaN for a frame with no scene before it.
 
-        ``join``: each frame is taken into the mean and spread first; without it (a frame scored again, e.g. its
-        enhanced copy) they are used as they stand and kept.
+        ``join``: each frame is compared with the mean of the frames before it, then taken into the mean, and its
+        squared change into the spread it is divided by; without it (a frame scored again, e.g. its enhanced copy)
+        the mean and spread are used as they stand and kept.
         """
         p = np.asarray(pixels, dtype=np.float64)
         if p.ndim != 4 or p.shape[1:] != (SIZE[1], SIZE[0], CHANNELS):
@@ -90,7 +91,7 @@ class PixelScene:
                     self._square.centre(np.zeros_like(x))
                 continue  # nothing to compare with
             if join:
-                diff = self._mean.centre(x)
+                diff = self._mean.take(x)
                 self._square.centre(diff ** 2)
             else:
                 diff = x - self._mean.mean

@@ -31,3 +31,15 @@ class RunningMean:
         self.mean = self.mean + rate * (np.asarray(value, dtype=np.float64) - self.mean)
         out = np.asarray(value, dtype=np.float64) - self.mean
         return float(out) if out.ndim == 0 else out
+
+    def take(self, value: float | np.ndarray) -> float | np.ndarray:
+        """Take in one frame's value and return it minus the mean of the dive before it.
+
+        What sets a frame apart from its scene: a frame is not its own background. Centred on a mean that holds it,
+        a dive's second frame shows half its change, its third two thirds, so a short dive's early rows are shrunk
+        against its later ones (measured on the scene head: docs/encoders.md, "A frame against the dive before it").
+        """
+        before = self.mean
+        self.centre(value)
+        out = np.asarray(value, dtype=np.float64) - before
+        return float(out) if out.ndim == 0 else out

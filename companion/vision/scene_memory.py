@@ -10,8 +10,9 @@ leave-one-group-out AUROC 0.73 -> 0.85 on the shared data, 0.88 with the pixel c
 (docs/encoders.md).
 
 The first frame of a dive has no scene to be judged against: its residual is NaN, and the head on the pooled
-features scores it (as it does a frame scored before any dive, e.g. one image). After that the mean, this frame
-included, is plain up to ``tau`` frames and exponential past them (``running_mean``). The dive window (``dive_mean.DiveWindow``) owns one per dive.
+features scores it (as it does a frame scored before any dive, e.g. one image). After that each frame is compared
+with the mean of the frames before it (``RunningMean.take``: a frame is not its own background), plain up to
+``tau`` frames and exponential past them (``running_mean``), and then joins it. The dive window (``dive_mean.DiveWindow``) owns one per dive.
 
 Beside the features, the memory keeps the dive's small frames (``pixel_scene``): a fish a few pixels wide is lost
 in the network's 32-pixel cells but plain in the pixels, so each residual row ends with 12 numbers on the most
@@ -78,8 +79,9 @@ class SceneMemory:
         """N frames in order -> (N, D + 12): the mean over views of ``max(view - dive mean, 0)``, then the pixel
         change features (``pixel_scene``); NaN for a frame with no scene before it.
 
-        ``join``: each frame is taken into the mean first (this frame included, as ``RunningMean.centre``);
-        without it (a frame scored again, e.g. its enhanced copy) the mean as it stands is used and kept.
+        ``join``: each frame is compared with the mean of the frames before it, then taken into it
+        (``RunningMean.take``); without it (a frame scored again, e.g. its enhanced copy) the mean as it stands is
+        used and kept.
         """
         v = np.asarray(scene.views, dtype=np.float64)
         out = np.full((v.shape[0], scene.width), np.nan)
@@ -90,7 +92,7 @@ class SceneMemory:
                     self._mean = RunningMean(row, 0.0, self.tau)
                     self._mean.centre(row)
                 continue  # no scene before this frame: NaN, the head on the pooled features answers
-            diff = self._mean.centre(row) if join else row - self._mean.mean
+            diff = self._mean.take(row) if join else row - self._mean.mean
             out[i, :v.shape[2]] = np.maximum(diff, 0.0).mean(axis=0)
             out[i, v.shape[2]:] = pixels[i]
         return out

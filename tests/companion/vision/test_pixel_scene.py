@@ -19,8 +19,8 @@ def _still_scene(frames: int, seed: int = 0) -> np.ndarray:
 
 
 def _reference(pixels: np.ndarray, tau: float, copies: np.ndarray | None = None) -> np.ndarray:
-    """Written out independently: blurred frames; mean of frames 0..t and mean of the squared change (rate 1/(t+1),
-    then 1/tau); the six measures on |change| summed over colours and on it over the spread. With ``copies``:
+    """Written out independently: blurred frames; each against the mean of frames 0..t-1, then the mean of the
+    squared change of frames 1..t (rate 1/(t+1), then 1/tau); the six measures on |change| summed over colours and on it over the spread. With ``copies``:
     their rows instead, each against the mean and spread after the last frame, neither taken in."""
     def six(c: np.ndarray) -> list[float]:
         def blob(k: int) -> float:
@@ -41,8 +41,8 @@ def _reference(pixels: np.ndarray, tau: float, copies: np.ndarray | None = None)
     mean, square = x[0], np.zeros_like(x[0])
     for t in range(1, len(x)):
         rate = max(1.0 / (t + 1), 1.0 / tau)
+        diff = x[t] - mean  # against the frames before it
         mean = mean + rate * (x[t] - mean)
-        diff = x[t] - mean
         square = square + rate * (diff ** 2 - square)
         out[t] = row(diff, square)
     if copies is None:

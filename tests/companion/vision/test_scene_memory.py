@@ -18,15 +18,23 @@ from tests.conftest import run_merlion
 
 
 def _reference(views: np.ndarray, tau: float = TAU) -> np.ndarray:
-    """Written out independently: the mean of frames 0..t (exponential with rate 1/tau once t >= tau), and
-    mean over views of max(view_t - mean_t, 0); NaN for frame 0."""
+    """Written out independently: the mean of frames 0..t-1 (exponential with rate 1/tau once t >= tau), and
+    mean over views of max(view_t - that mean, 0); NaN for frame 0."""
     out = np.full((len(views), views.shape[2]), np.nan)
     mean = views[0].astype(np.float64)
     for t in range(1, len(views)):
+        out[t] = np.clip(views[t] - mean, 0, None).mean(axis=0)  # against the frames before it
         rate = max(1.0 / (t + 1), 1.0 / tau)
         mean = mean + rate * (views[t] - mean)
-        out[t] = np.clip(views[t] - mean, 0, None).mean(axis=0)
     return out
+
+
+def test_a_frame_is_compared_with_the_dive_before_it_not_with_itself():
+    """At a dive's second frame a mean that held the frame would halve its change."""
+    views = np.zeros((2, 1, 4))
+    views[1, 0] = [2.0, 0.0, -2.0, 4.0]
+    got = SceneMemory().residuals(_inputs(views, 0))
+    np.testing.assert_allclose(got[1, :4], [2.0, 0.0, 0.0, 4.0])
 
 
 def _inputs(views: np.ndarray, seed: int) -> SceneInput:
