@@ -155,6 +155,39 @@ def test_a_rate_a_ground_station_raised_is_neither_lowered_nor_asked_for_again()
         link.stop()
 
 
+@pytest.mark.slow
+def test_a_rate_left_as_found_is_asked_for_once_it_falls_short():
+    """GLOBAL_POSITION_INT already arrives at the wanted 5 Hz when the companion comes, so it is left as found; then
+    a ground station sets it back to ArduSub's default 3.2 Hz. At its next check the companion asks for 5 Hz: what it left alone must keep
+    arriving at the share it was judged on (a listen too short to judge a 3.2 Hz stream once read it as 4.7 Hz,
+    and the stream stayed at 3.2 Hz for good, since an asked-for message is only asked again below half its rate)."""
+    dive = compile_profile({"origin": None, "legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20, "rate_mps": 0.5}}]})
+    port = free_udp_port()
+    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))
+    from companion.config import TelemetryConfig
+
+    # checks further apart than the 5 s window, so that each sees a whole window
+    tel = VehicleTelemetry(link, TelemetryConfig(rate_grace_s=6.0))
+    tel.start()
+    link.start()
+    sim = SimVehicle(f"udpout:127.0.0.1:{port}", dive, rates={"HEARTBEAT": 5.0, "GLOBAL_POSITION_INT": 5.0})
+    sim.start()
+    try:
+        assert wait_until(lambda: tel.rates.method.get("GLOBAL_POSITION_INT") == "as_found", 10)
+        assert tel.rates.requests["GLOBAL_POSITION_INT"] == 0
+        sim.set_rate("GLOBAL_POSITION_INT", 3.2)  # a ground station on the router lowers it: above half of 5 Hz
+        assert wait_until(lambda: tel.rates.requests["GLOBAL_POSITION_INT"] == 1, 15)
+        assert tel.rates.method["GLOBAL_POSITION_INT"] in ("interval", "data_stream")
+        assert wait_until(lambda: sim.interval("GLOBAL_POSITION_INT") == pytest.approx(0.2), 3)
+        asked = [c for c in sim.commands if c[0] == mav2.MAV_CMD_SET_MESSAGE_INTERVAL
+                 and int(c[1]) == mav2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT]
+        assert [c[2] for c in asked] == [200_000.0]
+    finally:
+        sim.stop()
+        tel.stop()
+        link.stop()
+
+
 def test_sim_vehicle_command_runs_as_a_process_and_reboots_on_sigusr2():
     port = free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))
