@@ -221,28 +221,35 @@ class RateKeeper:
                 asked = self._asked_at.get(name)
                 if asked is None and self._listen_from is not None and self._as_found(name, hz):
                     continue
-                if asked is not None:
-                    if now < self._check_at.get(name, 0.0):
-                        continue
-                    if self._keeps_up(name, hz):
-                        self._check_at[name] = now + self.grace_s
-                        continue
-                    if self.method.get(name) == "as_found":
-                        log.info("rates: %s, left as found, arrives at %.1f Hz (wanted %.1f Hz): asking for it", name,
-                                 self.heard_hz(name, asked), hz)
-                    else:
-                        self._backoff[name] = min(2 * max(self._backoff.get(name, self.grace_s), self.grace_s),
-                                                  self.backoff_max_s)
-                        log.info("rates: %s arrives at %.1f Hz, asked %.1f Hz: asking again", name,
-                                 self.observed_hz(name), hz)
+                if asked is not None and (now < self._check_at.get(name, 0.0)
+                                          or not self._falls_short(name, hz, asked, now)):
+                    continue
                 self._request(name, hz)
                 self._asked_at[name] = self.clock()
                 self._check_at[name] = self._asked_at[name] + max(self.grace_s, self._backoff.get(name, 0.0))
                 self._check_missing(name)
 
+    def _falls_short(self, name: str, hz: float, asked: float, now: float) -> bool:
+        """At its check: whether ``name`` must be asked for (again), else when it is next looked at. One asked for
+        needs half the wanted rate (an autopilot rounds intervals, and a busy one sends less), and is asked again
+        less and less often. One left as found needs LEAVE_SHARE of it since it was found: the listen may have been
+        too short to judge it (one 3.2 Hz message in a 0.2 s listen reads as 4.7 Hz), or whoever raised the rate
+        has lowered it again; either way it is asked for now."""
+        found = self.method.get(name) == "as_found"
+        rate = self.heard_hz(name, asked) if found else self.observed_hz(name)
+        if rate >= (LEAVE_SHARE if found else 0.5) * hz:
+            self._check_at[name] = now + self.grace_s
+            return False
+        if found:
+            log.info("rates: %s, left as found, arrives at %.1f Hz (wanted %.1f Hz): asking for it", name, rate, hz)
+        else:
+            self._backoff[name] = min(2 * max(self._backoff.get(name, self.grace_s), self.grace_s), self.backoff_max_s)
+            log.info("rates: %s arrives at %.1f Hz, asked %.1f Hz: asking again", name, rate, hz)
+        return True
+
     def _as_found(self, name: str, hz: float) -> bool:
-        """After listening: leave ``name`` alone (checked like an asked one from now on) if it already arrives at
-        LEAVE_SHARE of ``hz`` or more, whoever set that rate."""
+        """After listening: leave ``name`` alone (checked at each check from now on, ``_falls_short``) if it already
+        arrives at LEAVE_SHARE of ``hz`` or more, whoever set that rate."""
         heard = self.heard_hz(name, self._listen_from)
         if heard < LEAVE_SHARE * hz:
             return False
@@ -252,15 +259,6 @@ class RateKeeper:
         self._asked_at[name] = now
         self._check_at[name] = now + self.grace_s
         return True
-
-    def _keeps_up(self, name: str, hz: float) -> bool:
-        """Whether ``name`` is left alone at this check. One asked for needs half the wanted rate (an autopilot
-        rounds intervals, and a busy one sends less). One left as found needs LEAVE_SHARE of it since it was
-        found: the listen may have been too short to judge it (one 3.2 Hz message in a 0.2 s listen reads as
-        4.7 Hz), or whoever raised the rate has lowered it again; either way it is asked for now."""
-        if self.method.get(name) == "as_found":
-            return self.heard_hz(name, self._asked_at[name]) >= LEAVE_SHARE * hz
-        return self.observed_hz(name) >= 0.5 * hz
 
     def _until_next_check(self) -> float:
         """Seconds until the next message is due to be checked, or the listening ends (at most 1 s, so a short
