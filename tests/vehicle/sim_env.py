@@ -33,12 +33,14 @@ def quick_dive() -> DiveProfile:
 
 
 @contextmanager
-def companion_and_sim(*, telemetry: bool = True, stale_after_s: float = 0.4, **sim_kwargs) -> Iterator[
-        tuple[MavLink, VehicleTelemetry | None, SimVehicle]]:
-    """Our link (udpin, as on a BlueOS vehicle) with telemetry attached, and the sim sending to it."""
+def companion_and_sim(*, telemetry: bool = True, stale_after_s: float = 0.4, telemetry_settings: dict | None = None,
+                      **sim_kwargs) -> Iterator[tuple[MavLink, VehicleTelemetry | None, SimVehicle]]:
+    """Our link (udpin, as on a BlueOS vehicle) with telemetry attached (``telemetry_settings``: more of its
+    configuration), and the sim sending to it."""
     port = free_udp_port()
     link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))
-    tel = VehicleTelemetry(link, TelemetryConfig(stale_after_s=stale_after_s)) if telemetry else None
+    cfg = TelemetryConfig(stale_after_s=stale_after_s, **(telemetry_settings or {}))
+    tel = VehicleTelemetry(link, cfg) if telemetry else None
     if tel is not None:
         tel.start()
     link.start()

@@ -127,52 +127,36 @@ def test_rate_lowered_by_a_ground_station_is_asked_for_again():
             keeper.stop()
 
 
+def _no_origin_dive():
+    """Held at the surface a second, then down to 20 m, with no EKF origin: LOCAL_POSITION_NED never comes."""
+    return compile_profile({"origin": None, "legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20, "rate_mps": 0.5}}]})
+
+
 def test_a_rate_a_ground_station_raised_is_neither_lowered_nor_asked_for_again():
     """A GCS on the router set ATTITUDE to 50 Hz before the companion came (the last request wins for everyone):
     the companion, wanting 10 Hz, hears it arrive faster in its first second and never sends a request for it,
     not at first and not at the later checks, while it keeps asking for what falls short (LOCAL_POSITION_NED never
     comes without an origin: three requests, and ATTITUDE was checked at least as often by then)."""
-    dive = compile_profile({"origin": None, "legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20, "rate_mps": 0.5}}]})
-    port = free_udp_port()
-    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))
-    from companion.config import TelemetryConfig
-
-    tel = VehicleTelemetry(link, TelemetryConfig(rate_grace_s=0.5))
-    tel.start()
-    link.start()
-    sim = SimVehicle(f"udpout:127.0.0.1:{port}", dive, rates={"HEARTBEAT": 5.0, "ATTITUDE": 50.0})
-    sim.start()
-    try:
+    with companion_and_sim(telemetry_settings={"rate_grace_s": 0.5}, profile=_no_origin_dive(),
+                           rates={"HEARTBEAT": 5.0, "ATTITUDE": 50.0}) as (_link, tel, sim):
         assert wait_until(lambda: tel.rates.requests["LOCAL_POSITION_NED"] >= 3, 15)
         asked = {int(c[1]) for c in sim.commands if c[0] == mav2.MAV_CMD_SET_MESSAGE_INTERVAL}
         assert mav2.MAVLINK_MSG_ID_ATTITUDE not in asked and mav2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT in asked
         assert sim.interval("ATTITUDE") == pytest.approx(0.02)
         assert tel.rates.method["ATTITUDE"] == "as_found" and tel.rates.requests["ATTITUDE"] == 0
         assert tel.rates.observed_hz("ATTITUDE") > 10.0
-    finally:
-        sim.stop()
-        tel.stop()
-        link.stop()
 
 
 @pytest.mark.slow
 def test_a_rate_left_as_found_is_asked_for_once_it_falls_short():
     """GLOBAL_POSITION_INT already arrives at the wanted 5 Hz when the companion comes, so it is left as found; then
-    a ground station sets it back to ArduSub's default 3.2 Hz. At its next check the companion asks for 5 Hz: what it left alone must keep
-    arriving at the share it was judged on (a listen too short to judge a 3.2 Hz stream once read it as 4.7 Hz,
-    and the stream stayed at 3.2 Hz for good, since an asked-for message is only asked again below half its rate)."""
-    dive = compile_profile({"origin": None, "legs": [{"hold": {"s": 1.0}}, {"descend": {"to_m": 20, "rate_mps": 0.5}}]})
-    port = free_udp_port()
-    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(**FAST_LINK))
-    from companion.config import TelemetryConfig
-
+    a ground station sets it back to ArduSub's default 3.2 Hz. At its next check the companion asks for 5 Hz: what
+    it left alone must keep arriving at the share it was judged on (a listen too short to judge a 3.2 Hz stream
+    once read it as 4.7 Hz, and the stream stayed at 3.2 Hz for good, since an asked-for message is only asked
+    again below half its rate)."""
     # checks further apart than the 5 s window, so that each sees a whole window
-    tel = VehicleTelemetry(link, TelemetryConfig(rate_grace_s=6.0))
-    tel.start()
-    link.start()
-    sim = SimVehicle(f"udpout:127.0.0.1:{port}", dive, rates={"HEARTBEAT": 5.0, "GLOBAL_POSITION_INT": 5.0})
-    sim.start()
-    try:
+    with companion_and_sim(telemetry_settings={"rate_grace_s": 6.0}, profile=_no_origin_dive(),
+                           rates={"HEARTBEAT": 5.0, "GLOBAL_POSITION_INT": 5.0}) as (_link, tel, sim):
         assert wait_until(lambda: tel.rates.method.get("GLOBAL_POSITION_INT") == "as_found", 10)
         assert tel.rates.requests["GLOBAL_POSITION_INT"] == 0
         sim.set_rate("GLOBAL_POSITION_INT", 3.2)  # a ground station on the router lowers it: above half of 5 Hz
@@ -182,10 +166,6 @@ def test_a_rate_left_as_found_is_asked_for_once_it_falls_short():
         asked = [c for c in sim.commands if c[0] == mav2.MAV_CMD_SET_MESSAGE_INTERVAL
                  and int(c[1]) == mav2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT]
         assert [c[2] for c in asked] == [200_000.0]
-    finally:
-        sim.stop()
-        tel.stop()
-        link.stop()
 
 
 def test_sim_vehicle_command_runs_as_a_process_and_reboots_on_sigusr2():
