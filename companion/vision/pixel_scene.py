@@ -6,8 +6,8 @@ the same fish stands out plainly against the dive's background, the way a fixed 
 it. So each frame, at 112x64 (a quarter of the encoder's 448x256 input), is compared with the dive's causal
 running mean of the frames before it (``RunningMean.take``: a frame is not its own background), plain up to
 ``tau`` frames and exponential after, and gives 12 numbers: the largest, 99th-percentile and mean absolute
-change, and the largest "blob" contrast (a box mean of the change minus that of a box five times wider, so a swaying root or a
-whole-frame shift counts less than a compact spot) at three sizes; then the same six on the change divided by
+change, and the largest "blob" contrast (a box mean of the change minus that of a box five times wider, so a
+swaying root or a whole-frame shift counts less than a compact spot) at three sizes; then the same six on the change divided by
 the dive's running spread (the square root of the running mean squared change, this frame's included, plus its
 mean over the frame: a spot where the scene is usually still counts more). They are appended to the scene
 residual and read by the same scene head, which learns from the data how far to trust them (a moving ROV

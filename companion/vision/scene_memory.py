@@ -12,7 +12,8 @@ leave-one-group-out AUROC 0.73 -> 0.85 on the shared data, 0.88 with the pixel c
 The first frame of a dive has no scene to be judged against: its residual is NaN, and the head on the pooled
 features scores it (as it does a frame scored before any dive, e.g. one image). After that each frame is compared
 with the mean of the frames before it (``RunningMean.take``: a frame is not its own background), plain up to
-``tau`` frames and exponential past them (``running_mean``), and then joins it. The dive window (``dive_mean.DiveWindow``) owns one per dive.
+``tau`` frames and exponential past them (``running_mean``), and then joins it. The dive window
+(``dive_mean.DiveWindow``) owns one per dive.
 
 Beside the features, the memory keeps the dive's small frames (``pixel_scene``): a fish a few pixels wide is lost
 in the network's 32-pixel cells but plain in the pixels, so each residual row ends with 12 numbers on the most

@@ -20,8 +20,8 @@ def _still_scene(frames: int, seed: int = 0) -> np.ndarray:
 
 def _reference(pixels: np.ndarray, tau: float, copies: np.ndarray | None = None) -> np.ndarray:
     """Written out independently: blurred frames; each against the mean of frames 0..t-1, then the mean of the
-    squared change of frames 1..t (rate 1/(t+1), then 1/tau); the six measures on |change| summed over colours and on it over the spread. With ``copies``:
-    their rows instead, each against the mean and spread after the last frame, neither taken in."""
+    squared change of frames 1..t (rate 1/(t+1), then 1/tau); the six measures on |change| summed over colours
+    and on it over the spread. With ``copies``: their rows instead, each against the mean and spread after the last frame, neither taken in."""
     def six(c: np.ndarray) -> list[float]:
         def blob(k: int) -> float:
             return float((cv2.blur(c, (k, k)) - cv2.blur(c, (5 * k, 5 * k))).max())
