@@ -34,12 +34,14 @@ from companion.vision.presampler import PreSampler
 
 def _head_without(head: LinearHead, features: np.ndarray, y: np.ndarray, keep: np.ndarray,
                   extra: Extra | None = None) -> LinearHead:
-    """``head`` refitted at its own strength on the ``keep`` rows (and ``extra``, already without the group)."""
+    """``head`` refitted at its own strength and scale floor on the ``keep`` rows (and ``extra``, already without
+    the group)."""
     keep = keep & np.isfinite(features).all(axis=1)  # a scene head: not the dives' first frames
     lam = float(head.trained_on.get("lambda", 1e4))
-    refit = fit(*with_extra(features[keep], y[keep], extra), lam, calibrate=int(keep.sum()))
+    floor = float(head.trained_on.get("scale_floor", 0.0))
+    refit = fit(*with_extra(features[keep], y[keep], extra), lam, calibrate=int(keep.sum()), floor=floor)
     return LinearHead(head.concept, head.classes, head.backbone, head.colour, refit.w, refit.b,
-                      {"lambda": lam, "held_out": True}, head.input)
+                      {"lambda": lam, "scale_floor": floor, "held_out": True}, head.input)
 
 
 WEIGHTS = (1.0, 2.0, 3.0, 4.0, 6.0)

@@ -39,9 +39,19 @@ class LinearFit:
     lam: float
 
 
-def _ridge_all(x: np.ndarray, y: np.ndarray, lambdas: Sequence[float]) -> tuple[np.ndarray, np.ndarray, list]:
-    """Standardisation (mean, scale) and one ridge weight vector per lambda, by a linear solve each."""
-    mean, scale = x.mean(axis=0), x.std(axis=0) + 1e-6
+def standard_scale(x: np.ndarray, floor: float = 0.0) -> np.ndarray:
+    """Each feature's spread, held to at least ``floor`` x the median feature's spread: a feature almost constant
+    in training (a residual channel that fired in a dozen rows) would otherwise be stretched a thousandfold
+    wherever it does fire, and its weight alone would decide those frames."""
+    std = x.std(axis=0)
+    return np.maximum(std, floor * float(np.median(std))) + 1e-6
+
+
+def _ridge_all(x: np.ndarray, y: np.ndarray, lambdas: Sequence[float],
+               floor: float = 0.0) -> tuple[np.ndarray, np.ndarray, list]:
+    """Standardisation (mean, scale; ``standard_scale``) and one ridge weight vector per lambda, by a linear solve
+    each."""
+    mean, scale = x.mean(axis=0), standard_scale(x, floor)
     z = (x - mean) / scale
     target = np.where(y, 1.0, -1.0)
     offset = target.mean()
@@ -78,12 +88,12 @@ def _platt(scores: np.ndarray, y: np.ndarray, iterations: int = 50) -> tuple[flo
     return float(a), float(b)
 
 
-def fit(x: np.ndarray, y: np.ndarray, lam: float, calibrate: int | None = None) -> LinearFit:
+def fit(x: np.ndarray, y: np.ndarray, lam: float, calibrate: int | None = None, *, floor: float = 0.0) -> LinearFit:
     """Ridge on standardised features, calibrated by Platt on the training scores, folded into raw-feature w, b.
     ``calibrate``: Platt on the first rows only (the real frames, not the extra ones, whose share of fish would
-    shift every probability)."""
+    shift every probability); ``floor``: under the standardisation scale (``standard_scale``)."""
     y = np.asarray(y, dtype=bool)
-    mean, scale, [(w, offset)] = _ridge_all(np.asarray(x, np.float64), y, [lam])
+    mean, scale, [(w, offset)] = _ridge_all(np.asarray(x, np.float64), y, [lam], floor)
     raw = ((x - mean) / scale) @ w + offset
     a, c = _platt(raw[:calibrate], y[:calibrate])
     w_raw = a * w / scale
@@ -125,7 +135,8 @@ is met twice (g reported and h held out to choose its lambda, and the other way 
 
 def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
                     lambdas: Sequence[float] = LAMBDAS, extra: Extra | None = None, *,
-                    fits: Fits | None = None, without: frozenset = frozenset()) -> dict[float, np.ndarray]:
+                    fits: Fits | None = None, without: frozenset = frozenset(),
+                    floor: float = 0.0) -> dict[float, np.ndarray]:
     """For every lambda, each frame's ridge score from a fit without its group (no calibration: ranks only).
     ``fits``: fits already made on the same rows, by the groups left out (``without`` those of the caller)."""
     out = {lam: np.zeros(len(y)) for lam in lambdas}
@@ -133,7 +144,7 @@ def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
         held = _held(groups, g)
         key = without | {g}
         if fits is None or key not in fits:
-            made = _ridge_all(*with_extra(x[~held], y[~held], extra_without(extra, g)), lambdas)
+            made = _ridge_all(*with_extra(x[~held], y[~held], extra_without(extra, g)), lambdas, floor)
             if fits is None:
                 mean, scale, per_lambda = made
             else:
@@ -153,16 +164,16 @@ def group_mean_auroc(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> f
 
 def choose_lambda(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Sequence[float] = LAMBDAS,
                   extra: Extra | None = None, *, fits: Fits | None = None,
-                  without: frozenset = frozenset()) -> float:
+                  without: frozenset = frozenset(), floor: float = 0.0) -> float:
     """The ridge strength whose leave-one-group-out scores have the best mean per-group AUROC."""
-    scores = held_out_scores(x, y, groups, lambdas, extra, fits=fits, without=without)
+    scores = held_out_scores(x, y, groups, lambdas, extra, fits=fits, without=without, floor=floor)
     return max(lambdas, key=lambda lam: (group_mean_auroc(scores[lam], y, groups), lam))
 
 
 def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Sequence[float] = LAMBDAS,
-                   extra: Extra | None = None) -> tuple[np.ndarray, dict[str, float]]:
+                   extra: Extra | None = None, *, floor: float = 0.0) -> tuple[np.ndarray, dict[str, float]]:
     """Each frame's head probability from a head trained and tuned without its group, and each group's lambda.
-    ``extra`` rows are trained on wherever none of their groups is held out."""
+    ``extra`` rows are trained on wherever none of their groups is held out; ``floor``: ``standard_scale``'s."""
     y = np.asarray(y, dtype=bool)
     out = np.zeros(len(y))
     chosen: dict[str, float] = {}
@@ -170,8 +181,9 @@ def nested_holdout(x: np.ndarray, y: np.ndarray, groups: np.ndarray, lambdas: Se
     for g in group_names(groups):
         held = _held(groups, g)
         extra_g = extra_without(extra, g)
-        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_g, fits=fits, without=frozenset({g}))
-        head = fit(*with_extra(x[~held], y[~held], extra_g), lam, calibrate=int((~held).sum()))
+        lam = choose_lambda(x[~held], y[~held], groups[~held], lambdas, extra_g, fits=fits, without=frozenset({g}),
+                            floor=floor)
+        head = fit(*with_extra(x[~held], y[~held], extra_g), lam, calibrate=int((~held).sum()), floor=floor)
         out[held] = 1.0 / (1.0 + np.exp(-(x[held] @ head.w + head.b)))
         chosen[str(g)] = lam
     return out, chosen
@@ -195,14 +207,15 @@ def image_scenes(encoder: ImageNetEncoder, images: Sequence[np.ndarray], batch: 
 
 def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept: str, classes: Sequence[int],
                backbone: str = "lite0", colour: str = "none", lambdas: Sequence[float] = LAMBDAS,
-               reads: str = "pooled", extra: Extra | None = None) -> tuple[LinearHead, dict]:
+               reads: str = "pooled", extra: Extra | None = None, floor: float = 0.0) -> tuple[LinearHead, dict]:
     """The head for ``concept`` trained on every frame (and the ``extra`` rows), its strength chosen by
-    leave-one-group-out; and the leave-one-group-out figures at that strength (per group, group mean, pooled)."""
+    leave-one-group-out; and the leave-one-group-out figures at that strength (per group, group mean, pooled).
+    ``floor`` (``standard_scale``) is recorded in the head, so that a refit without a group trains the same way."""
     y = np.array([f.fish for f in frames])
     groups = np.array([f.group for f in frames])
-    scores = held_out_scores(features, y, groups, lambdas, extra)
+    scores = held_out_scores(features, y, groups, lambdas, extra, floor=floor)
     lam = max(lambdas, key=lambda v: (group_mean_auroc(scores[v], y, groups), v))
-    result = fit(*with_extra(features, y, extra), lam, calibrate=len(y))
+    result = fit(*with_extra(features, y, extra), lam, calibrate=len(y), floor=floor)
     figures = {"lambda": lam, "group_mean_auroc": group_mean_auroc(scores[lam], y, groups),
                "pooled_auroc": float(auroc(scores[lam], y)),
                "groups": {g: float(subset_auroc(scores[lam], y, _held(groups, g))) for g in group_names(groups)}}
@@ -212,6 +225,8 @@ def train_head(frames: Sequence[LabelledFrame], features: np.ndarray, *, concept
     trained_on = {"command": "merlion eval train-head --data ../shared/data --out <file>", "frames": len(frames),
                   "positives": int(y.sum()), "sources": sources, "lambda": lam,
                   "logo_group_mean_auroc": round(figures["group_mean_auroc"], 4)}
+    if floor:
+        trained_on["scale_floor"] = floor
     if extra is not None and len(extra[0]):
         trained_on["extra_rows"] = {"rows": len(extra[0]), "positives": int(np.sum(extra[1]))}
     head = LinearHead(concept=concept, classes=tuple(int(c) for c in classes), backbone=backbone, colour=colour,
@@ -232,7 +247,8 @@ def held_out_head(encoder: Encoder, presampler: PreSampler, features: np.ndarray
     lam = float(head.trained_on.get("lambda", LAMBDAS[1]))
     y = np.array([f.fish for f in frames])
     groups = np.array([f.group for f in frames])
-    scores = held_out_scores(np.asarray(features, np.float64), y, groups, [lam])[lam]
+    floor = float(head.trained_on.get("scale_floor", 0.0))
+    scores = held_out_scores(np.asarray(features, np.float64), y, groups, [lam], floor=floor)[lam]
     by_group = per_group(scores, frames)
     return {"method": f"{head.concept} head retrained without each group (lambda {lam:g})", "by_group": by_group,
             "deepfish_habitats": spread(by_group, DEEPFISH)}

@@ -27,6 +27,11 @@ from companion.vision.scene_memory import SceneInput, SceneMemory
 
 SCENE_LAMBDAS = (1e4, 3e4, 1e5)
 """Ridge strengths tried for the scene head (its features are smaller and sparser than the pooled ones)."""
+SCENE_SCALE_FLOOR = 0.1
+"""The scene head's floor under each feature's standardisation scale, as a share of the median feature's spread
+(``head_training.standard_scale``): a residual channel that is all but dead where the head trains (non-zero in 14 of
+some 1,270 rows) but fires on ROV footage would otherwise be stretched to z > 1,000 there. Set once, 2026-11-29,
+from a reviewing helper's diagnosis; the pooled head, whose features are dense, has no floor."""
 ORDER_FIGURES = {"deepfish_habitats_mean": "deepfish_habitats.mean", "deepfish_habitats_min": "deepfish_habitats.min",
                  "deepfish_pooled": "deepfish_pooled", "group_mean": "group_mean", "pooled": "pooled"}
 """The scene head's figures summarised over frame orders."""
@@ -99,7 +104,7 @@ def held_out_scene(scene: SceneInput, frames: Sequence[LabelledFrame],
         extra = pasted_rows(scene, frames, pasted, seed, by_clip=by_clip)
         if extra is not None and not pixels:
             extra = (extra[0][:, :x.shape[1]], *extra[1:])
-        scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS, extra)
+        scores[ok], chosen = nested_holdout(x[ok], y[ok], groups[ok], SCENE_LAMBDAS, extra, floor=SCENE_SCALE_FLOOR)
         orders[str(seed)] = {**figures(scores), "lambda": chosen}
     method = ("fish head on the scene residual (each dive's first frame: the pooled head), trained and tuned "
               "without each group, per frame order")
@@ -121,7 +126,7 @@ def train_scene_head(frames: Sequence[LabelledFrame], scene: SceneInput, *, conc
     ok = np.isfinite(x).all(axis=1)
     kept = [f for f, k in zip(frames, ok, strict=True) if k]
     head, figures = train_head(kept, x[ok], concept=concept, classes=classes, lambdas=SCENE_LAMBDAS, reads="scene",
-                               extra=pasted_rows(scene, frames, pasted, seed))
+                               extra=pasted_rows(scene, frames, pasted, seed), floor=SCENE_SCALE_FLOOR)
     head.trained_on.update(command="merlion eval train-head --data ../shared/data --out <file> --scene-out <file>",
                            order_seed=seed)
     return head, figures

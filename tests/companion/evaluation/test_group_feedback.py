@@ -1,8 +1,30 @@
-"""The marks' weight choice (``group_feedback.choose_weight``): each frame order is a dive of its own."""
+"""The marks' weight choice (``group_feedback.choose_weight``): each frame order is a dive of its own; and the
+heads refitted without a group."""
 
 from __future__ import annotations
 
-from companion.evaluation.group_feedback import MAX_LOSS, SEEN_LOSS, choose_weight
+import numpy as np
+
+from companion.evaluation.group_feedback import MAX_LOSS, SEEN_LOSS, _head_without, choose_weight
+from companion.evaluation.head_training import fit
+from companion.vision.encoders.learned_head import LinearHead
+
+
+def test_a_head_refitted_without_a_group_trains_with_its_own_strength_and_scale_floor():
+    rng = np.random.default_rng(0)
+    x = rng.normal(0, 1, (60, 6)) * np.array([1, 1, 1, 1, 1, 1e-3])  # the last feature all but dead
+    y = x[:, 0] + rng.normal(0, 0.5, 60) > 0
+    keep = np.arange(60) >= 15
+    x[20, 0] = np.nan  # a dive's first frame (no scene residual): never a training row
+    head = LinearHead("fish", (1,), "lite0", "none", np.zeros(6), 0.0, {"lambda": 10.0, "scale_floor": 0.5},
+                      "scene")
+    refit = _head_without(head, x, y, keep)
+    rows = keep & (np.arange(60) != 20)
+    expected = fit(x[rows], y[rows], 10.0, calibrate=int(rows.sum()), floor=0.5)
+    assert np.allclose(refit.w, expected.w) and refit.b == expected.b and refit.input == "scene"
+    assert refit.trained_on["scale_floor"] == 0.5 and refit.trained_on["lambda"] == 10.0
+    plain = fit(x[rows], y[rows], 10.0, calibrate=int(rows.sum()))
+    assert not np.allclose(refit.w, plain.w)
 
 
 def test_a_weight_that_costs_a_group_too_much_in_one_order_is_not_chosen_though_its_mean_is_fine():

@@ -23,11 +23,12 @@ from companion.evaluation.head_training import (
     held_out_head,
     held_out_scores,
     nested_holdout,
+    standard_scale,
     train_head,
 )
 from companion.evaluation.pasted_fish import fish_crops, pasted_fish
 from companion.evaluation.roc import auroc
-from companion.evaluation.scene_holdout import held_out_scene, train_scene_head
+from companion.evaluation.scene_holdout import SCENE_SCALE_FLOOR, held_out_scene, train_scene_head
 from companion.evaluation.sources import DEEPFISH, LabelledFrame, load_sources
 from companion.vision.encoders.imagenet import FEATURES, SCENE, ImageNetEncoder
 from companion.vision.encoders.learned_head import HEADS_DIR, load_head, shipped_heads
@@ -131,11 +132,56 @@ def test_nested_holdout_fits_each_pair_of_left_out_groups_once_with_the_same_res
     assert len(made) == 6 + 4  # the 6 pairs of 4 groups (12 inner uses) and the 4 reported groups' heads
 
 
+def _with_a_near_dead_feature(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``_synthetic`` plus one feature that is zero in training but for two fish rows (at 0.003): the shape of
+    the scene residual's channel that fires on footage the head never trained on."""
+    x, y, g = _synthetic(seed)
+    dead = np.zeros((len(y), 1))
+    dead[np.flatnonzero(y)[:2]] = 0.003
+    return np.hstack([x, dead]), y, g
+
+
+def test_the_scale_floor_keeps_a_near_dead_feature_from_deciding_a_frame_where_it_fires():
+    x, y, _ = _with_a_near_dead_feature()
+    empty = x[~y][:5].copy()
+    firing = empty.copy()
+    firing[:, -1] = 1.0  # the channel fires on a new footage's empty frames
+    moved = {}
+    for floor in (0.0, 0.1):
+        head = fit(x, y, 10.0, floor=floor)
+        moved[floor] = np.abs(firing @ head.w - empty @ head.w).max()
+        p = 1 / (1 + np.exp(-(x @ head.w + head.b)))
+        assert auroc(p, y) > 0.9  # the floor does not cost the training rows their ranking
+    assert moved[0.0] > 50 and moved[0.1] < 5  # logits: one stretched channel vs one feature among 21
+    scale = standard_scale(x, 0.1)
+    median = float(np.median(x.std(axis=0)))
+    assert scale[-1] >= 0.1 * median and np.allclose(scale[:-1], np.maximum(x[:, :-1].std(axis=0), 0.1 * median)
+                                                     + 1e-6)
+    assert np.allclose(standard_scale(x), x.std(axis=0) + 1e-6)  # no floor: the plain spread
+
+
+def test_the_scale_floor_reaches_every_fit_of_the_nested_holdout(monkeypatch):
+    import companion.evaluation.head_training as head_training
+
+    x, y, g = _with_a_near_dead_feature()
+    floors = []
+    ridge = head_training._ridge_all
+    monkeypatch.setattr(head_training, "_ridge_all", lambda *a: floors.append(a[3]) or ridge(*a))
+    probs, _ = nested_holdout(x, y, g, (1.0, 10.0), floor=0.1)
+    assert floors and set(floors) == {0.1}
+    floors.clear()
+    plain, _ = nested_holdout(x, y, g, (1.0, 10.0))
+    assert set(floors) == {0.0} and not np.allclose(probs, plain)
+
+
 def test_train_head_records_what_it_was_trained_on():
     x, y, g = _synthetic()
     frames = [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
     head, figures = train_head(frames, x, concept="fish", classes=[1, 2], lambdas=(1.0, 10.0))
     assert head.concept == "fish" and head.classes == (1, 2) and head.w.shape == (20,)
+    assert "scale_floor" not in head.trained_on  # the pooled head: its spread as it is
+    floored, _ = train_head(frames, x, concept="fish", classes=[1, 2], lambdas=(1.0, 10.0), floor=0.5)
+    assert floored.trained_on["scale_floor"] == 0.5 and not np.allclose(floored.w, head.w)
     assert head.trained_on["frames"] == 120 and head.trained_on["positives"] == 60
     assert head.trained_on["sources"] == {f"{DEEPFISH}g{k}": 30 for k in range(4)}
     assert set(figures["groups"]) == {f"{DEEPFISH}g{k}" for k in range(4)} and figures["group_mean_auroc"] > 0.8
@@ -259,6 +305,7 @@ def test_training_reproduces_the_shipped_scene_head(encoded, pasted):
     head, _ = train_scene_head(frames, encoder.scene_of(emb), concept="fish", classes=classes, pasted=pasted)
     assert shipped.input == head.input == "scene" and head.trained_on["lambda"] == shipped.trained_on["lambda"]
     assert head.trained_on["extra_rows"] == shipped.trained_on["extra_rows"]
+    assert head.trained_on["scale_floor"] == shipped.trained_on["scale_floor"] == SCENE_SCALE_FLOOR
     assert np.corrcoef(head.w, shipped.w)[0, 1] > 0.999
 
 
