@@ -34,6 +34,7 @@ from companion.vision.encoders.imagenet import FEATURES, SCENE, ImageNetEncoder
 from companion.vision.encoders.learned_head import HEADS_DIR, load_head, shipped_heads
 from companion.vision.feedback import CENTRED_WEIGHT
 from companion.vision.presampler import PreSampler
+from companion.vision.scene_memory import SceneInput
 from tests.conftest import SHARED_DATA, run_merlion, shared_file
 
 PIXEL = np.zeros((2, 2, 3), np.uint8)
@@ -172,6 +173,32 @@ def test_the_scale_floor_reaches_every_fit_of_the_nested_holdout(monkeypatch):
     floors.clear()
     plain, _ = nested_holdout(x, y, g, (1.0, 10.0))
     assert set(floors) == {0.0} and not np.allclose(probs, plain)
+    floors.clear()
+    frames = [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
+    train_head(frames, x, concept="fish", classes=[1], lambdas=(1.0, 10.0), floor=0.1)
+    assert len(floors) == 4 + 1 and set(floors) == {0.1}  # the four groups' hold-out fits and the head's own
+
+
+def test_the_held_out_scene_head_trains_with_the_scene_floor_and_the_pooled_head_without(monkeypatch):
+    import companion.evaluation.scene_holdout as scene_holdout
+
+    rng = np.random.default_rng(1)
+    frames, views = [], []
+    for k in range(4):
+        for i in range(12):
+            fish = i % 2 == 0
+            frames.append(LabelledFrame(f"{DEEPFISH}h{k}", f"{k}-{i}", fish, PIXEL))
+            views.append(rng.normal(0, 1, (2, 8)) + (2.0 if fish else 0.0))
+    pixels = np.clip(0.4 + rng.normal(0, 0.05, size=(len(frames), 64, 112, 3)), 0, 1)
+    calls = []
+    real = scene_holdout.nested_holdout
+    monkeypatch.setattr(scene_holdout, "nested_holdout",
+                        lambda *a, **k: calls.append((a[0].shape[1], k.get("floor", 0.0))) or real(*a, **k))
+    result = scene_holdout.held_out_scene(SceneInput(np.array(views), pixels), frames, seeds=(0, 1))
+    pooled_width = 8
+    assert calls[0] == (pooled_width, 0.0)  # the pooled head: its spread as it is
+    assert len(calls) == 3 and all(w > pooled_width and f == SCENE_SCALE_FLOOR for w, f in calls[1:])
+    assert set(result["orders"]) == {"0", "1"}
 
 
 def test_train_head_records_what_it_was_trained_on():
@@ -246,7 +273,7 @@ def test_marks_lift_held_out_habitats_and_lower_no_group_by_more_than_002_in_thr
     result = marks_by_group(encoder, PreSampler(encoder, "fish"), emb, frames, 3, held_out=True, seeds=(0, 1, 2),
                             pasted=pasted, progress=said.append)
     assert said[0].endswith("(1 of 13)") and said[-1].endswith("(13 of 13)") and len(said) == 13
-    # the product's weight is the same rule's choice over ten orders (--orders 10: 2), three orders allow more
+    # the product's weight is the same rule's choice over twenty orders (--orders 20: 1), three orders may allow more
     assert result["held_out"] and not result["skipped"] and result["weight"] >= CENTRED_WEIGHT
     for seed, order in result["orders"].items():
         habitats = {g: r for g, r in order["groups"].items() if g.startswith(DEEPFISH)}
