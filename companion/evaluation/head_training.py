@@ -138,7 +138,8 @@ def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray,
                     fits: Fits | None = None, without: frozenset = frozenset(),
                     floor: float = 0.0) -> dict[float, np.ndarray]:
     """For every lambda, each frame's ridge score from a fit without its group (no calibration: ranks only).
-    ``fits``: fits already made on the same rows, by the groups left out (``without`` those of the caller)."""
+    ``fits``: fits already made on the same rows, by the groups left out (``without`` those of the caller), all
+    with this ``floor`` (``standard_scale``)."""
     out = {lam: np.zeros(len(y)) for lam in lambdas}
     for g in group_names(groups):
         held = _held(groups, g)
