@@ -26,11 +26,7 @@ class RunningMean:
 
     def centre(self, value: float | np.ndarray) -> float | np.ndarray:
         """Take in one frame's value and return it minus the mean of the dive so far (this frame included)."""
-        self.weight += 1.0
-        rate = max(1.0 / self.weight, 1.0 / self.tau)
-        self.mean = self.mean + rate * (np.asarray(value, dtype=np.float64) - self.mean)
-        out = np.asarray(value, dtype=np.float64) - self.mean
-        return float(out) if out.ndim == 0 else out
+        return _plain(self._join(value) - self.mean)
 
     def take(self, value: float | np.ndarray) -> float | np.ndarray:
         """Take in one frame's value and return it minus the mean of the dive before it.
@@ -40,6 +36,17 @@ class RunningMean:
         against its later ones (measured on the scene head: docs/encoders.md, "A frame against the dive before it").
         """
         before = self.mean
-        self.centre(value)
-        out = np.asarray(value, dtype=np.float64) - before
-        return float(out) if out.ndim == 0 else out
+        return _plain(self._join(value) - before)
+
+    def _join(self, value: float | np.ndarray) -> np.ndarray:
+        """The frame's value taken into the mean (plain up to ``tau`` frames, exponential after), as an array."""
+        x = np.asarray(value, dtype=np.float64)
+        self.weight += 1.0
+        rate = max(1.0 / self.weight, 1.0 / self.tau)
+        self.mean = self.mean + rate * (x - self.mean)
+        return x
+
+
+def _plain(out: np.ndarray) -> float | np.ndarray:
+    """A scalar dive's difference as a float, a feature vector's as the array."""
+    return float(out) if out.ndim == 0 else out

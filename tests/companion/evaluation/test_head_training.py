@@ -133,6 +133,11 @@ def test_nested_holdout_fits_each_pair_of_left_out_groups_once_with_the_same_res
     assert len(made) == 6 + 4  # the 6 pairs of 4 groups (12 inner uses) and the 4 reported groups' heads
 
 
+def _frames(y: np.ndarray, g: np.ndarray) -> list[LabelledFrame]:
+    """One DeepFish-like frame per synthetic row, its group a habitat (what ``train_head`` reads)."""
+    return [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
+
+
 def _with_a_near_dead_feature(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``_synthetic`` plus one feature that is zero in training but for two fish rows (at 0.003): the shape of
     the scene residual's channel that fires on footage the head never trained on."""
@@ -174,7 +179,7 @@ def test_the_scale_floor_reaches_every_fit_of_the_nested_holdout(monkeypatch):
     plain, _ = nested_holdout(x, y, g, (1.0, 10.0))
     assert set(floors) == {0.0} and not np.allclose(probs, plain)
     floors.clear()
-    frames = [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
+    frames = _frames(y, g)
     train_head(frames, x, concept="fish", classes=[1], lambdas=(1.0, 10.0), floor=0.1)
     assert len(floors) == 4 + 1 and set(floors) == {0.1}  # the four groups' hold-out fits and the head's own
 
@@ -203,7 +208,7 @@ def test_the_held_out_scene_head_trains_with_the_scene_floor_and_the_pooled_head
 
 def test_train_head_records_what_it_was_trained_on():
     x, y, g = _synthetic()
-    frames = [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
+    frames = _frames(y, g)
     head, figures = train_head(frames, x, concept="fish", classes=[1, 2], lambdas=(1.0, 10.0))
     assert head.concept == "fish" and head.classes == (1, 2) and head.w.shape == (20,)
     assert "scale_floor" not in head.trained_on  # the pooled head: its spread as it is
