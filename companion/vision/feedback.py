@@ -63,7 +63,9 @@ groups (3 + 3 marks, ten frame orders: ``merlion eval auroc --data ../shared/dat
 query was the pooled fish head, 4 with the first scene head, 3 again since the scene head also learns from
 pasted fish (2026-11-27), 2 since the marks weigh by the query's doubt and no order may cost a group more
 than 0.02 (2026-11-28), and 1 since a weight must keep the groups it is chosen on within half that (0.01; twenty
-orders: at 2 one held-out habitat lost 0.037 in one of them, at 1 none lost more than 0.015)."""
+orders: at 2 one held-out habitat lost 0.037 in one of them, at 1 none lost more than 0.015). Since the rule ranks
+weights by the median dive's gain rather than the mean (2026-11-29) it still gives 1, in each of three sets of
+twenty orders."""
 
 
 def _normalised(features: np.ndarray) -> np.ndarray:

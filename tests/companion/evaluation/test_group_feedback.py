@@ -51,3 +51,16 @@ def test_a_weight_is_chosen_only_if_it_keeps_the_groups_it_sees_within_half_the_
     gains = {1.0: {0: {"a": 0.02, "b": -0.005}}, 2.0: {0: {"a": 0.30, "b": -0.015}}}
     assert choose_weight(gains) == 1.0
     assert choose_weight(gains, without="b") == 2.0
+
+
+def test_one_groups_large_gain_does_not_buy_a_heavier_weight_that_the_typical_dive_does_not_gain_from():
+    # weight 2 lifts group a (where the query fails) by 0.3 and costs b, c and d a little, within SEEN_LOSS: by
+    # the mean it gains most (0.071 vs 0.025), but the median dive loses at it, so the lightest is kept
+    gains = {1.0: {0: {"a": 0.10, "b": 0.0, "c": 0.0, "d": 0.0}, 1: {"a": 0.10, "b": 0.0, "c": 0.0, "d": 0.0}},
+             2.0: {0: {"a": 0.30, "b": -0.005, "c": -0.005, "d": -0.005},
+                   1: {"a": 0.30, "b": -0.005, "c": -0.005, "d": -0.005}}}
+    assert choose_weight(gains) == 1.0
+    assert choose_weight(gains, without="b") == 1.0
+    # where most dives gain from the heavier weight, it is taken
+    helped = {1.0: gains[1.0], 2.0: {o: {"a": 0.30, "b": 0.01, "c": 0.01, "d": -0.005} for o in (0, 1)}}
+    assert choose_weight(helped) == 2.0
