@@ -76,6 +76,8 @@ def test_source_lost_then_returning_keeps_the_process_up(tmp_path: Path, vehicle
                        source={"retry_initial_s": 1.0, "retry_max_s": 2.5}, health={"stall_after_s": 1.5})
     companion = Companion("--config", str(cfg), "--source", str(clip), "--loop")
     companion.wait_for("companion running")
+    # the source opens after "running": pulled before its first pass, nothing would have been saved to keep
+    wait_until(lambda: store_summary(tmp_path / "store").get("summary"), 60, "a summary frame saved before the loss")
     away = clip.rename(tmp_path / "away.avi")  # gone at its next pass, as a camera unplugged mid-dive
     companion.wait_for("retrying in 2.0 s")
     companion.wait_for("retrying in 2.5 s")
