@@ -8,8 +8,8 @@ order (``dive_centring.stream_order``: videos in order, each DeepFish habitat in
 label file lists the fish frames first), once per seed.
 
 The dive-centred marks' weight is chosen nested: for each reported group, among ``WEIGHTS``, on the other groups
-only (``choose_weight``), keeping the groups it is chosen on within half the loss the marks are allowed and judged
-by the median dive's gain. The same rule on every group gives the product's ``CENTRED_WEIGHT``. Used by ``merlion
+only (``choose_weight``), keeping the groups it is chosen on within half the loss the marks are allowed and ranking
+the weights that do so by the median dive's gain. The same rule on every group gives the product's ``CENTRED_WEIGHT``. Used by ``merlion
 eval auroc --data --marks N``.
 """
 
@@ -63,7 +63,7 @@ def choose_weight(gains: dict[float, dict[int, dict[str, float]]], without: str 
     is still a dive made worse); the lightest weight when none qualifies.
 
     The median, not the mean: the marks' gain is nearly all in the few groups the query fails on (7393: +0.31 at
-    weight 1, +0.51 at 2), so by the mean one group's gain buys a heavier weight that only risks the rest; a
+    weight 1, +0.51 at 2), so by the mean one group's gain buys a heavier weight that gains the rest little and risks them; a
     heavier weight must help most dives (on the shared data none does, so the lightest weight that passes the loss
     check is taken). By the mean, the weight chosen without 9870 on orders 20-39 was 2, and it cost 9870 0.026 and
     0.036 in two of them (docs/encoders.md, "A median dive for the marks' weight")."""

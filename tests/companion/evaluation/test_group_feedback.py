@@ -61,6 +61,9 @@ def test_one_groups_large_gain_does_not_buy_a_heavier_weight_that_the_typical_di
                    1: {"a": 0.30, "b": -0.005, "c": -0.005, "d": -0.005}}}
     assert choose_weight(gains) == 1.0
     assert choose_weight(gains, without="b") == 1.0
+    # the shared data's case: the other groups neither gain nor lose at either weight
+    level = {1.0: gains[1.0], 2.0: {o: {"a": 0.30, "b": 0.0, "c": 0.0, "d": 0.0} for o in (0, 1)}}
+    assert choose_weight(level) == 1.0
     # where most dives gain from the heavier weight, it is taken
     helped = {1.0: gains[1.0], 2.0: {o: {"a": 0.30, "b": 0.01, "c": 0.01, "d": -0.005} for o in (0, 1)}}
     assert choose_weight(helped) == 2.0
