@@ -9,8 +9,8 @@ label file lists the fish frames first), once per seed.
 
 The dive-centred marks' weight is chosen nested: for each reported group, among ``WEIGHTS``, on the other groups
 only (``choose_weight``), keeping the groups it is chosen on within half the loss the marks are allowed and ranking
-the weights that do so by the median dive's gain. The same rule on every group gives the product's ``CENTRED_WEIGHT``. Used by ``merlion
-eval auroc --data --marks N``.
+the weights that do so by the median dive's gain. The same rule on every group gives the product's
+``CENTRED_WEIGHT``. Used by ``merlion eval auroc --data --marks N``.
 """
 
 from __future__ import annotations
@@ -63,18 +63,16 @@ def choose_weight(gains: dict[float, dict[int, dict[str, float]]], without: str 
     is still a dive made worse); the lightest weight when none qualifies.
 
     The median, not the mean: the marks' gain is nearly all in the few groups the query fails on (7393: +0.31 at
-    weight 1, +0.51 at 2), so by the mean one group's gain buys a heavier weight that gains the rest little and risks them; a
-    heavier weight must help most dives (on the shared data none does, so the lightest weight that passes the loss
-    check is taken). By the mean, the weight chosen without 9870 on orders 20-39 was 2, and it cost 9870 0.026 and
+    weight 1, +0.51 at 2), so by the mean one group's gain buys a heavier weight that gains the rest little and
+    risks them; a heavier weight must help most dives (on the shared data none does, so the lightest weight that
+    passes the loss check is taken). By the mean, the weight chosen without 9870 on orders 20-39 was 2, and it cost 9870 0.026 and
     0.036 in two of them (docs/encoders.md, "A median dive for the marks' weight")."""
-    def on_others(w: float) -> list[float]:
-        return [v for order in gains[w].values() for g, v in order.items() if g != without]
-
-    ok = [w for w in sorted(gains) if on_others(w) and min(on_others(w)) >= -SEEN_LOSS]
-    if not ok:
+    seen = {w: [v for order in gains[w].values() for g, v in order.items() if g != without] for w in sorted(gains)}
+    median = {w: float(np.median(v)) for w, v in seen.items() if v and min(v) >= -SEEN_LOSS}  # the safe ones
+    if not median:
         return min(gains)
-    best = max(float(np.median(on_others(w))) for w in ok)
-    return next(w for w in ok if float(np.median(on_others(w))) >= best - TOLERANCE)
+    best = max(median.values())
+    return next(w for w, m in median.items() if m >= best - TOLERANCE)
 
 
 def _summary(rows: dict) -> dict:

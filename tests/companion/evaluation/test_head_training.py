@@ -135,7 +135,8 @@ def test_nested_holdout_fits_each_pair_of_left_out_groups_once_with_the_same_res
 
 def _frames(y: np.ndarray, g: np.ndarray) -> list[LabelledFrame]:
     """One DeepFish-like frame per synthetic row, its group a habitat (what ``train_head`` reads)."""
-    return [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL) for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
+    return [LabelledFrame(f"{DEEPFISH}{grp}", str(i), bool(lab), PIXEL)
+            for i, (lab, grp) in enumerate(zip(y, g, strict=True))]
 
 
 def _with_a_near_dead_feature(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
