@@ -40,6 +40,7 @@ _UDP_BURST = 64
 BAD_LOG_S = 10.0
 """At most one log line per this many seconds about bad input (the count is in ``rx_bad``)."""
 HEARTBEAT_PERIOD_S = 1.0
+_COMMANDS = frozenset({"COMMAND_LONG", "COMMAND_INT"})
 
 
 def next_heartbeat(due: float, now: float, period: float = HEARTBEAT_PERIOD_S) -> float:
@@ -93,6 +94,8 @@ class MavLink:
         self._conn: mavutil.mavfile | None = None
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
         self.signing = LinkSigning.from_settings(cfg, name=name)
+        self.signing.watch.clock = clock
+        self.signing.watch.window_s = max(cfg.heartbeat_timeout_s, 1.0)  # a signed heartbeat comes at 1 Hz
         self._rx = self._new_parser()
         self._send_lock = threading.Lock()
         self._writer: PacketWriter[MAVLinkMessage | bytes] = PacketWriter(self._write, f"{name}-mavlink-tx")
@@ -161,6 +164,11 @@ class MavLink:
         """``callback(True)`` when the autopilot's heartbeat is found (again), ``callback(False)`` when lost; both on
         the link's timer thread, in the order they happened."""
         self.watch.on_change(callback)
+
+    def on_signing_change(self, callback: Callable[[str, int], None]) -> None:
+        """``callback(text, severity)`` on the timer thread when the autopilot's signing verdict changes (how it signs,
+        whether it answers us; a bad first verdict too): text for one STATUSTEXT (vehicle/link/autopilot_signing.py)."""
+        self.signing.watch.on_change(callback)
 
     def on_refused(self, callback: Callable[[MAVLinkMessage, str], None]) -> None:
         """``callback(msg, reason)`` on the receive thread for each message addressed to us that signing refused
@@ -244,6 +252,8 @@ class MavLink:
         """The one place an outgoing message becomes bytes (called with the send lock held)."""
         self.signing.prepare(self._tx)  # with a key: the next timestamp, persisted ahead of use
         buf = msg.pack(self._tx)
+        if msg.get_type() in _COMMANDS and (msg.target_system, msg.target_component) == self._asked_autopilot():
+            self.signing.watch.asked()  # an answer is due: whether it comes tells whether the autopilot obeys us
         self._tx.seq = (self._tx.seq + 1) % 256
         self._tx.total_packets_sent += 1
         self._tx.total_bytes_sent += len(buf)
@@ -393,6 +403,8 @@ class MavLink:
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self.watch.heard(msg)
+        elif mtype == "COMMAND_ACK" and self._answers_us(msg):
+            self.signing.watch.answered()
         for callback, types in self._subs:
             if types is not None and mtype not in types:
                 continue
@@ -418,10 +430,30 @@ class MavLink:
                 self.system_id = src[0]
                 self._tx.srcSystem = src[0]
 
+    def _asked_autopilot(self) -> Source | None:
+        """The autopilot, or before one is settled (an unsigned one beside our key) the last that claimed to be it."""
+        return self.watch.autopilot or self.signing.claimed
+
+    def _answers_us(self, ack: MAVLinkMessage) -> bool:
+        """A COMMAND_ACK from the autopilot to this component (0: an older autopilot that does not fill them in)."""
+        return ((ack.get_srcSystem(), ack.get_srcComponent()) == self._asked_autopilot()
+                and ack.target_system in (0, self.system_id) and ack.target_component in (0, self.component_id))
+
+    def _probe_autopilot(self) -> bool:
+        """Ask the autopilot something harmless (the heartbeat's interval) to see whether it answers us; False
+        when there is no autopilot to ask."""
+        target = self._asked_autopilot()
+        if target is None:
+            return False
+        self.send(mavlink2.MAVLink_command_long_message(*target, mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
+                                                        mavlink2.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0))
+        return True
+
     def _timer_loop(self) -> None:
         next_beat = self.clock()
         while not self._stop.is_set():
             self.watch.watch(_POLL_S)
+            self.signing.watch.judge(self._probe_autopilot)
             if not self._send_heartbeat:
                 continue
             now = self.clock()
