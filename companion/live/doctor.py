@@ -21,7 +21,12 @@ from companion.vision.encoders.weights import clip_weights_available
 from vehicle.link.autopilot_signing import ASK_WAIT_S, PROBE_EVERY_S, PROBES, Verdict
 from vehicle.link.connection import MavLink
 from vehicle.link.endpoint import parse_connection
-from vehicle.link.signing import AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY, AUTOPILOT_SIGNS_WITH_OUR_KEY
+from vehicle.link.signing import (
+    AUTOPILOT_NEEDS_A_KEY,
+    AUTOPILOT_OTHER_KEY,
+    AUTOPILOT_SIGNS_WITH_OUR_KEY,
+    AUTOPILOT_UNSIGNED,
+)
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -142,9 +147,11 @@ def check_autopilot(cfg: Config, wait_s: float) -> Check:
             return Check("autopilot", OK, f"heartbeat from system {sysid} component {compid}")
         if link.signing.claimed is not None and link.signing.require_signed_autopilot:
             sysid, compid = link.signing.claimed
-            return Check("autopilot", FAIL, f"heartbeat from system {sysid} component {compid}, unsigned: with a "
-                         "signing key only a signing autopilot is used", "put the passphrase on the autopilot "
-                         "(MAVProxy: signing setup), or set mavlink.unsigned_autopilot: true (docs/security.md)")
+            how = "unsigned" if link.signing.autopilot == AUTOPILOT_UNSIGNED else "not signed with our key"
+            return Check("autopilot", FAIL, f"heartbeat from system {sysid} component {compid}, {how}: with a key "
+                         "only the autopilot's signed messages are used", "put the companion's passphrase on the "
+                         "autopilot (MAVProxy: signing setup), or for an autopilot that cannot sign set "
+                         "mavlink.unsigned_autopilot: true (docs/security.md)")
         return Check("autopilot", FAIL, f"no autopilot heartbeat on {cfg.mavlink.connection} within {wait_s:.0f} s",
                      "is ArduSub running and routed to this endpoint? (BlueOS: Vehicle > MAVLink endpoints; "
                      "for a test: merlion sim-vehicle --connect ...)")
