@@ -37,11 +37,18 @@ _STRENGTH = (SIGNS_WITH_OUR_KEY, OTHER_KEY, NEEDS_A_KEY, UNSIGNED)
 _PRESUMED = frozenset({SIGNS_WITH_OUR_KEY, UNSIGNED})
 """A first verdict that needs no probe: such an autopilot takes what we send (our key, or no key at all) until our
 requests go unanswered."""
+_COMMANDS = frozenset({"COMMAND_LONG", "COMMAND_INT"})
 UNANSWERED_ASKS = 3
 """Commands to the autopilot left unanswered, the oldest ``ASK_WAIT_S`` ago, before it counts as not obeying."""
 ASK_WAIT_S = 2.0
 PROBE_EVERY_S = 1.0
 PROBES = 3
+
+
+def probe_message(target: tuple[int, int]) -> mavlink2.MAVLink_message:
+    """Something harmless to ask the autopilot: the heartbeat's interval (a read, answered with a COMMAND_ACK)."""
+    return mavlink2.MAVLink_command_long_message(*target, mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
+                                                 mavlink2.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0)
 
 
 @dataclass(frozen=True)
@@ -138,6 +145,18 @@ class AutopilotSigning:
         with self._lock:
             self._asks.clear()
             self._answered = True
+
+    def outgoing(self, msg: mavlink2.MAVLink_message, autopilot: tuple[int, int] | None) -> None:
+        """A message going out (on the writer): a command to the autopilot is due an answer."""
+        if msg.get_type() in _COMMANDS and (msg.target_system, msg.target_component) == autopilot:
+            self.asked()
+
+    def incoming_ack(self, ack: mavlink2.MAVLink_message, autopilot: tuple[int, int] | None,
+                     me: tuple[int, int]) -> None:
+        """A COMMAND_ACK received: from the autopilot to us (target 0: an older autopilot that leaves them out)."""
+        if ((ack.get_srcSystem(), ack.get_srcComponent()) == autopilot
+                and ack.target_system in (0, me[0]) and ack.target_component in (0, me[1])):
+            self.answered()
 
     def asked(self) -> None:
         """A command to the autopilot went out."""

@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from vehicle.link.autopilot_signing import probe_message
 from vehicle.link.autopilot_watch import AutopilotWatch, Source, is_autopilot_heartbeat
 from vehicle.link.endpoint import has_peer, open_transport, parse_connection
 from vehicle.link.packet_writer import PacketWriter
@@ -40,7 +41,6 @@ _UDP_BURST = 64
 BAD_LOG_S = 10.0
 """At most one log line per this many seconds about bad input (the count is in ``rx_bad``)."""
 HEARTBEAT_PERIOD_S = 1.0
-_COMMANDS = frozenset({"COMMAND_LONG", "COMMAND_INT"})
 
 
 def next_heartbeat(due: float, now: float, period: float = HEARTBEAT_PERIOD_S) -> float:
@@ -252,8 +252,7 @@ class MavLink:
         """The one place an outgoing message becomes bytes (called with the send lock held)."""
         self.signing.prepare(self._tx)  # with a key: the next timestamp, persisted ahead of use
         buf = msg.pack(self._tx)
-        if msg.get_type() in _COMMANDS and (msg.target_system, msg.target_component) == self._asked_autopilot():
-            self.signing.watch.asked()  # an answer is due: whether it comes tells whether the autopilot obeys us
+        self.signing.watch.outgoing(msg, self._asked_autopilot())
         self._tx.seq = (self._tx.seq + 1) % 256
         self._tx.total_packets_sent += 1
         self._tx.total_bytes_sent += len(buf)
@@ -403,8 +402,8 @@ class MavLink:
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self.watch.heard(msg)
-        elif mtype == "COMMAND_ACK" and self._answers_us(msg):
-            self.signing.watch.answered()
+        elif mtype == "COMMAND_ACK":
+            self.signing.watch.incoming_ack(msg, self._asked_autopilot(), (self.system_id, self.component_id))
         for callback, types in self._subs:
             if types is not None and mtype not in types:
                 continue
@@ -434,20 +433,12 @@ class MavLink:
         """The autopilot, or before one is settled (an unsigned one beside our key) the last that claimed to be it."""
         return self.watch.autopilot or self.signing.claimed
 
-    def _answers_us(self, ack: MAVLinkMessage) -> bool:
-        """A COMMAND_ACK from the autopilot to this component (0: an older autopilot that does not fill them in)."""
-        return ((ack.get_srcSystem(), ack.get_srcComponent()) == self._asked_autopilot()
-                and ack.target_system in (0, self.system_id) and ack.target_component in (0, self.component_id))
-
     def _probe_autopilot(self) -> bool:
-        """Ask the autopilot something harmless (the heartbeat's interval) to see whether it answers us; False
-        when there is no autopilot to ask."""
+        """Ask the autopilot whether it answers us (False: nobody to ask yet)."""
         target = self._asked_autopilot()
-        if target is None:
-            return False
-        self.send(mavlink2.MAVLink_command_long_message(*target, mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
-                                                        mavlink2.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0))
-        return True
+        if target is not None:
+            self.send(probe_message(target))
+        return target is not None
 
     def _timer_loop(self) -> None:
         next_beat = self.clock()

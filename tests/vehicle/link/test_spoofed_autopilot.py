@@ -141,9 +141,9 @@ def test_with_unsigned_autopilot_allowed_a_first_unsigned_one_gives_way_to_the_s
     try:
         assert link.wait_open(5)
         attacker.send(sub_heartbeat())
-        assert wait_until(lambda: link.autopilot == (42, 1), 5) and link.system_id == 42  # provisional
-        autopilot.send(sub_heartbeat())
-        assert wait_until(lambda: link.autopilot == (1, 1), 5) and link.system_id == 1
+        assert wait_until(lambda: link.autopilot == (42, 1) and link.system_id == 42, 5)  # provisional
+        autopilot.send(sub_heartbeat())  # the identity moves first, the system id right after it: wait for both
+        assert wait_until(lambda: link.autopilot == (1, 1) and link.system_id == 1, 5)
         attacker.send(sub_heartbeat())
         assert wait_until(lambda: link.foreign_autopilot_heartbeats == 1, 5) and link.autopilot == (1, 1)
     finally:
