@@ -4,7 +4,7 @@ HEARTBEAT, GLOBAL_POSITION_INT, SCALED_PRESSURE2, VFR_HUD and ATTITUDE as 1/1, M
 before the companion, within a second of its first heartbeat, or later. Every sidecar the store writes during the
 run is read (frames the summary drops later too): none carries the spoofed depth, position or attitude, and the
 frames are tagged with the simulator's depth. The fast version, many start moments on the same receive path, is
-tests/vehicle/link/test_startup_spoof.py; README's issue-48 figures come from running this one 20 times."""
+tests/vehicle/link/test_startup_spoof.py; docs/security.md gives the figures of 21 runs of this one in a row."""
 
 from __future__ import annotations
 
