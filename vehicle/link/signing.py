@@ -230,8 +230,8 @@ class LinkSigning:
         self.unsigned_autopilot = unsigned_autopilot
         """With a key, still take an autopilot that does not sign (``mavlink.unsigned_autopilot``)."""
         self.trust_unsigned = False
-        """ArduPilot's channel 0 (SERIAL0, USB): with a key, still act on every unsigned or badly signed packet (the
-        simulator's ``serial0``); never set on the companion."""
+        """ArduPilot's channel 0 (SERIAL0, USB): with a key, still act on every unsigned or badly signed packet (tests
+        set it on the simulator's link to make it that port); never set on the companion."""
         self.announce_refusals = True
         """Say on the wire (one STATUSTEXT per source) that a refused message was ignored; an ArduSub autopilot
         never does: it drops what it refuses silently (the simulator turns this off)."""
