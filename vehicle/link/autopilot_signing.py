@@ -164,7 +164,11 @@ class AutopilotSigning:
             self._asks.append(self.clock())
 
     def probe(self) -> None:
-        """Ask the autopilot again whether it answers us (``merlion doctor`` wants it proven, not presumed)."""
+        """Ask the autopilot again whether it answers us (``merlion doctor`` wants it proven, not presumed): judged
+        on the answers to come, not on requests it left unanswered before (under another signing)."""
+        with self._lock:
+            self._asks.clear()
+            self._answered = False
         self.obeys = None
         self._probes_left, self._next_probe = PROBES, self.clock()
 
@@ -174,8 +178,6 @@ class AutopilotSigning:
         now = self.clock()
         with self._lock:
             fresh = [k for k in _STRENGTH if now - self._seen.get(k, -1e18) <= self.window_s]
-            answered, self._answered = self._answered, False
-            unanswered = len(self._asks) >= UNANSWERED_ASKS and now - self._asks[0] >= ASK_WAIT_S
         if fresh and fresh[0] != self.signs:
             first = self.signs == UNKNOWN
             self.signs = fresh[0]
@@ -183,6 +185,9 @@ class AutopilotSigning:
                 self.obeys = True  # until requests go unanswered: no probe on a healthy link
             else:
                 self.probe()
+        with self._lock:  # after a change: only what was asked since counts
+            answered, self._answered = self._answered, False
+            unanswered = len(self._asks) >= UNANSWERED_ASKS and now - self._asks[0] >= ASK_WAIT_S
         if answered:
             self.obeys = True
         elif unanswered:

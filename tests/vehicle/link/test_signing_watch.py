@@ -192,3 +192,21 @@ def test_signing_switched_on_mid_run_with_our_key_brings_the_autopilots_telemetr
         assert router.link.autopilot == (1, 1) and router.link.autopilot_alive
         assert wait_until(lambda: router.telemetry.latest.depth_m is not None, 10)
         assert router.link.signing.watch.verdict == sig.Verdict(sig.SIGNS_WITH_OUR_KEY, True)
+
+
+def test_after_a_change_the_verdict_waits_for_fresh_answers_not_old_silence():
+    """Requests left unanswered under one signing (SERIAL1, no key) do not decide the next verdict: after the
+    autopilot drops its key, it is probed again and its answer decides."""
+    watch, clock, said, probes = _watch()
+    for _ in range(30):
+        watch.saw(sig.NEEDS_A_KEY)
+        _tick(watch, clock, 0.1)
+    assert watch.verdict == sig.Verdict(sig.NEEDS_A_KEY, False)
+    for _ in range(12):  # signing taken off: unsigned from now on, the window forgets the signatures
+        watch.saw(sig.UNSIGNED)
+        _tick(watch, clock, 0.1)
+    assert watch.signs == sig.UNSIGNED and watch.obeys is None and len(probes) == sig.PROBES + 1
+    watch.answered()
+    _tick(watch, clock, 0.1)
+    assert said[-1] == ("Autopilot does not sign", 5) and watch.verdict == sig.Verdict(sig.UNSIGNED, True)
+    assert [v.signs for v in watch.changes] == [sig.NEEDS_A_KEY, sig.UNSIGNED]
