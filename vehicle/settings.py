@@ -34,6 +34,9 @@ class MavlinkConfig(_Section):
     component id (KEY.comp100.timestamp)."""
     accept_unsigned_reads: bool = True
     """With a key, still accept unsigned reads (heartbeats, telemetry, parameter and FTP reads), as ArduPilot does."""
+    unsigned_autopilot: bool = False
+    """With a key, still take an autopilot that does not sign (its heartbeat and telemetry unsigned): anyone on the
+    link can then pose as it and tag frames. False: only the autopilot's signed messages are used (docs/security.md)."""
 
 
 class TelemetryConfig(_Section):

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if signing.get("enabled"):
         print(f"merlion run: signing on; refused {signing['rejected']} unsigned or badly signed writes "
               f"{signing['rejected_by_source']}", flush=True)
-    if signing.get("autopilot") in ("signs, and this companion has no key", "signs with another key"):
+    if signing.get("mismatch"):
         print(f"merlion run: the autopilot {signing['autopilot']}: it ignored everything this companion sent "
               "(docs/security.md)", flush=True)
     print(f"merlion run: seen {report['frames_seen']}, passed {report['frames_passed']}, "

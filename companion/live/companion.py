@@ -256,6 +256,7 @@ class LiveCompanion:
         # what the operator set last time; a value refused now is served and saved as what is in force
         self.on_param.restore(self.surface.params.restored, lambda name: self.surface.params.set(name, defaults[name]))
         self.telemetry.on_notice(self.surface.event)  # e.g. "no position source", once, as a STATUSTEXT
+        self.link.on_signing_change(self.surface.event)  # the autopilot's signing changed, once per change
         self.store.on_health(self._on_store_health)  # a full or read-only store, and its recovery, reach the surface
         if self.store.memory_only:
             self._on_store_health(True, self.store.memory_only_reason)

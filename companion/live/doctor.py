@@ -15,14 +15,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from pymavlink.dialects.v20 import ardupilotmega as mav2
-
 from companion.config import Config, ConfigError, load_config
 from companion.sources.factory import open_source
 from companion.vision.encoders.weights import clip_weights_available
+from vehicle.link.autopilot_signing import ASK_WAIT_S, PROBE_EVERY_S, PROBES, Verdict
 from vehicle.link.connection import MavLink
 from vehicle.link.endpoint import parse_connection
-from vehicle.link.signing import AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY, AUTOPILOT_UNKNOWN
+from vehicle.link.signing import (
+    AUTOPILOT_NEEDS_A_KEY,
+    AUTOPILOT_OTHER_KEY,
+    AUTOPILOT_SIGNS_WITH_OUR_KEY,
+    AUTOPILOT_UNSIGNED,
+)
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -141,6 +145,13 @@ def check_autopilot(cfg: Config, wait_s: float) -> Check:
         if found and link.autopilot is not None:
             sysid, compid = link.autopilot
             return Check("autopilot", OK, f"heartbeat from system {sysid} component {compid}")
+        if link.signing.claimed is not None and link.signing.require_signed_autopilot:
+            sysid, compid = link.signing.claimed
+            how = "unsigned" if link.signing.autopilot == AUTOPILOT_UNSIGNED else "not signed with our key"
+            return Check("autopilot", FAIL, f"heartbeat from system {sysid} component {compid}, {how}: with a key "
+                         "only the autopilot's signed messages are used", "put the companion's passphrase on the "
+                         "autopilot (MAVProxy: signing setup), or for an autopilot that cannot sign set "
+                         "mavlink.unsigned_autopilot: true (docs/security.md)")
         return Check("autopilot", FAIL, f"no autopilot heartbeat on {cfg.mavlink.connection} within {wait_s:.0f} s",
                      "is ArduSub running and routed to this endpoint? (BlueOS: Vehicle > MAVLink endpoints; "
                      "for a test: merlion sim-vehicle --connect ...)")
@@ -148,22 +159,39 @@ def check_autopilot(cfg: Config, wait_s: float) -> Check:
         link.stop()
 
 
-def _autopilot_signing(link, wait_s: float) -> str:
-    """How the autopilot signs, once one of its messages after its heartbeat showed it (or "unknown")."""
-
-    deadline = time.monotonic() + min(wait_s, 3.0)
-    while link.signing.autopilot == AUTOPILOT_UNKNOWN and time.monotonic() < deadline:
+def _autopilot_verdict(link: MavLink, wait_s: float) -> Verdict | None:
+    """How the autopilot signs and whether it answers us, proven by a probe (the live link presumes a healthy
+    first verdict); None when it had nothing to judge within ``wait_s`` and the probes' time."""
+    watch = link.signing.watch
+    proof_s = PROBES * PROBE_EVERY_S + ASK_WAIT_S + 1.0
+    deadline = time.monotonic() + wait_s + proof_s
+    while watch.said is None and time.monotonic() < deadline:
         time.sleep(0.05)
-    return link.signing.autopilot
+    if watch.said is None:
+        return None
+    watch.probe()
+    deadline = time.monotonic() + proof_s
+    while watch.obeys is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return watch.verdict
+
+
+def _changes(link: MavLink) -> str:
+    """The verdicts said during the check, when there were several (signing switched on or off meanwhile)."""
+    said = link.signing.watch.changes
+    if len(said) < 2:
+        return ""
+    steps = " -> ".join(f"{v.signs} ({'answers' if v.obeys else 'ignores us'})" for v in said)
+    return f"; changed during the check: {steps}"
 
 
 def check_signing(cfg: Config, wait_s: float) -> Check:
-    """Is MAVLink 2 signing on, and does the autopilot act on our signed commands (and sign with our key)?
+    """Is MAVLink 2 signing on, and does the autopilot act on our commands (and sign with our key)?
 
-    Without a key, an autopilot that signs (it has a key) drops everything the companion sends: that is a failure,
-    not a warning. With a key, the probe is MAV_CMD_GET_MESSAGE_INTERVAL, a read that still needs a signature on a
-    signed autopilot: an autopilot with our key answers it, one with another key ignores it (and its own messages
-    fail our check), and one with no key answers anyone."""
+    Judged by what the autopilot does (vehicle/link/autopilot_signing.py): how its messages are signed, and whether
+    it answers MAV_CMD_GET_MESSAGE_INTERVAL from us. Without a key, an autopilot that signs drops everything the
+    companion sends (a failure), unless it trusts the port (ArduPilot's SERIAL0/USB: a warning). With a key, one
+    with another key ignores us, and one with no key answers anyone."""
 
     key_file = cfg.mavlink.signing_key_file
     off = Check("signing", WARN, "off: anyone who can reach the link can change parameters and queries",
@@ -171,45 +199,42 @@ def check_signing(cfg: Config, wait_s: float) -> Check:
     if not cfg.mavlink.connection:
         return off if not key_file else Check("signing", WARN, f"key {key_file}, but no vehicle link to check it on")
 
-
     try:
         link = MavLink(cfg.mavlink.connection, cfg.mavlink, name="doctor")
     except Exception as err:  # noqa: BLE001 - an unreadable key is a finding
         return Check("signing", FAIL, str(err), "check mavlink.signing_key_file (docs/security.md)")
-    acks = threading.Event()
-    link.subscribe(lambda m: acks.set() if m.command == mav2.MAV_CMD_GET_MESSAGE_INTERVAL else None, ["COMMAND_ACK"])
     link.start()
     try:
-        if not link.wait_autopilot(wait_s):
-            if not key_file:
-                return off
-            return Check("signing", WARN, f"on (key {key_file}); no autopilot heartbeat to check it against")
-        how = _autopilot_signing(link, wait_s)
-        if how == AUTOPILOT_NEEDS_A_KEY:
-            return Check("signing", FAIL, "off, but the autopilot signs: it ignores everything this companion sends "
-                         "(heartbeat, STATUSTEXT, rate requests)", "give the companion the autopilot's passphrase: "
-                         "--signing-key FILE or mavlink.signing_key_file (docs/security.md)")
-        if not key_file:
-            return off
-        if how == AUTOPILOT_OTHER_KEY:
-            return Check("signing", FAIL, f"on (key {key_file}), but the autopilot signs with another key: it "
-                         "ignores everything this companion sends", "use the autopilot's passphrase on the "
-                         "companion (docs/security.md)")
-        autopilot = link.autopilot
-        for _ in range(3):  # a lost datagram is not a verdict
-            link.send(mav2.MAVLink_command_long_message(*autopilot, mav2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
-                                                        mav2.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0))
-            if acks.wait(min(1.0, wait_s)):
-                break
-        autopilot_signs = autopilot in link.signing.last_signed_from
+        verdict = _autopilot_verdict(link, wait_s)
+        changed = _changes(link)
     finally:
         link.stop()
-    if acks.is_set() and autopilot_signs:
-        return Check("signing", OK, f"on (key {key_file}); the autopilot signs with it and answers signed commands")
-    if acks.is_set():
-        return Check("signing", WARN, f"on (key {key_file}); the autopilot answers but does not sign: it has no key "
-                     "and obeys anyone", "put the same passphrase on the autopilot (MAVProxy: signing setup)")
-    return Check("signing", FAIL, f"on (key {key_file}); the autopilot ignores our signed commands (another key?)",
+    if verdict is None:
+        return off if not key_file else Check("signing", WARN, f"on (key {key_file}); no autopilot heartbeat to "
+                                              "check it against")
+    key = f"on (key {key_file})"
+    if verdict.signs == AUTOPILOT_NEEDS_A_KEY and not verdict.obeys:
+        return Check("signing", FAIL, "off, but the autopilot signs: it ignores everything this companion sends "
+                     f"(heartbeat, STATUSTEXT, rate requests){changed}", "give the companion the autopilot's "
+                     "passphrase: --signing-key FILE or mavlink.signing_key_file (docs/security.md)")
+    if verdict.signs == AUTOPILOT_NEEDS_A_KEY:
+        return Check("signing", WARN, "off; the autopilot signs but obeys this companion's unsigned requests on this "
+                     f"port (ArduPilot trusts SERIAL0/USB; any other port drops them){changed}",
+                     "give the companion the autopilot's passphrase (docs/security.md)")
+    if not key_file:
+        return Check("signing", off.status, off.detail + changed, off.fix)
+    if verdict.signs == AUTOPILOT_OTHER_KEY:
+        ignores = "it ignores everything this companion sends" if not verdict.obeys else "it still answers us here"
+        return Check("signing", FAIL, f"{key}, but the autopilot signs with another key: {ignores}{changed}",
+                     "use the autopilot's passphrase on the companion (docs/security.md)")
+    if verdict.signs == AUTOPILOT_SIGNS_WITH_OUR_KEY and verdict.obeys:
+        return Check("signing", OK, f"{key}; the autopilot signs with it and answers signed commands{changed}")
+    if verdict.obeys:
+        unused = ("; its telemetry is not used (mavlink.unsigned_autopilot is off)"
+                  if link.signing.require_signed_autopilot else "")
+        return Check("signing", WARN, f"{key}; the autopilot answers but does not sign: it has no key and obeys "
+                     f"anyone{unused}{changed}", "put the same passphrase on the autopilot (MAVProxy: signing setup)")
+    return Check("signing", FAIL, f"{key}; the autopilot ignores our signed commands (another key?){changed}",
                  "set the same passphrase on the autopilot and the companion (docs/security.md)")
 
 

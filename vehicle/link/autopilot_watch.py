@@ -1,7 +1,9 @@
 """Which peer on the link is the autopilot, and whether its heartbeat is current.
 
-The identity is settled once, from the first autopilot heartbeat, and a stranger's HEARTBEAT never moves it; with
-a signing key, an unsigned first one is provisional until a signed one arrives. Found and lost are decided on one
+The identity is settled once, from the first autopilot heartbeat the link lets through, and a stranger's HEARTBEAT
+never moves it. With a signing key the link lets through only signed ones (``LinkSigning.require_signed_autopilot``),
+so an unsigned heartbeat never settles it nor keeps it alive; with ``mavlink.unsigned_autopilot`` an unsigned first
+one is provisional until a signed one arrives. Found and lost are decided on one
 thread (the link's timer thread) from the heartbeats the receive thread hands over, so they are reported in the
 order they happened and a late "lost" can never overwrite a "found".
 """

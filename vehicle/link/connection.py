@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from vehicle.link.autopilot_signing import probe_message
 from vehicle.link.autopilot_watch import AutopilotWatch, Source, is_autopilot_heartbeat
 from vehicle.link.endpoint import has_peer, open_transport, parse_connection
 from vehicle.link.packet_writer import PacketWriter
@@ -93,6 +94,8 @@ class MavLink:
         self._conn: mavutil.mavfile | None = None
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
         self.signing = LinkSigning.from_settings(cfg, name=name)
+        self.signing.watch.clock = clock
+        self.signing.watch.window_s = max(cfg.heartbeat_timeout_s, 1.0)  # a signed heartbeat comes at 1 Hz
         self._rx = self._new_parser()
         self._send_lock = threading.Lock()
         self._writer: PacketWriter[MAVLinkMessage | bytes] = PacketWriter(self._write, f"{name}-mavlink-tx")
@@ -161,6 +164,11 @@ class MavLink:
         """``callback(True)`` when the autopilot's heartbeat is found (again), ``callback(False)`` when lost; both on
         the link's timer thread, in the order they happened."""
         self.watch.on_change(callback)
+
+    def on_signing_change(self, callback: Callable[[str, int], None]) -> None:
+        """``callback(text, severity)`` on the timer thread when the autopilot's signing verdict changes (how it signs,
+        whether it answers us; a bad first verdict too): text for one STATUSTEXT (vehicle/link/autopilot_signing.py)."""
+        self.signing.watch.on_change(callback)
 
     def on_refused(self, callback: Callable[[MAVLinkMessage, str], None]) -> None:
         """``callback(msg, reason)`` on the receive thread for each message addressed to us that signing refused
@@ -244,6 +252,7 @@ class MavLink:
         """The one place an outgoing message becomes bytes (called with the send lock held)."""
         self.signing.prepare(self._tx)  # with a key: the next timestamp, persisted ahead of use
         buf = msg.pack(self._tx)
+        self.signing.watch.outgoing(msg, self._asked_autopilot())
         self._tx.seq = (self._tx.seq + 1) % 256
         self._tx.total_packets_sent += 1
         self._tx.total_bytes_sent += len(buf)
@@ -393,6 +402,8 @@ class MavLink:
             return
         if mtype == "HEARTBEAT" and is_autopilot_heartbeat(msg):
             self.watch.heard(msg)
+        elif mtype == "COMMAND_ACK":
+            self.signing.watch.incoming_ack(msg, self._asked_autopilot(), (self.system_id, self.component_id))
         for callback, types in self._subs:
             if types is not None and mtype not in types:
                 continue
@@ -418,10 +429,22 @@ class MavLink:
                 self.system_id = src[0]
                 self._tx.srcSystem = src[0]
 
+    def _asked_autopilot(self) -> Source | None:
+        """The autopilot, or before one is settled (an unsigned one beside our key) the last that claimed to be it."""
+        return self.watch.autopilot or self.signing.claimed
+
+    def _probe_autopilot(self) -> bool:
+        """Ask the autopilot whether it answers us (False: nobody to ask yet)."""
+        target = self._asked_autopilot()
+        if target is not None:
+            self.send(probe_message(target))
+        return target is not None
+
     def _timer_loop(self) -> None:
         next_beat = self.clock()
         while not self._stop.is_set():
             self.watch.watch(_POLL_S)
+            self.signing.watch.judge(self._probe_autopilot)
             if not self._send_heartbeat:
                 continue
             now = self.clock()

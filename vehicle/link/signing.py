@@ -30,6 +30,15 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from vehicle.errors import UsageError
+from vehicle.link.autopilot_signing import (
+    NEEDS_A_KEY,
+    OTHER_KEY,
+    SIGNS_WITH_OUR_KEY,
+    UNKNOWN,
+    UNSIGNED,
+    AutopilotSigning,
+)
+from vehicle.link.autopilot_watch import is_autopilot_heartbeat
 from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.ftp import Op
 from vehicle.settings import MavlinkConfig
@@ -128,13 +137,13 @@ def _carries_signature(msg: mavlink2.MAVLink_message) -> bool:
     return len(buf) > 10 + _SIGNATURE_LEN and buf[0] == mavlink2.PROTOCOL_MARKER_V2 and bool(buf[2] & _SIGNED_FLAG)
 
 
-AUTOPILOT_UNKNOWN = "unknown"
-AUTOPILOT_SIGNS_WITH_OUR_KEY = "signs with our key"
-AUTOPILOT_UNSIGNED = "does not sign"
-AUTOPILOT_NEEDS_A_KEY = "signs, and this companion has no key"
-AUTOPILOT_OTHER_KEY = "signs with another key"
-MISMATCHED = frozenset({AUTOPILOT_NEEDS_A_KEY, AUTOPILOT_OTHER_KEY})
-"""An autopilot that signs drops whatever we send unless we sign with its key: nothing we send reaches anyone."""
+AUTOPILOT_UNKNOWN = UNKNOWN
+AUTOPILOT_SIGNS_WITH_OUR_KEY = SIGNS_WITH_OUR_KEY
+AUTOPILOT_UNSIGNED = UNSIGNED
+AUTOPILOT_NEEDS_A_KEY = NEEDS_A_KEY
+AUTOPILOT_OTHER_KEY = OTHER_KEY
+_HOW_SIGNED = {None: SIGNS_WITH_OUR_KEY, "unsigned": UNSIGNED, "bad signature": OTHER_KEY}
+"""How a message from the autopilot was signed, by what ``_verify`` said (a replayed or stale one says nothing)."""
 
 
 Stream = tuple[int, int, int]
@@ -214,9 +223,15 @@ class LinkSigning:
         accept_unsigned_reads: bool = True,
         link_id: int = 0,
         wall_clock: Callable[[], float] = time.time,
+        unsigned_autopilot: bool = False,
     ) -> None:
         self.name = name
         self.accept_unsigned_reads = accept_unsigned_reads
+        self.unsigned_autopilot = unsigned_autopilot
+        """With a key, still take an autopilot that does not sign (``mavlink.unsigned_autopilot``)."""
+        self.trust_unsigned = False
+        """ArduPilot's channel 0 (SERIAL0, USB): with a key, still act on every unsigned or badly signed packet (tests
+        set it on the simulator's link to make it that port); never set on the companion."""
         self.announce_refusals = True
         """Say on the wire (one STATUSTEXT per source) that a refused message was ignored; an ArduSub autopilot
         never does: it drops what it refuses silently (the simulator turns this off)."""
@@ -241,11 +256,14 @@ class LinkSigning:
         self.last_signed_from: dict[tuple[int, int], int] = {}
         """Signing timestamp of the last valid signed message from each source (system, component)."""
         self._protected: tuple[int, int] | None = None
-        self.autopilot = AUTOPILOT_UNKNOWN
-        """How the autopilot signs, as far as its messages show (one of the AUTOPILOT_* values)."""
+        self.claimed: tuple[int, int] | None = None
+        """The last source that sent an autopilot heartbeat, signed or not (whom to ask before one is settled)."""
+        self.watch = AutopilotSigning(name=name, clock=time.monotonic, window_s=3.0, has_key=lambda: self.enabled,
+                                      required=lambda: self.require_signed_autopilot)
+        """How the autopilot signs and whether it obeys, for the whole run (the link sets its clock and window)."""
         self.spoofed: dict[tuple[int, int], int] = {}
-        """Unsigned (or badly signed) messages claiming to be the protected source (the autopilot) after it was
-        seen signing: ignored, whatever their type."""
+        """Unsigned (or badly signed) messages claiming to be the autopilot that were not used: with a key, all of
+        them (unless ``unsigned_autopilot``), else those after the autopilot was seen signing."""
         if key is not None:
             self.set_key(key)
 
@@ -259,12 +277,24 @@ class LinkSigning:
         if not stamp.parent.is_dir() or not os.access(stamp.parent, os.W_OK):
             raise UsageError(f"mavlink.signing_timestamp_file {stamp}: folder missing or not writable")
         return cls(load_key(cfg.signing_key_file), name=name, timestamp_file=stamp,
-                   accept_unsigned_reads=cfg.accept_unsigned_reads)
+                   accept_unsigned_reads=cfg.accept_unsigned_reads, unsigned_autopilot=cfg.unsigned_autopilot)
 
     # ------------------------------------------------------------------------------------------------ key
     @property
     def enabled(self) -> bool:
         return self._key is not None
+
+    @property
+    def require_signed_autopilot(self) -> bool:
+        """With a key, only the autopilot's signed messages are used, from the very first packet: an unsigned
+        heartbeat never settles who the autopilot is nor keeps it alive, and no unsigned telemetry under its ids
+        reaches a subscriber (MAVLink 1 framing cannot be signed at all)."""
+        return self._key is not None and not self.unsigned_autopilot
+
+    @property
+    def autopilot(self) -> str:
+        """How the autopilot signs, as far as its recent messages show (one of the AUTOPILOT_* values)."""
+        return self.watch.signs
 
     def set_key(self, key: bytes | None, initial_timestamp: int = 0) -> None:
         """Use ``key`` from now on (None or all zeros: signing off), as SETUP_SIGNING does on an autopilot."""
@@ -328,22 +358,23 @@ class LinkSigning:
         (which may answer it) and, once per source, reported (one meant for another component on a shared link,
         or of a type nobody here acts on, is just dropped)."""
         source = (msg.get_srcSystem(), msg.get_srcComponent())
+        claims = source == self._protected or (self._protected is None and is_autopilot_heartbeat(msg))
+        if claims and msg.get_type() == "HEARTBEAT":
+            self.claimed = source
         if self._key is None:
-            if source == self._protected and self.autopilot == AUTOPILOT_UNKNOWN:
-                self._learn_autopilot(AUTOPILOT_NEEDS_A_KEY if _carries_signature(msg) else AUTOPILOT_UNSIGNED)
+            if claims:
+                self.watch.saw(NEEDS_A_KEY if _carries_signature(msg) else UNSIGNED)
             return True
         reason = self._verify(msg)
-        if source == self._protected and self.autopilot in (AUTOPILOT_UNKNOWN, AUTOPILOT_UNSIGNED):
-            if reason is None:
-                self._learn_autopilot(AUTOPILOT_SIGNS_WITH_OUR_KEY)
-            elif reason == "bad signature":
-                self._learn_autopilot(AUTOPILOT_OTHER_KEY)
-            elif reason == "unsigned" and self.autopilot == AUTOPILOT_UNKNOWN:
-                self._learn_autopilot(AUTOPILOT_UNSIGNED)
+        if claims and reason in _HOW_SIGNED:
+            self.watch.saw(_HOW_SIGNED[reason])
         if reason is None:
             self.accepted_signed += 1
             return True
-        if source == self._protected and source in self.last_signed_from:
+        if self.trust_unsigned:
+            self.accepted_unsigned_reads += 1
+            return True
+        if claims and (self.require_signed_autopilot or source in self.last_signed_from):
             self._count_spoof(source, reason, msg.get_type())
             return False
         if self.accept_unsigned_reads and not is_state_changing(msg):
@@ -372,33 +403,22 @@ class LinkSigning:
 
     @property
     def mismatch(self) -> bool:
-        """The autopilot signs and we cannot sign with its key: it ignores everything this link sends."""
-        return self.autopilot in MISMATCHED
-
-    def _learn_autopilot(self, state: str) -> None:
-        self.autopilot = state
-        if state == AUTOPILOT_NEEDS_A_KEY:
-            log.error("%s: the autopilot signs its messages and this companion has no signing key: the autopilot "
-                      "ignores everything the companion sends (heartbeat, STATUSTEXT, rate requests); give it the "
-                      "autopilot's passphrase (mavlink.signing_key_file or --signing-key, docs/security.md)", self.name)
-        elif state == AUTOPILOT_OTHER_KEY:
-            log.error("%s: the autopilot signs with another key than this companion's: it ignores everything the "
-                      "companion sends; use the autopilot's passphrase (docs/security.md)", self.name)
-        elif state == AUTOPILOT_SIGNS_WITH_OUR_KEY:
-            log.info("%s: the autopilot signs with our key", self.name)
+        """The autopilot signs with a key we lack and does not answer us: it ignores everything this link sends."""
+        return self.watch.verdict.mismatch
 
     def protect(self, source: tuple[int, int]) -> None:
-        """``source`` (the autopilot) signs everything once it has a key, as ArduPilot does: after one valid signed
-        message from it, nothing unsigned or badly signed that claims to be it is acted on (a spoofed HEARTBEAT
-        would move the vehicle's identity, a spoofed ATTITUDE or GLOBAL_POSITION_INT would tag frames)."""
+        """``source`` (the autopilot) signs everything once it has a key, as ArduPilot does: with our key (or, with
+        ``unsigned_autopilot``, after one valid signed message from it), nothing unsigned or badly signed that
+        claims to be it is acted on (a spoofed HEARTBEAT would move the vehicle's identity or keep a lost autopilot
+        "alive", a spoofed ATTITUDE or GLOBAL_POSITION_INT would tag frames)."""
         self._protected = source
 
     def _count_spoof(self, source: tuple[int, int], reason: str, mtype: str) -> None:
         count = self.spoofed.get(source, 0) + 1
         self.spoofed[source] = count
         if count == 1:
-            log.warning("%s: %s %s claiming to be the autopilot %d/%d ignored (it signs); further ones are only "
-                        "counted", self.name, reason, mtype, *source)
+            log.warning("%s: %s %s claiming to be the autopilot %d/%d ignored (with a key only its signed messages "
+                        "count); further ones are only counted", self.name, reason, mtype, *source)
 
     def _verify(self, msg: mavlink2.MAVLink_message) -> str | None:
         """None when ``msg`` carries a valid signature with a fresh timestamp; else why not."""
@@ -438,4 +458,6 @@ class LinkSigning:
             "rejected": sum(self.rejected.values()),
             "rejected_by_source": {f"{s}/{c}": n for (s, c), n in sorted(self.rejected.items())},
             "spoofed_autopilot": sum(self.spoofed.values()), "autopilot": self.autopilot,
+            "autopilot_obeys": self.watch.obeys, "mismatch": self.mismatch,
+            "autopilot_changes": [f"{v.signs}, {'obeys' if v.obeys else 'ignores'} us" for v in self.watch.changes],
         }

@@ -40,6 +40,21 @@ def test_doctor_tells_whether_the_autopilot_answers_signed_requests(tmp_path: Pa
     assert check.status == status and words in check.detail, check.line()
 
 
+def test_doctor_without_a_key_beside_a_signing_autopilot_that_still_obeys_warns_instead_of_failing(tmp_path: Path):
+    """Issue 46: ArduSub's SERIAL0 signs but obeys unsigned requests; judged by what it does, that is no failure."""
+    port = free_udp_port()
+    cfg = load_config(None, overrides={"mavlink": {"connection": f"udpin:127.0.0.1:{port}"}}, environ={})
+    sim = SimVehicle(f"udpout:127.0.0.1:{port}", quick_dive(), rates={"HEARTBEAT": 5.0},
+                     signing_key_file=_key(tmp_path / "sim.key", "reef survey"))
+    sim.link.signing.trust_unsigned = True
+    sim.start()
+    try:
+        check = check_signing(cfg, 5.0)
+    finally:
+        sim.stop()
+    assert check.status == WARN and "obeys this companion's unsigned requests" in check.detail, check.line()
+
+
 def test_doctor_says_when_signing_is_off() -> None:
     cfg = load_config(None, environ={})
     check = check_signing(cfg, 1.0)
@@ -47,7 +62,7 @@ def test_doctor_says_when_signing_is_off() -> None:
 
 
 def _signing_line(output: str) -> str:
-    return next(line for line in output.splitlines() if " signing " in f" {line} ")
+    return next(line for line in output.splitlines() if line.split()[1:2] == ["signing"])
 
 
 @pytest.mark.slow

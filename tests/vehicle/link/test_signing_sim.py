@@ -146,3 +146,29 @@ def test_a_signed_sim_drops_unsigned_packets_silently_as_ardusub_does(tmp_path):
     finally:
         gcs.close()
         sim.stop()
+
+
+def test_a_signed_sim_on_serial0_still_obeys_unsigned_packets_and_signs_its_answers(tmp_path):
+    """ArduPilot's channel 0 (SERIAL0, USB) is trusted: with a key it still acts on unsigned packets
+    (accept_unsigned_callback in libraries/GCS_MAVLink/GCS_Signing.cpp), while what it sends is signed."""
+    key_file = tmp_path / "key"
+    key_file.write_text("reef survey\n")
+    port = free_udp_port()
+    sim = SimVehicle(f"udpin:127.0.0.1:{port}", quick_dive(), rates={"HEARTBEAT": 5.0},
+                     signing_key_file=str(key_file))
+    sim.link.signing.trust_unsigned = True
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(5)
+    plain = mav2.MAVLink(None, 255, 190)
+    sim.start()
+    try:
+        assert sim.link.wait_open(5)
+        ask = mav2.MAVLink_command_long_message(1, 1, SET_MESSAGE_INTERVAL, 0, 30, 50_000, 0, 0, 0, 0, 0)
+        gcs.sendto(ask.pack(plain), ("127.0.0.1", port))
+        heard = _until_ack(gcs, SET_MESSAGE_INTERVAL)
+        assert [c[0] for c in sim.commands] == [SET_MESSAGE_INTERVAL] and sim.link.signing.rejected == {}
+        assert heard[-1].get_msgbuf()[2] & mav2.MAVLINK_IFLAG_SIGNED  # the ACK is signed
+    finally:
+        gcs.close()
+        sim.stop()

@@ -212,12 +212,15 @@ def test_an_unsigned_companion_beside_a_signing_autopilot_says_so_and_blames_nob
     # asked again after 1 s, then 2 and 4, instead of 3, 6 and 12: the three unanswered asks come sooner
     cfg = write_config(cfg.parent / "fast-asks.yaml", mavlink={"connection": hub.url}, store={"dir": str(store)},
                        telemetry={"rate_grace_s": 1.0})
+    station = _join(hub, stations, 190, None)  # the router carries the companion's word past the autopilot
     companion = Companion("--config", str(cfg))
     companion.wait_for("the autopilot signs its messages and this companion has no signing key", 30)
+    wait_until(lambda: "Autopilot signs: it ignores us (no key)" in station.texts(), 30, "the STATUSTEXT")
     companion.wait_for("LOCAL_POSITION_NED never came: the autopilot signs, and this companion has no key", 60)
     assert "no DVL or USBL" not in companion.output and "never sends" not in companion.output
     assert companion.terminate() == 0, companion.output
     assert "merlion run: the autopilot signs, and this companion has no key" in companion.output
+    assert station.texts().count("Autopilot signs: it ignores us (no key)") == 1  # said once
 
 
 def test_manual_control_for_the_autopilot_is_never_refused_as_ours(setup) -> None:

@@ -112,18 +112,44 @@ def test_a_strangers_heartbeats_and_spoofed_telemetry_change_nothing(tether):
     assert "claiming to be the autopilot ignored" in describe(latest)
 
 
-def test_a_first_unsigned_autopilot_gives_way_to_the_signed_one_and_then_identity_is_kept(tether):
+def test_with_a_key_an_unsigned_autopilot_is_never_taken_and_the_signed_one_is(tether):
+    """Issue 48: an unsigned autopilot heartbeat settles nothing (not even provisionally) when the companion has a
+    key; the signed autopilot that comes after it is the autopilot, and strangers never move it."""
     port, link, telemetry, peers, floods = tether
     start = time.monotonic()
     attacker, autopilot = Peer(port, 42, 1), Peer(port, 1, 1, KEY)
     peers += [attacker, autopilot]
-    attacker.send(sub_heartbeat())
-    assert wait_until(lambda: link.autopilot == (42, 1), 5) and link.system_id == 42  # provisional
+    for _ in range(5):
+        attacker.send(sub_heartbeat())
+    assert wait_until(lambda: link.signing.spoofed.get((42, 1), 0) == 5, 5)  # all five seen, none taken
+    assert link.autopilot is None and link.system_id == 1 and not link.autopilot_alive
     floods.append(Repeater(autopilot, _autopilot_stream(start), 10))
     assert wait_until(lambda: link.autopilot == (1, 1), 5) and link.system_id == 1
     floods.append(Repeater(attacker, _attacker_stream(), 20))
     assert _signed_reads(port, peers, link) == (READS, 0)
     assert link.autopilot == (1, 1)
+
+
+def test_with_unsigned_autopilot_allowed_a_first_unsigned_one_gives_way_to_the_signed_one(tmp_path):
+    """The way out (mavlink.unsigned_autopilot) keeps the older rule: an unsigned first autopilot is provisional."""
+    key_file = tmp_path / "signing.key"
+    key_file.write_text(PASSPHRASE + "\n")
+    port = free_udp_port()
+    link = MavLink(f"udpin:127.0.0.1:{port}", MavlinkConfig(signing_key_file=str(key_file), unsigned_autopilot=True))
+    attacker, autopilot = Peer(port, 42, 1), Peer(port, 1, 1, KEY)
+    link.start()
+    try:
+        assert link.wait_open(5)
+        attacker.send(sub_heartbeat())
+        assert wait_until(lambda: link.autopilot == (42, 1) and link.system_id == 42, 5)  # provisional
+        autopilot.send(sub_heartbeat())  # the identity moves first, the system id right after it: wait for both
+        assert wait_until(lambda: link.autopilot == (1, 1) and link.system_id == 1, 5)
+        attacker.send(sub_heartbeat())
+        assert wait_until(lambda: link.foreign_autopilot_heartbeats == 1, 5) and link.autopilot == (1, 1)
+    finally:
+        link.stop()
+        attacker.close()
+        autopilot.close()
 
 
 def test_without_a_key_the_first_autopilot_is_kept(tmp_path):
