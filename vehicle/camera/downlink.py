@@ -235,6 +235,18 @@ class Downlink:
             for name, value in self.params.restored.items():
                 callback(name, value)
 
+    def set_dive(self, dive: str) -> None:
+        """Announce under ``dive`` from now on (the store could not persist its next index and took a new dive id):
+        new captures' file_url and index.json name it, and the held frames' thumbnails move to its folder."""
+        with self._lock:
+            old, self.dive = self.dive, dive
+            held = [(idx, h.thumb.data) for idx, h in self._held.items()]
+        self.captures.dive = dive
+        for idx, data in held:
+            self.tree.put(thumbnail_path(idx, self.ext, dive), data)
+            if old:
+                self.tree.remove(thumbnail_path(idx, self.ext, old))
+
     def set_queries(self, topics: list[QueryTopic]) -> None:
         """The topics in force, as /config/queries.txt and index.json show them."""
         self._queries = list(topics)
