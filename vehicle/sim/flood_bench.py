@@ -2,7 +2,8 @@
 
 Real parts on loopback: the companion's ``MavLink`` signing with a key and its ``Downlink`` at the configured budget,
 a signed pymavlink ground station that only listens, and ``vehicle/sim/unsigned_flood.py`` in a process of its own.
-A new summary frame is published every ``capture_every_s`` (a capture and a thumbnail push each) through three
+A new summary frame is published every ``capture_every_s`` (as the live companion sends it: a capture, its line,
+a thumbnail push, the trimmed frame's line and the 1 Hz status values) through three
 phases of ``seconds`` each: no flood, the flood, and after it. Reported per phase: the share of the captures
 published in it that reached the station (within ``GRACE_S``), the pushed thumbnail chunks per second, and the
 answers to the flood the station saw go by (the companion's UDP server sends every packet to every peer); after the
@@ -40,6 +41,8 @@ GRACE_S = 5.0
 """A capture counts as received when it arrives within this long of being published."""
 ANSWERS = frozenset({"PARAM_VALUE", "FILE_TRANSFER_PROTOCOL", "COMMAND_ACK"})
 PARAMS = [ParamSpec(f"MERL_P{i}", float(i), 0, 100) for i in range(8)]
+KEEP = 4
+"""Summary size K: from the fifth frame on, each new one trims the oldest out, as the live summary does."""
 
 
 @dataclass
@@ -90,13 +93,23 @@ class _Station:
                 self.answers.append(now)  # PARAM_VALUE has no target: the station asked for none
 
 
-def _frame(index: int) -> _Event:
+def _frame(index: int) -> _Frame:
     rng = np.random.default_rng(index)
     image = cv2.resize((rng.random((34, 60, 3)) * 255).astype(np.uint8), (480, 270), interpolation=cv2.INTER_CUBIC)
     now = time.time()
-    frame = _Frame(image_index=index, frame_index=index, time_s=float(index), capture_time=now, score=0.8,
-                   image=image, pose=Pose(time=now, age_s=0.0, stale=False, depth_m=5.0))
-    return _Event("added", frame, [index])
+    return _Frame(image_index=index, frame_index=index, time_s=float(index), capture_time=now, score=0.8,
+                  image=image, pose=Pose(time=now, age_s=0.0, stale=False, depth_m=5.0))
+
+
+def _summary_step(surface: Downlink, held: list[_Frame], index: int) -> None:
+    """What the live companion sends for a new summary frame with K = ``KEEP``: the oldest frame trimmed out (a
+    STATUSTEXT), the new one added (a capture, a STATUSTEXT, a push), and its status values (six a second)."""
+    if len(held) == KEEP:
+        gone = held.pop(0)
+        surface.publish(_Event("removed", gone, [f.image_index for f in held]))
+    held.append(_frame(index))
+    surface.publish(_Event("added", held[-1], [f.image_index for f in held]))
+    surface.update_status(fps=9.5, seen_fps=15.0, score=0.8, summary=len(held), depth_m=5.0)
 
 
 def _free_port() -> int:
@@ -143,6 +156,7 @@ def _phases(surface: Downlink, station: _Station, port: int, seconds: float, rat
     flood = ctx.Process(target=send_flood, args=(port, rate, seconds), kwargs={"ids": ids, "results": results},
                         daemon=True)
     published: list[tuple[int, float]] = []
+    held: list[_Frame] = []
     phases: dict[str, tuple[float, float]] = {}
     index = 0
     time.sleep(1.0)  # the start-up line goes first
@@ -155,7 +169,7 @@ def _phases(surface: Downlink, station: _Station, port: int, seconds: float, rat
             while time.monotonic() - start < seconds:
                 index += 1
                 published.append((index, time.monotonic()))
-                surface.publish(_frame(index))
+                _summary_step(surface, held, index)
                 due += every
                 time.sleep(max(0.0, min(due, start + seconds) - time.monotonic()))
             phases[name] = (start, time.monotonic())
