@@ -1,5 +1,6 @@
 """``merlion bench link``: telemetry the MAVLink link can take (log replay at rising speed) and pose lookup cost;
-with ``--clients N``: the on-board link under N ground stations at once (corrupted packets, receive-loop stall)."""
+with ``--clients N``: the on-board link under N ground stations at once (corrupted packets, receive-loop stall);
+with ``--flood S``: what a signed ground station still receives during an unsigned flood (captures, thumbnails)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,14 @@ def register(add_command) -> None:
     p.add_argument("--clients", metavar="N[,N...]",
                    help="stress the on-board link with N ground-station processes at once (e.g. 1,2,4): FTP "
                         "lists and downloads, parameter sets, refused uploads, with a simulated vehicle")
+    p.add_argument("--flood", metavar="S", type=float,
+                   help="an unsigned flood (parameter, FTP and command requests, heartbeats, garbage) beside a "
+                        "signed ground station, signing on: S seconds without it, S with it, S after it; captures "
+                        "and thumbnail chunks received in each (e.g. 60)")
+    p.add_argument("--flood-rate", metavar="N", type=float, default=1500.0,
+                   help="flood datagrams per second (default 1500)")
+    p.add_argument("--flood-ids", metavar="N", type=int, default=200,
+                   help="made-up unsigned system ids the flood comes from (default 200)")
     p.add_argument("--json", action="store_true", help="last line: one JSON object")
     p.set_defaults(func=run)
 
@@ -44,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not math.isfinite(args.duration) or args.duration <= 0:
         raise UsageError(f"--duration {args.duration}: must be a positive number of seconds")
+    if args.flood is not None:
+        return _flood(args)
     if args.clients is not None:
         from vehicle.sim.link_bench import stress
 
@@ -68,4 +79,22 @@ def run(args: argparse.Namespace) -> int:
                             report=lambda line: print(line, flush=True))
     if args.json:
         print(json.dumps(result), flush=True)
+    return 0
+
+
+def _flood(args: argparse.Namespace) -> int:
+    from companion.errors import UsageError
+
+    if not math.isfinite(args.flood) or not 5 <= args.flood <= 600:
+        raise UsageError(f"--flood {args.flood}: seconds per phase must be between 5 and 600")
+    if not math.isfinite(args.flood_rate) or not 1 <= args.flood_rate <= 20000:
+        raise UsageError(f"--flood-rate {args.flood_rate}: datagrams per second must be between 1 and 20000")
+    if not 1 <= args.flood_ids <= 240:
+        raise UsageError(f"--flood-ids {args.flood_ids}: must be between 1 and 240 (system ids 10-249)")
+    from vehicle.sim.flood_bench import measure_flood
+
+    result = measure_flood(args.flood, rate=args.flood_rate, ids=args.flood_ids,
+                           report=lambda line: print(line, flush=True))
+    if args.json:
+        print(json.dumps({"flood": result}), flush=True)
     return 0

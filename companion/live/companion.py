@@ -220,8 +220,16 @@ class LiveCompanion:
 
     def _publish(self, event: SummaryEvent) -> None:
         if self.surface is not None:
+            if self.store.dive != self.surface.dive:
+                self._new_dive()
             self.surface.publish(event)
             self._tell_quiet(event)
+
+    def _new_dive(self) -> None:
+        """The store could not persist its next image index and took a new dive id (``DiveIndex``): announce under
+        it from this frame on, and tell the surface (the store has logged why)."""
+        self.surface.set_dive(self.store.dive)
+        self.surface.event(f"Index not saved: new dive id {self.store.dive}", st.WARNING)
 
     def _tell_quiet(self, event: SummaryEvent) -> None:
         """A topic's first stand-in (nothing passed for a while): say so once, as a warning the page shows."""

@@ -4,18 +4,20 @@ summary.json also records the next index, but it is rewritten whole (a new file,
 disk refuses: a run that went memory-only then announced indices its summary file never heard of, and the next run
 announced them again under the same dive id (the surface showed the wrong thumbnails). This file is a fixed
 32-byte record overwritten in place (``pwrite`` + ``fsync``): an overwrite needs no new blocks, so it still works
-on a full disk. Only a read-only or failing disk refuses it; the store then gives the run a new dive id.
+on a full disk. Only a read-only or failing disk refuses it; the store then gives the run a new dive id
+(``DiveIndex``), at start or at any time later: a (dive, index) pair the surface heard is never announced again.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import secrets
 from pathlib import Path
 
 from vehicle.camera.capture_frame import MAX_IMAGE_INDEX
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("companion.storage.store")
 
 RECORD_BYTES = 32
 MAX_INDEX = MAX_IMAGE_INDEX
@@ -68,3 +70,71 @@ class IndexReservation:
         finally:
             os.close(fd)
         self.saved = max(self.saved, value)
+
+
+class DiveIndex:
+    """The dive id the store announces under, and the reservation that makes announcing safe.
+
+    An index may be announced under a dive only once the next index is persisted for that dive (``reserve``). When
+    it cannot be (a read-only remount, a failing disk, the index file's own write failing: any ``OSError``, at any
+    time), the dive id is given up at once for a new one that was never on disk, before the index is announced:
+    the next run, resuming the old dive from the last persisted index, can then never announce a pair this run
+    announced. Said once per failure (the log here; ``changes`` tells the app, which tells the surface); the new
+    id reaches the disk only after its own next index does (``recovered``).
+    """
+
+    def __init__(self, path: Path, directory: object) -> None:
+        self.reservation = IndexReservation(path)
+        self.directory = directory
+        self.dive = ""
+        self.refused = False
+        """The last write of the next index failed: the dive in use was made for this failure (not yet on disk)."""
+        self.changes = 0
+        """Dive ids given up since the start because their next index could not be persisted."""
+
+    def start(self, saved_dive: str, next_index: int) -> OSError | None:
+        """At start: the saved dive goes on if ``next_index`` can be persisted, else (a dive the last run may have
+        announced past what it saved) a new one; a store without a dive gets one. The error, if any."""
+        self.dive = saved_dive or secrets.token_hex(4)
+        try:
+            self.reservation.save(next_index, force=True)
+        except OSError as err:
+            self.refused = True  # said here: not again at the first frame
+            if saved_dive:
+                self.dive = secrets.token_hex(4)
+                log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s",
+                            self.directory, err.strerror or err, self.dive)
+            return err
+        return None
+
+    def without_disk(self) -> None:
+        """No store folder could be made: a dive id of its own, and nothing is written (not even over a record
+        that may be there)."""
+        self.dive = secrets.token_hex(4)
+        self.refused = True
+
+    def reserve(self, next_index: int) -> OSError | None:
+        """Before index ``next_index - 1`` is announced: persist ``next_index``; on failure (the first of a spell)
+        the dive id changes. The error, if any."""
+        try:
+            self.reservation.save(next_index)
+        except OSError as err:
+            if not self.refused:
+                self.give_up(next_index - 1, err.strerror or str(err))
+            return err
+        self.refused = False
+        return None
+
+    def give_up(self, first: int, reason: str) -> None:
+        """Index ``first`` and those after it cannot be reserved under the dive in use: a new dive id from now on."""
+        self.refused = True
+        old, self.dive = self.dive, secrets.token_hex(4)
+        self.changes += 1
+        log.warning("store %s: image indices from %d on cannot be persisted (%s); announcing under a new dive id %s "
+                    "(was %s), so no (dive, index) pair is announced twice", self.directory, first, reason,
+                    self.dive, old)
+
+    def recovered(self, next_index: int) -> None:
+        """The disk takes writes again: persist the next index for the dive in use (OSError when it still cannot)."""
+        self.reservation.save(next_index, force=True)
+        self.refused = False

@@ -17,7 +17,8 @@ and says so once (``store_health``: to the log and to its listeners, which tell 
 working and what was saved before stays intact. It tries the disk again every few seconds, and once the disk takes
 writes again it writes what it kept in memory and goes on on disk. An image index is persisted
 (``index_reservation``) before it is announced, so no later run hands it out again under the same dive id; a run
-that cannot persist even that (a read-only disk at start) gets a dive id of its own.
+that cannot persist even that (a read-only disk at start, or a remount read-only mid-run) announces under a new
+dive id of its own from that frame on (``DiveIndex``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import secrets
 import threading
 import time
 from collections.abc import Callable
@@ -50,7 +50,7 @@ from companion.storage.frame_files import (
     write_feature_files,
     write_frame_files,
 )
-from companion.storage.index_reservation import MAX_INDEX, IndexReservation, valid_index
+from companion.storage.index_reservation import MAX_INDEX, DiveIndex, valid_index
 from companion.storage.store_health import Listener, StoreHealth
 from companion.storage.summary_file import read_summary_file
 from companion.storage.versioned import upgrade
@@ -107,18 +107,25 @@ class Store:
         self.budget_bytes = int(cfg.disk_budget_mb * 1024 * 1024)
         self.stats = StoreStats()
         self.health = StoreHealth(self.dir)
-        self._reservation = IndexReservation(self.dir / NEXT_INDEX_FILE)
+        self._index = DiveIndex(self.dir / NEXT_INDEX_FILE, self.dir)
         self._changes = ChangeLog(self.dir / CHANGES_FILE)
         self._lock = threading.RLock()
         self._held: dict[int, HeldFrame] = {}
         self._summary: list[int] = []
         self._next_index = 0
-        self._index_refused = False
-        """The last write of the next image index failed (a read-only disk): said once, not at every frame."""
-        self.dive = ""
-        """This store's dive id: made when the store is created (or its summary file is gone), kept across
-        restarts, so the surface can tell a new dive's image 0 from the last dive's."""
         self._open()
+
+    @property
+    def dive(self) -> str:
+        """This store's dive id: made when the store is created (or its summary file is gone), kept across
+        restarts, so the surface can tell a new dive's image 0 from the last dive's; a new one whenever the next
+        image index cannot be persisted (``DiveIndex``)."""
+        return self._index.dive
+
+    @property
+    def dive_changes(self) -> int:
+        """Dive ids given up during this run because the next image index could not be persisted."""
+        return self._index.changes
 
     @property
     def memory_only(self) -> bool:
@@ -141,7 +148,7 @@ class Store:
         except OSError as err:
             if not self.frames_dir.is_dir():
                 self._degrade(err)  # says it; nothing (the next image index neither) can be written here
-                self._index_refused = True
+                self._index.without_disk()
                 return
         try:
             self._clean_temp_files()
@@ -176,7 +183,7 @@ class Store:
             indices = [i for i in indices if valid_index(i)]
         next_index, dive = saved.next_index, saved.dive
         highest = self._highest_index_on_disk()
-        self._next_index = max(next_index, highest + 1, self._reservation.load())
+        self._next_index = max(next_index, highest + 1, self._index.reservation.load())
         for index in indices:
             try:
                 held = load_frame(self.dir, index)
@@ -185,16 +192,9 @@ class Store:
                 continue
             self._held[index] = held
             self._summary.append(index)
-        self.dive = dive or secrets.token_hex(4)
-        try:
-            self._reservation.save(self._next_index, force=True)
-        except OSError as err:
-            self.health.degrade(err)
-            self._index_refused = True  # said here (or by the line above): not again at the first frame
-            if dive:  # the last run may have announced indices past what it could save: never reuse them
-                self.dive = secrets.token_hex(4)
-                log.warning("store %s: image indices cannot be persisted (%s); this run's dive id is %s", self.dir,
-                            err.strerror or err, self.dive)
+        refused = self._index.start(dive, self._next_index)
+        if refused is not None:
+            self.health.degrade(refused)
         if not dive or saved.dropped or beyond:
             self._write_summary()  # the new dive id is fixed now, not at the first frame; a dropped field goes
         self.stats.bytes_on_disk = self._disk_usage()
@@ -335,19 +335,14 @@ class Store:
 
     def _persist_next_index(self) -> None:
         """Before the index is announced (the keeper publishes after ``apply``): an in-place write, which a full
-        disk still takes."""
-        if self.health.lost:
-            return  # the path is another store's now: its next_index is not this run's to raise
-        try:
-            self._reservation.save(self._next_index)
-        except OSError as err:
-            self._degrade(err)
-            if not self._index_refused:  # said once until the disk takes it again, not once per frame
-                log.warning("store %s: image indices from %d on not persisted (%s)", self.dir, self._next_index - 1,
-                            err.strerror or err)
-            self._index_refused = True
+        disk still takes; when it fails the dive id changes first (``DiveIndex.reserve``)."""
+        if self.health.lost:  # the path is another store's now: its next_index is not this run's to raise
+            if not self._index.refused:
+                self._index.give_up(self._next_index - 1, "folder replaced")
             return
-        self._index_refused = False
+        err = self._index.reserve(self._next_index)
+        if err is not None:
+            self._degrade(err)
 
     def retry(self) -> bool:
         """Try the disk again if the store is memory-only and a retry is due (the companion calls this once a
@@ -363,8 +358,7 @@ class Store:
         pending = [self._held[i] for i in self._summary if not self._held[i].on_disk]  # what a restart needs
         try:
             self._check_writable()
-            self._reservation.save(self._next_index, force=True)
-            self._index_refused = False
+            self._index.recovered(self._next_index)
             for held in pending:
                 write_frame_files(self.dir, held, keep_raw=self.cfg.keep_raw)
             self._write_summary_file()

@@ -38,7 +38,7 @@ from vehicle.camera.request_worker import RequestWorker
 from vehicle.camera.requests import RequestRouter, requester
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
-from vehicle.link.fair_replies import FairReplies, Requester
+from vehicle.link.fair_replies import FairReplies, Requester, UnsignedSlice
 from vehicle.link.request_gate import RequestGate
 from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.ftp import Op
@@ -164,10 +164,12 @@ class Downlink:
         self.tree.uploadable(QUERIES_PATH, self._upload_queries)
         self.tree.put(MARKS_PATH, lambda: format_marks(*self._marks), size=lambda: len(format_marks(*self._marks)))
         self.tree.uploadable(MARKS_PATH, self._upload_marks)
-        self.replies = FairReplies(lambda: self.budget.rate, on_flood=self._flood)
+        self.unsigned_slice = UnsignedSlice(lambda: self.budget.rate, clock=clock)
+        """The one share of the link all answers to unsigned requesters draw on, however many ids they use."""
+        self.replies = FairReplies(self.unsigned_slice, on_flood=self._flood, clock=clock)
         """Answers to commands, parameter and small FTP requests, per requester, signed ones first."""
-        self.bulk_replies = FairReplies(lambda: self.budget.rate, per_requester=16, work_conserving=True,
-                                        on_flood=self._flood)
+        self.bulk_replies = FairReplies(self.unsigned_slice, per_requester=16, work_conserving=True,
+                                        on_flood=self._flood, clock=clock)
         """FTP data replies, per requester, signed ones first (bursts come from the FTP server itself)."""
         self.budget.add_source(Priority.CONTROL, self.replies.next)
         self.budget.add_source(Priority.BULK, self._next_burst)
@@ -232,6 +234,18 @@ class Downlink:
         if replay:
             for name, value in self.params.restored.items():
                 callback(name, value)
+
+    def set_dive(self, dive: str) -> None:
+        """Announce under ``dive`` from now on (the store could not persist its next index and took a new dive id):
+        new captures' file_url and index.json name it, and the held frames' thumbnails move to its folder."""
+        with self._lock:
+            old, self.dive = self.dive, dive
+            held = [(idx, h.thumb.data) for idx, h in self._held.items()]
+        self.captures.dive = dive
+        for idx, data in held:
+            self.tree.put(thumbnail_path(idx, self.ext, dive), data)
+            if old:
+                self.tree.remove(thumbnail_path(idx, self.ext, old))
 
     def set_queries(self, topics: list[QueryTopic]) -> None:
         """The topics in force, as /config/queries.txt and index.json show them."""

@@ -7,10 +7,11 @@ reports it actually wrote: the budget never packs a message itself (packing muta
 second pack on another thread is how packets left corrupted), so the link's one send path packs each message
 exactly once. Over any window W the wire carries at most ``rate * W + capacity + one message`` bytes; with the
 default capacity (a tenth of a second, at least one frame) that is within 3% over 10 s. Queues are served by
-priority, except that answers to requests (CONTROL) may not starve captures, status and thumbnails: after
-``control_streak`` bytes of answers in a row while those wait, one of them goes first (requests from the surface
-can take at most about two thirds of the link). Bulk sources (FTP bursts) are asked for a packet only when all
-queues above them are empty and the budget allows, so a new burst never waits behind a stale one.
+priority, except that answers to requests (CONTROL) may not starve captures, status and thumbnails: while any
+of those wait, answers get at most ``control_share`` of the bytes sent, counted in bytes on both sides (a turn
+per message had let a 560-byte run of answers buy one 40-byte status line, so the thumbnail push behind the status
+never went). Bulk sources (FTP bursts) are asked for a packet only when all queues above them are empty and the
+budget allows, so a new burst never waits behind a stale one.
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ class LinkBudget:
     """Priority queues drained by one thread within ``rate`` bytes per second (see the module docstring)."""
 
     def __init__(self, link: Link, rate: float = 2000.0, *, clock: Callable[[], float] = time.monotonic,
-                 capacity_s: float = 0.1, queue_limit: int = 4000, control_streak: int = 2 * MAX_WIRE) -> None:
+                 capacity_s: float = 0.1, queue_limit: int = 4000, control_share: float = 0.5) -> None:
         self.link = link
         self._clock = clock
         self._capacity_s = capacity_s
@@ -74,9 +75,9 @@ class LinkBudget:
         self.sent_bytes = 0
         self.sent_by_priority = {p: 0 for p in Priority}
         self.dropped = 0
-        self.control_streak = control_streak
-        self._streak = 0
-        """CONTROL bytes sent in a row while STATUS or THUMBNAIL messages waited."""
+        self.control_share = control_share
+        self._control_debt = 0.0
+        """Answers' bytes beyond their share while STATUS or THUMBNAIL messages waited (> 0: those go first)."""
         self._history: collections.deque[tuple[float, int]] = collections.deque()
 
     @property
@@ -181,15 +182,15 @@ class LinkBudget:
         """0.0 after sending one message; else the wait the budget needs, or None when nothing is pending."""
         waiting = bool(self._queues[Priority.STATUS] or self._queues[Priority.THUMBNAIL])
         if not waiting:
-            self._streak = 0
+            self._control_debt = 0.0
         for prio in Priority:
-            if prio == Priority.CONTROL and waiting and self._streak >= self.control_streak:
-                continue  # captures and status get their turn
+            if prio == Priority.CONTROL and waiting and self._control_debt > 0:
+                continue  # answers used their share of the bytes: captures, status and thumbnails go first
             queue = self._queues[prio]
             if queue:
                 if self._level < MAX_WIRE:
                     return max(0.001, (MAX_WIRE - self._level) / self.rate)
-                self._send(prio, queue.popleft().msg)
+                self._send(prio, queue.popleft().msg, waiting)
                 return 0.0
             for sprio, pull in self._sources:
                 if sprio != prio:
@@ -198,11 +199,12 @@ class LinkBudget:
                     return max(0.001, (MAX_WIRE - self._level) / self.rate)
                 msg = pull()
                 if msg is not None:
-                    self._send(prio, msg)
+                    self._send(prio, msg, waiting)
                     return 0.0
         return None
 
-    def _send(self, prio: Priority, msg: mav.MAVLink_message) -> None:
+    def _send(self, prio: Priority, msg: mav.MAVLink_message, waiting: bool) -> None:
+        """Write ``msg`` and charge it; ``waiting``: captures, status or thumbnails waited while it was chosen."""
         sent = self.link.send(msg)
         tx = self.link.tx_bytes
         foreign = tx - self._last_tx - sent  # a heartbeat that slipped in since the last look counts too
@@ -211,13 +213,20 @@ class LinkBudget:
             self._level -= foreign
             self._note(self._clock(), foreign)
         self._level -= sent
-        if prio == Priority.CONTROL:
-            self._streak += sent
-        elif prio in (Priority.STATUS, Priority.THUMBNAIL):
-            self._streak = 0
+        if waiting:
+            self._share(prio, sent)
         self.sent_bytes += sent
         self.sent_by_priority[prio] += sent
         self._note(self._clock(), sent)
+
+    def _share(self, prio: Priority, sent: int) -> None:
+        """Answers and the rest split the bytes ``control_share`` : 1 - ``control_share`` while both wait: an
+        answer adds its bytes beyond its share to the debt, a status or thumbnail message pays it back (a long
+        quiet spell of answers earns them no burst later: the credit is one frame at most)."""
+        if prio == Priority.CONTROL:
+            self._control_debt += sent * (1.0 - self.control_share)
+        elif prio in (Priority.STATUS, Priority.THUMBNAIL):
+            self._control_debt = max(-MAX_WIRE * self.control_share, self._control_debt - sent * self.control_share)
 
     def start(self) -> None:
         if self._thread is not None:

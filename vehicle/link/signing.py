@@ -67,9 +67,10 @@ STATE_CHANGING_TYPES = frozenset({
 })
 """Messages that ask the receiver to change something (plus every ``SET_*`` message and FTP writes)."""
 FTP_WRITE_OPCODES = frozenset({Op.CREATE_FILE, Op.WRITE_FILE, Op.REMOVE_FILE, Op.CREATE_DIRECTORY,
-                               Op.REMOVE_DIRECTORY, Op.OPEN_FILE_WO, Op.TRUNCATE_FILE, Op.RENAME,
-                               Op.TERMINATE_SESSION, Op.RESET_SESSIONS})
-"""FTP opcodes that change files or sessions: ending a session commits an upload (or cuts someone else's short)."""
+                               Op.REMOVE_DIRECTORY, Op.OPEN_FILE_WO, Op.TRUNCATE_FILE, Op.RENAME})
+"""FTP opcodes that change files. Ending sessions (TerminateSession, ResetSessions) is not among them: who may end
+which session is the FTP server's rule (``SessionTable``: an unsigned request ends only unsigned sessions of its own
+ids, and with a key those are read sessions, since opening one for writing needs the key)."""
 
 
 def now_timestamp(wall_clock: Callable[[], float] = time.time) -> int:

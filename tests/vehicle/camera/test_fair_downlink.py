@@ -15,6 +15,7 @@ from tests.waiting import wait_until
 from vehicle.camera.downlink import Downlink
 from vehicle.camera.params import ParamSpec
 from vehicle.settings import SurfaceConfig
+from vehicle.sim.flood_bench import measure_flood
 
 COMPANION = (1, 100)
 CAPTURES = 6
@@ -84,3 +85,24 @@ def test_signed_answers_go_before_a_strangers(downlink):
     assert wait_until(lambda: len(gcs.got("PARAM_VALUE", COMPANION)) >= 16, 20)
     order = [m.param_value for m in gcs.got("PARAM_VALUE", COMPANION)]
     assert order.index(77.0) < 15, order  # ...and the signed answer still goes ahead of them
+
+
+@pytest.mark.slow
+def test_a_mixed_unsigned_flood_from_two_hundred_ids_leaves_captures_and_the_push_and_stops_with_the_flood():
+    """Issue 46 item 1 on real UDP, signing on: 10 s without a flood, 10 s of ~1,500 unsigned datagrams/s from 200
+    made-up ids (parameter lists and reads, FTP opens, lists, creates and writes, COMMAND_LONG, PARAM_SET,
+    heartbeats, garbage; a process of its own), 10 s after it, a capture and thumbnail push every 2 s throughout
+    (``merlion bench link --flood 60`` runs the full minute)."""
+    result = measure_flood(10.0)
+    before, flood, after = result["before"], result["flood"], result["after"]
+    print(f"\n{result['flood_sent']} flood datagrams; before {before}\nflood {flood}\nafter {after}\n"
+          f"answers after the quiet time: {result['answers_after_quiet']}; replies {result['replies']}")
+    assert result["flood_sent"] >= 0.5 * 1500 * 10  # the flood really ran (its process kept its pace)
+    assert before["captures_received"] == before["captures"] >= 4
+    assert flood["captures_pct_of_before"] >= 60  # issue: 42-56% before this fix
+    assert flood["chunks_per_s"] >= 0.4 * before["chunks_per_s"]  # the push goes on (issue: 0 during the flood)
+    assert after["chunks_per_s"] >= 0.4 * before["chunks_per_s"]  # and after it (issue: 0 for 30 s)
+    assert flood["answers_to_flood"] > 0  # the strangers are answered, within their slice:
+    assert result["unsigned_answer_bytes"] <= 0.25 * 2000 * result["elapsed_s"] + 0.125 * 2000 + 300
+    assert result["answers_after_quiet"] == 0  # nothing for them once they have gone quiet (issue: 30 s later)
+    assert result["replies"]["expired"] > 0

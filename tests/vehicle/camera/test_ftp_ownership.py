@@ -135,7 +135,7 @@ def test_a_spoofed_request_on_a_signed_session_is_refused_and_the_owner_is_unhar
     read = spoof.request(Op.READ_FILE, session=opened.session, offset=0, size=MAX_DATA)
     end = spoof.request(Op.TERMINATE_SESSION, session=opened.session)
     assert [(r.opcode, r.data[:1]) for r in (hijack, read)] == [(Op.NAK, bytes([FtpErr.FAIL]))] * 2
-    assert (end.opcode, end.data[:1]) == (Op.NAK, bytes([FtpErr.FILE_PROTECTED]))  # refused by signing, answered
+    assert (end.opcode, end.data[:1]) == (Op.NAK, bytes([FtpErr.FAIL]))  # not its session: refused, answered
     out = first.data
     while len(out) < len(index):
         got = owner.request(Op.READ_FILE, session=opened.session, offset=len(out), size=MAX_DATA)
@@ -161,3 +161,31 @@ def test_a_signed_upload_survives_a_spoofed_write_on_its_session(signed):
     assert bad.opcode == Op.NAK
     assert owner.request(Op.TERMINATE_SESSION, session=made.session).opcode == Op.ACK
     assert changed == ["a coral reef"]
+
+
+def test_an_unsigned_client_ends_its_own_read_sessions_and_no_one_elses(signed):
+    """Issue 46 item 3: with a key, an unsigned ground station's TerminateSession and ResetSessions end its own
+    read sessions (they were refused as protected); a signed client's session with the same ids is untouched."""
+    port, surface, peers = signed
+    owner = RawFtp(_peer(port, peers, 255, 190, KEY))
+    plain = RawFtp(_peer(port, peers, 255, 190))  # the owner's ids, no key: its own sessions are unsigned ones
+    plain.seq = 100
+    held = owner.request(Op.OPEN_FILE_RO, session=3, data=b"/summary/index.json")
+    assert held.opcode == Op.ACK
+    opened = plain.request(Op.OPEN_FILE_RO, session=1, data=b"/summary/full/3.jpg")
+    assert opened.opcode == Op.ACK
+    assert plain.request(Op.READ_FILE, session=1, size=MAX_DATA).opcode == Op.ACK
+    assert plain.request(Op.TERMINATE_SESSION, session=1).opcode == Op.ACK
+    gone = plain.request(Op.READ_FILE, session=1, size=MAX_DATA)
+    assert (gone.opcode, gone.data[:1]) == (Op.NAK, bytes([FtpErr.INVALID_SESSION]))
+    for number in (1, 2):  # two read sessions, both ended by one ResetSessions
+        assert plain.request(Op.OPEN_FILE_RO, session=number, data=b"/summary/index.json").opcode == Op.ACK
+    assert plain.request(Op.RESET_SESSIONS).opcode == Op.ACK
+    for number in (1, 2):
+        after = plain.request(Op.READ_FILE, session=number, size=MAX_DATA)
+        assert (after.opcode, after.data[:1]) == (Op.NAK, bytes([FtpErr.INVALID_SESSION]))
+    end = plain.request(Op.TERMINATE_SESSION, session=3)  # the signed client's session: not its own
+    assert (end.opcode, end.data[:1]) == (Op.NAK, bytes([FtpErr.FAIL]))
+    read = owner.request(Op.READ_FILE, session=3, size=MAX_DATA)  # the reset and the refused end left it open
+    assert read.opcode == Op.ACK and read.data == surface.tree.read("/summary/index.json")[:MAX_DATA]
+    assert surface.ftp.naks.get(int(FtpErr.FILE_PROTECTED), 0) == 0  # no end of a session refused as protected
