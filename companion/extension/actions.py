@@ -41,7 +41,7 @@ def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConf
 
     def topic(body: dict) -> dict:
         name = body.get("topic")
-        if name not in presets:
+        if not isinstance(name, str) or name not in presets:
             raise ValueError(f"topic {name!r}: not one of {', '.join(presets) or 'the configured topics (none)'}")
         ident = tool.snapshot()["companion"]["id"]
         if not ident:
