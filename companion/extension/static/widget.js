@@ -45,7 +45,7 @@ function frameTile(f, marks) {
   if (f.thumbnail) img.src = "files/" + f.thumbnail;
   tile.appendChild(img);
   const top = el("span", "tag top");
-  top.appendChild(el("span", "topic", f.topic || "summary"));
+  top.appendChild(el("span", "topic", f.topic || "no topic"));
   top.appendChild(document.createTextNode(" "));
   top.appendChild(el("span", "score", known(f.score) ? f.score.toFixed(2) : "?"));
   if (f.below_threshold) {

@@ -323,7 +323,7 @@ def test_widget_and_every_cockpit_action_also_after_a_restart(blueos, tmp_path):
             f = held.get(tile["index"])
             if f is None:
                 continue  # left the summary meanwhile
-            assert tile["topic"] == (f["topic"] or "summary") and tile["score"] == f"{f['score']:.2f}"
+            assert tile["topic"] == (f["topic"] or "no topic") and tile["score"] == f"{f['score']:.2f}"
             assert tile["below"] == f["below_threshold"]
             assert re.search(r"#\d+ \d+\.\d m \d\d:\d\d:\d\d$", tile["bottom"]), tile
         shot = Path(os.environ.get("MERLION_WIDGET_SCREENSHOT") or tmp_path / "widget.png")
