@@ -13,8 +13,14 @@ from companion.topside.queries_upload import queries_from_options, upload_querie
 from companion.topside.tool import SurfaceTool
 from companion.topside.web import Action
 
-UPLOADER = MavlinkConfig(system_id=254, component_id=191)
+UPLOADER_SYSTEM, UPLOADER_COMPONENT = 254, 191
 """The topic switch's own connection: the surface tool's system, another component."""
+
+
+def uploader(signing_key_file: str | None) -> MavlinkConfig:
+    """The topic switch's connection, signing with the companion's key when it has one: a signing companion ignores
+    unsigned FTP writes ("file protected")."""
+    return MavlinkConfig(system_id=UPLOADER_SYSTEM, component_id=UPLOADER_COMPONENT, signing_key_file=signing_key_file)
 
 
 class CompanionProcess(Protocol):
@@ -25,9 +31,12 @@ class CompanionProcess(Protocol):
 
 
 def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConfig],
-                      companion: CompanionProcess | None = None) -> dict[str, Action]:
+                      companion: CompanionProcess | None = None,
+                      signing_key_file: str | None = None) -> dict[str, Action]:
     """``connect``: how the topic switch reaches the companion (the extension's hub); ``companion``: the process
-    start/stop controls (None: not run by this extension, no such action)."""
+    start/stop controls (None: not run by this extension, no such action); ``signing_key_file``: the companion's
+    key, which the topic switch signs with."""
+    sender = uploader(signing_key_file)
     presets = {t.name: t for t in topics}
 
     def mark(body: dict) -> dict:
@@ -50,7 +59,7 @@ def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConf
         data = queries_from_options(None, [], [{"name": chosen.name, "positive": chosen.positive,
                                                 "negatives": list(chosen.negatives)}])
         try:
-            answer = upload_queries(connect, UPLOADER, (ident[0], ident[1]), data, timeout=15.0)
+            answer = upload_queries(connect, sender, (ident[0], ident[1]), data, timeout=15.0)
         except MerlionError as err:
             raise ValueError(str(err)) from None
         if not answer.accepted:

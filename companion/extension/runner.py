@@ -124,7 +124,9 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
     # actions do); a user's merlion.yaml decides for itself (surface.ftp_writable)
     companion = CompanionProcess(argv + opts.companion_args, data / "companion.log",
                                  env=None if config else {"MERLION__SURFACE__FTP_WRITABLE": "true"})
-    tool = SurfaceTool(SurfaceOptions(connect=hub.url, system_id=254, component_id=190), Gallery(data / "gallery"))
+    key = cfg.mavlink.signing_key_file  # the companion's: with it the page and the topic switch sign and accept
+    tool = SurfaceTool(SurfaceOptions(connect=hub.url, system_id=254, component_id=190, signing_key_file=key),
+                       Gallery(data / "gallery"))  # only signed messages (the surface tool's --signing-key)
 
     def status() -> dict:
         return {"supervised": True, "companion_running": companion.running, "topics": [t.name for t in topics],
@@ -138,7 +140,8 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
         pages = extension_pages(version=version, topics=[t.name for t in topics], status=status,
                                 frame_ancestors=guard.frame_ancestors())
         web = WebServer(tool.snapshot, tool.gallery.root, opts.port, host=opts.host, full_frame=tool.full_frame,
-                        actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion),
+                        actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion,
+                                                  signing_key_file=key),
                         allowed_hosts=hosts, pages=pages, guard=guard, allowed_origins=origins)
         web.start()
         if opts.run_companion:
