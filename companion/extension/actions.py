@@ -17,6 +17,12 @@ UPLOADER_SYSTEM, UPLOADER_COMPONENT = 254, 191
 """The topic switch's own connection: the surface tool's system, another component."""
 
 
+MAX_QUERY = 200
+"""The longest query the widget may send (the companion's queries file is small)."""
+ASKED = "asked"
+"""The topic name of a query typed on the widget or the page."""
+
+
 def uploader(signing_key_file: str | None) -> MavlinkConfig:
     """The topic switch's connection, signing with the companion's key when it has one: a signing companion ignores
     unsigned FTP writes ("file protected")."""
@@ -48,23 +54,39 @@ def extension_actions(tool: SurfaceTool, *, connect: str, topics: list[TopicConf
             raise ValueError("mark: no summary frame yet")
         return page_mark(tool.actions, max(held), body.get("kind"))
 
-    def topic(body: dict) -> dict:
+    def chosen_topic(body: dict) -> dict:
+        """A preset (``{"topic": NAME}``) or the pilot's own words (``{"query": TEXT}``, with the first preset's
+        negatives, under the name ``ASKED``)."""
+        if "query" in body:
+            text = body["query"]
+            if not isinstance(text, str) or not text.strip() or len(text) > MAX_QUERY:
+                raise ValueError(f"query {str(text)[:40]!r}: give the words to look for (1-{MAX_QUERY} characters)")
+            if not topics or not topics[0].negatives:
+                raise ValueError("query: the configuration has no negative query to go with it")
+            return {"name": ASKED, "positive": " ".join(text.split()), "negatives": list(topics[0].negatives)}
         name = body.get("topic")
         if not isinstance(name, str) or name not in presets:
-            raise ValueError(f"topic {name!r}: not one of {', '.join(presets) or 'the configured topics (none)'}")
+            raise ValueError(f"topic {str(name)[:40]!r}: not one of "
+                             f"{', '.join(presets) or 'the configured topics (none)'}")
+        return {"name": name, "positive": presets[name].positive, "negatives": list(presets[name].negatives)}
+
+    def topic(body: dict) -> dict:
+        """Follow the chosen topic alone; a refusal (a query the companion's encoder cannot read) is a 400 with the
+        companion's reason, and the companion keeps its topics (it checks a file whole before changing any)."""
+        chosen = chosen_topic(body)
         ident = tool.snapshot()["companion"]["id"]
         if not ident:
             raise ValueError("topic: no companion heard yet")
-        chosen = presets[name]
-        data = queries_from_options(None, [], [{"name": chosen.name, "positive": chosen.positive,
-                                                "negatives": list(chosen.negatives)}])
         try:
+            data = queries_from_options(None, [], [chosen])
             answer = upload_queries(connect, sender, (ident[0], ident[1]), data, timeout=15.0)
         except MerlionError as err:
             raise ValueError(str(err)) from None
         if not answer.accepted:
-            raise ValueError(f"topic {name}: {answer.error or 'refused'} {' '.join(answer.status)}".strip())
-        return {"topic": name, "status": answer.status}
+            said = " ".join(answer.status)
+            raise ValueError(f"topic {chosen['name']} ({chosen['positive']!r}) refused: {answer.error or ''} "
+                             f"{said}".replace("  ", " ").strip())
+        return {"topic": chosen["name"], "query": chosen["positive"], "status": answer.status}
 
     actions: dict[str, Callable[[dict], dict]] = {"mark": mark, "mark-newest": mark_newest, "topic": topic}
     if companion is not None:

@@ -27,7 +27,15 @@ function clock(t) {
   return pad(d.getHours()) + ":" + pad(d.getMinutes()) + ":" + pad(d.getSeconds());
 }
 
-function say(text) { document.getElementById("status").textContent = text; }
+let noteUntil = 0;
+
+// an answer to the pilot (a refusal's reason, what is followed now) stays 10 s before the live line comes back
+function say(text) {
+  noteUntil = Date.now() + 10000;
+  const note = document.getElementById("note");
+  note.textContent = text;
+  note.hidden = false;
+}
 
 async function post(action, body) {
   // the JSON as text/plain, like Cockpit's actions: no CORS preflight anywhere; the vehicle checks the Origin
@@ -87,6 +95,7 @@ function topicSwitch(extension, state) {
   const select = document.getElementById("topic");
   const names = (extension && extension.topics) || [];
   select.hidden = names.length === 0;
+  document.getElementById("ask").hidden = !extension;
   const key = JSON.stringify(names);
   if (key !== lastTopics) {
     lastTopics = key;
@@ -109,8 +118,9 @@ function render(state, extension) {
   why.textContent = reason;
   const frames = (state.summary || []).slice().sort((a, b) => b.image_index - a.image_index);
   const following = (state.topics || []).map((t) => t.name).join(", ");
-  say((level === "ok" ? "live" : level === "warn" ? "live, warning" : "not live") + " \u00b7 " + frames.length
-      + " frames" + (following ? " \u00b7 " + following : ""));
+  document.getElementById("status").textContent = (level === "ok" ? "live" : level === "warn" ? "live, warning"
+    : "not live") + " \u00b7 " + frames.length + " frames" + (following ? " \u00b7 " + following : "");
+  document.getElementById("note").hidden = Date.now() > noteUntil;
   const run = document.getElementById("run");
   if (extension && extension.supervised) {
     const running = extension.companion_running;
@@ -132,9 +142,21 @@ function render(state, extension) {
 document.getElementById("topic").addEventListener("change", (event) => {
   const name = event.target.value;
   if (!name) return;
-  say("switching to " + name + "\u2026");
-  post("topic", { topic: name }).then(() => say("following " + name)).catch((err) => say(err.message))
-    .finally(() => { event.target.value = ""; });
+  follow({ topic: name }, name).finally(() => { event.target.value = ""; });
+});
+
+function follow(body, what) {
+  say("switching to " + what + "\u2026");
+  return post("topic", body).then((answer) => say("following " + answer.topic + ": " + answer.query))
+    .catch((err) => say(err.message));
+}
+
+// the pilot's own words: the companion checks them with its encoder and says why it cannot follow them
+document.getElementById("ask").addEventListener("submit", (event) => {
+  event.preventDefault();
+  const input = document.getElementById("query");
+  const words = input.value.trim();
+  if (words) follow({ query: words }, "\u201c" + words + "\u201d").then(() => { input.value = ""; });
 });
 
 async function poll() {
@@ -150,7 +172,7 @@ async function poll() {
     why.hidden = false;
     why.className = "down";
     why.textContent = "the extension's page is not answering";
-    say("not live");
+    document.getElementById("status").textContent = "not live";
   }
   setTimeout(poll, 1000);
 }

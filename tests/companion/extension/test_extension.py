@@ -254,6 +254,14 @@ def test_sidebar_page_through_blueos(blueos):
         else:
             raise AssertionError(f"the page's mark never took\n{ext.logs()}")
         assert index in state_through(proxy, service)["marks"]["like"]
+        # the page's topic switch (the extension's): a preset, followed through the companion
+        assert page.wait_for("!document.getElementById('follow').hidden && "
+                             "Array.from(document.querySelectorAll('#follow-topic option')).map((o) => o.value)", 30) \
+            == ["main"]
+        page.evaluate("document.getElementById('follow').requestSubmit()")
+        note = page.wait_for("(t => t.startsWith('following') && t)"
+                             "(document.getElementById('follow-note').textContent)", 60)
+        assert note and note.startswith("following main: "), note
 
 
 def _widget_tiles(page: Page, frame: str) -> list[dict]:
@@ -316,6 +324,17 @@ def test_widget_and_every_cockpit_action_also_after_a_restart(blueos, tmp_path):
         assert cockpit.evaluate(f"{frame}.documentElement.scrollHeight <= {frame}.documentElement.clientHeight")
         options = cockpit.evaluate(f"Array.from({frame}.querySelectorAll('#topic option')).map((o) => o.value)")
         assert "main" in options and cockpit.evaluate(f"{frame}.getElementById('topic').hidden") is False
+        # the pilot's own words, then back to a preset through the switch: the answer shown under the header
+        cockpit.evaluate(f"{frame}.getElementById('query').value = 'a sandy  seabed'; "
+                         f"{frame}.getElementById('ask').requestSubmit()")
+        note = cockpit.wait_for(f"(n => !n.hidden && n.textContent.startsWith('following') && n.textContent)"
+                                f"({frame}.getElementById('note'))", 60)
+        assert note == "following asked: a sandy seabed", note
+        cockpit.evaluate(f"(s => {{ s.value = 'main'; s.dispatchEvent(new Event('change')); }})"
+                         f"({frame}.getElementById('topic'))")
+        assert cockpit.wait_for(f"{frame}.getElementById('note').textContent.startsWith('following main')", 60)
+        wait_until(lambda: [t["name"] for t in state_through(proxy, service)["topics"]] == ["main"], 60,
+                   "the preset followed again")
         held = {f["image_index"]: f for f in state_through(proxy, service)["summary"]}
         tiles = _widget_tiles(cockpit, frame)
         assert tiles
