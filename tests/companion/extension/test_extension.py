@@ -335,6 +335,15 @@ def test_widget_and_every_cockpit_action_also_after_a_restart(blueos, tmp_path):
         assert cockpit.wait_for(f"{frame}.getElementById('note').textContent.startsWith('following main')", 60)
         wait_until(lambda: [t["name"] for t in state_through(proxy, service)["topics"]] == ["main"], 60,
                    "the preset followed again")
+        # the screenshot for the docs once a frame of the followed topic is on the widget, its thumbnail decoded
+        assert cockpit.wait_for(f"Array.from({frame}.querySelectorAll('.frame')).some((t) => "
+                                f"t.querySelector('.topic').textContent === 'main' && "
+                                f"t.querySelector('img').naturalWidth > 0)", 120), ext.logs()
+        shot = Path(os.environ.get("MERLION_WIDGET_SCREENSHOT") or tmp_path / "widget.png")
+        clip = {"x": 0, "y": 0, "width": WIDGET_SIZE[0], "height": WIDGET_SIZE[1], "scale": 1}
+        shot.write_bytes(base64.b64decode(cockpit.call("Page.captureScreenshot", format="png", clip=clip)["data"]))
+        assert struct.unpack(">II", shot.read_bytes()[16:24]) == WIDGET_SIZE
+
         held = {f["image_index"]: f for f in state_through(proxy, service)["summary"]}
         tiles = _widget_tiles(cockpit, frame)
         assert tiles
@@ -345,11 +354,6 @@ def test_widget_and_every_cockpit_action_also_after_a_restart(blueos, tmp_path):
             assert tile["topic"] == (f["topic"] or "no topic") and tile["score"] == f"{f['score']:.2f}"
             assert tile["below"] == f["below_threshold"]
             assert re.search(r"#\d+ \d+\.\d m \d\d:\d\d:\d\d$", tile["bottom"]), tile
-        shot = Path(os.environ.get("MERLION_WIDGET_SCREENSHOT") or tmp_path / "widget.png")
-        clip = {"x": 0, "y": 0, "width": WIDGET_SIZE[0], "height": WIDGET_SIZE[1], "scale": 1}
-        shot.write_bytes(base64.b64decode(cockpit.call("Page.captureScreenshot", format="png", clip=clip)["data"]))
-        assert struct.unpack(">II", shot.read_bytes()[16:24]) == WIDGET_SIZE
-
         run_actions(cockpit, configs, vehicle, ext, proxy, service, widget=frame)
 
     ext.restart()  # a new process on the same port; Cockpit keeps the actions it applied
