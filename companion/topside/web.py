@@ -8,8 +8,10 @@ It listens on 127.0.0.1 unless told otherwise. Every request needs a Host this s
 but the page itself goes only to same-origin requests (``web_guard``: no other web origin reads the state, no DNS
 rebinding). Anything that changes something is a POST to ``/api/<action>`` and also needs the per-run token carried
 in the URL the tool prints (``?token=``, or the ``X-Merlion-Token`` header; a full-frame fetch spends link
-bandwidth, so it needs it too). Clients cannot pin the server (``http_bounds``: bounded threads, read deadlines,
-bounded head and path), and bad input is a clean 4xx, never a traceback.
+bandwidth, so it needs it too): the surface tool's ``TokenGuard``; a host of the page may bring its own ``Guard``
+(the BlueOS extension's needs no secret, ``companion/extension/vehicle_guard``). Clients cannot pin the server
+(``http_bounds``: bounded threads, read deadlines, bounded head and path), and bad input is a clean 4xx, never a
+traceback.
 """
 
 from __future__ import annotations
@@ -279,9 +281,9 @@ class WebServer:
                  guard: Guard | None = None, allowed_origins: tuple[str, ...] | list[str] = ()) -> None:
         """``allowed_hosts``: Host headers to answer besides this machine's own names at its port (``name`` or
         ``name:port``), e.g. a reverse proxy's name in front of the page. ``pages``: routes a host of the page adds;
-        ``guard``: who may read and change (default: same origin, and this run's token to change); ``allowed_origins``: other
-        web origins (``config.web_origin`` form) whose pages may use the JSON and actions, with CORS (none: same
-        origin only)."""
+        ``guard``: who may read and change (default: same origin, and this run's token to change);
+        ``allowed_origins``: other web origins (``config.web_origin`` form) whose pages may use the JSON and
+        actions, with CORS (none: same origin only)."""
         self.token = secrets.token_urlsafe(18)
         self.host = host
         self._hosts = HostPolicy(host, port, allowed_hosts)

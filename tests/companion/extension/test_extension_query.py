@@ -25,7 +25,8 @@ ORIGIN = {"Origin": "http://blueos-hotspot.local"}
 def packaged(tmp_path_factory):
     root = tmp_path_factory.mktemp("query")
     cfg = write_config(root / "merlion.yaml", encoder={"name": "imagenet"}, sampler={"k": 4},
-                       queries={"positive": "underwater image with fish", "negatives": ["underwater image of a sandbar"],
+                       queries={"positive": "underwater image with fish",
+                                "negatives": ["underwater image of a sandbar"],
                                 "tau_ss": 0.3},
                        surface={"budget_bytes_per_s": 40000, "status_hz": 2, "ftp_writable": True})
     with simulated_vehicle() as (router, _sim, _listener), open(root / "extension.log", "wb") as ext_log:
