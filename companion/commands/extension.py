@@ -10,6 +10,8 @@ from pathlib import Path
 from companion import __version__
 from companion.config import web_origin
 from companion.errors import UsageError
+from companion.extension.metadata import PORT
+from companion.extension.vehicle_guard import vehicle_names
 
 
 def register(add_command) -> None:
@@ -17,14 +19,17 @@ def register(add_command) -> None:
                                  "/register_service and Cockpit's widget and actions")
     p.add_argument("--data", default="/usr/blueos/extensions/merlion", metavar="DIR",
                    help="store, gallery, log and optional merlion.yaml (BlueOS binds it; default %(default)s)")
-    p.add_argument("--port", type=int, default=9110, help="the page's port (default %(default)s)")
+    p.add_argument("--port", type=int, default=PORT,
+                   help="the page's port (default %(default)s: none of BlueOS's services use it)")
     p.add_argument("--host", default="0.0.0.0", help="address the page listens on (default %(default)s)")
     p.add_argument("--router", metavar="HOST:PORT",
                    help="a UDP server endpoint of BlueOS's mavlink-router to join (e.g. 127.0.0.1:14660)")
     p.add_argument("--config", metavar="FILE", help="the companion's YAML configuration (default DIR/merlion.yaml)")
     p.add_argument("--source", metavar="SOURCE", help="camera (default: mavlink-camera-manager's RTSP stream)")
     p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
-                   help="a host name the page may be reached by, besides IP addresses and blueos.local")
+                   help="a host name the page may be reached by, besides its IP addresses and BlueOS's names "
+                        "(blueos.local, blueos-wifi.local, blueos-ethernet.local, blueos-hotspot.local, "
+                        "companion.local; with or without .local)")
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
                    help="a web origin (SCHEME://HOST[:PORT]) whose pages may use the actions and JSON, with CORS "
                         "(e.g. Cockpit's desktop app); adds to extension.allowed_origins (default: none)")
@@ -60,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--port {args.port}: not a TCP port")
     opts = ExtensionOptions(Path(args.data), port=args.port, host=args.host, router=router_address(args.router),
                             config=args.config, source=args.source,
-                            allowed_hosts=("blueos.local", "blueos-avahi.local", *args.allow_host),
+                            allowed_hosts=vehicle_names(args.allow_host),
                             allowed_origins=allowed_origins(args.allow_origin), run_companion=not args.no_companion)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

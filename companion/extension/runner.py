@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import os
-import secrets
 import signal
 import socket
 import subprocess
@@ -25,7 +24,9 @@ import psutil
 from companion.config import TopicConfig, load_config
 from companion.errors import UsageError
 from companion.extension.actions import extension_actions
+from companion.extension.metadata import PORT
 from companion.extension.pages import extension_pages
+from companion.extension.vehicle_guard import VehicleGuard, vehicle_names
 from companion.live.udp_hub import UdpHub
 from companion.topside.gallery import Gallery
 from companion.topside.tool import SurfaceOptions, SurfaceTool
@@ -40,14 +41,15 @@ DEFAULT_SOURCE = "rtsp://127.0.0.1:8554/video_stream__dev_video2"
 @dataclass
 class ExtensionOptions:
     data_dir: Path
-    port: int = 9110
+    port: int = PORT
     host: str = "0.0.0.0"
     """BlueOS's helper scans the vehicle's ports on all addresses."""
     router: tuple[str, int] | None = None
     """A UDP endpoint of BlueOS's mavlink-router (e.g. a "UDP Server" on 127.0.0.1:14660) the hub joins."""
     config: str | None = None
     source: str | None = None
-    allowed_hosts: tuple[str, ...] = ("blueos.local", "blueos-avahi.local")
+    allowed_hosts: tuple[str, ...] = vehicle_names()
+    """Host names of the vehicle (BlueOS's beacon's, and ``--allow-host``); its IP addresses come on top."""
     allowed_origins: tuple[str, ...] = ()
     """Web origins trusted with CORS besides the configuration's ``extension.allowed_origins`` (``--allow-origin``)."""
     run_companion: bool = True
@@ -94,8 +96,8 @@ class CompanionProcess:
 
 
 def own_addresses() -> list[str]:
-    """This machine's IP addresses, at any port: BlueOS's proxy reaches the page as http://<vehicle address>/ (port
-    80) and passes that Host on; a DNS-rebinding page can only send names, never these."""
+    """This machine's IP addresses, at any port or none: BlueOS's proxy passes ``Host $host`` on (no port); a
+    DNS-rebinding page can only send names, never these."""
     return sorted({a.address.split("%")[0] for addrs in psutil.net_if_addrs().values() for a in addrs
                    if a.family in (socket.AF_INET, socket.AF_INET6)})
 
@@ -122,8 +124,9 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
     # actions do); a user's merlion.yaml decides for itself (surface.ftp_writable)
     companion = CompanionProcess(argv + opts.companion_args, data / "companion.log",
                                  env=None if config else {"MERLION__SURFACE__FTP_WRITABLE": "true"})
-    tool = SurfaceTool(SurfaceOptions(connect=hub.url, system_id=254, component_id=190), Gallery(data / "gallery"))
-    token = secrets.token_urlsafe(18)
+    key = cfg.mavlink.signing_key_file  # the companion's: with it the page and the topic switch sign and accept
+    tool = SurfaceTool(SurfaceOptions(connect=hub.url, system_id=254, component_id=190, signing_key_file=key),
+                       Gallery(data / "gallery"))  # only signed messages (the surface tool's --signing-key)
 
     def status() -> dict:
         return {"supervised": True, "companion_running": companion.running, "topics": [t.name for t in topics],
@@ -132,11 +135,14 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
     web = None
     try:
         tool.open()
-        pages = extension_pages(version=version, token=token, topics=[t.name for t in topics], status=status)
+        hosts = (*own_addresses(), *opts.allowed_hosts)
+        guard = VehicleGuard(hosts, frozenset(origins))
+        pages = extension_pages(version=version, topics=[t.name for t in topics], status=status,
+                                frame_ancestors=guard.frame_ancestors())
         web = WebServer(tool.snapshot, tool.gallery.root, opts.port, host=opts.host, full_frame=tool.full_frame,
-                        actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion),
-                        allowed_hosts=(*own_addresses(), *opts.allowed_hosts), pages=pages, token=token,
-                        allowed_origins=origins)
+                        actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion,
+                                                  signing_key_file=key),
+                        allowed_hosts=hosts, pages=pages, guard=guard, allowed_origins=origins)
         web.start()
         if opts.run_companion:
             companion.start()

@@ -5,7 +5,11 @@ whole request, a per-read socket timeout, and a bounded request head.
 body: 300 clients that send a Content-Length and then nothing keep 300 threads. Here at most ``max_threads``
 requests are served at once (the others get a 503 at once), and a request not read in full within
 ``read_deadline_s`` is cut (one reaper thread for all of them), so the slots come back; one client address holds
-at most ``max_per_address`` of them, so it cannot lock everyone else out.
+at most ``max_per_address`` of them, so it cannot lock everyone else out. Slow senders hold slots only while nobody
+else needs them: when a new connection finds no slot (or its address at its share), the oldest connection still
+sending its request after ``SLOW_AFTER_S`` is cut to make room, taken from the address with the most of them (16
+half-sent requests from each of two addresses held all 32 slots for the whole read deadline: 0 of 25 probes from
+a third address were answered).
 """
 
 from __future__ import annotations
@@ -23,6 +27,11 @@ MAX_THREADS = 32
 MAX_PER_ADDRESS = 16
 """Requests served at once for one client address: one address cannot take every slot and lock the page out for
 everyone else (behind a reverse proxy every request comes from the proxy's address: it gets these 16)."""
+SLOW_AFTER_S = 1.0
+"""A connection still sending its request after this long is a slow sender: its slot goes to a newcomer that has
+none (the page's own requests arrive whole in milliseconds; behind a proxy, at once)."""
+CUT_WAIT_S = 1.0
+"""How long the accept loop waits for the slot of a slow sender it cut (its thread ends as its read fails)."""
 READ_DEADLINE_S = 10.0
 """Time to send a request's head and body (at most 16 kB + 64 kB): ample on a tether, short for a slow-loris."""
 SOCKET_TIMEOUT_S = 5.0
@@ -148,6 +157,8 @@ class BoundedHTTPServer(ThreadingHTTPServer):
         self._slots = threading.BoundedSemaphore(max_threads)
         self._serving = 0
         self._deadlines: dict[socket.socket, float] = {}
+        self._sending: dict[socket.socket, tuple[float, str]] = {}
+        """Connections still sending their request: when accepted, and from which address."""
         self._watch_lock = threading.Lock()
         self._reaper = threading.Thread(target=self._reap, name="surface-web-reaper", daemon=True)
         self._reaper.start()
@@ -157,7 +168,10 @@ class BoundedHTTPServer(ThreadingHTTPServer):
         address = client_address[0]
         with self._watch_lock:
             mine = self._by_address.get(address, 0)
-        if mine >= self.max_per_address or not self._slots.acquire(blocking=False):
+        room = mine < self.max_per_address or self._cut_slow_sender(address)
+        if room and not self._slots.acquire(blocking=False):
+            room = self._cut_slow_sender(None) and self._slots.acquire(timeout=CUT_WAIT_S)
+        if not room:
             self.refused_busy += 1
             try:
                 request.settimeout(1.0)
@@ -167,7 +181,9 @@ class BoundedHTTPServer(ThreadingHTTPServer):
             self.shutdown_request(request)
             return
         with self._watch_lock:
-            self._deadlines[request] = time.monotonic() + self.read_deadline_s
+            now = time.monotonic()
+            self._deadlines[request] = now + self.read_deadline_s
+            self._sending[request] = (now, address)
             self._serving += 1
             self._by_address[address] = self._by_address.get(address, 0) + 1
         threading.Thread(target=self._serve_one, args=(request, client_address), daemon=True).start()
@@ -190,6 +206,36 @@ class BoundedHTTPServer(ThreadingHTTPServer):
     def unwatch(self, request) -> None:
         with self._watch_lock:
             self._deadlines.pop(request, None)
+            self._sending.pop(request, None)
+
+    def _cut_slow_sender(self, address: str | None) -> bool:
+        """Cut the oldest connection still sending after ``SLOW_AFTER_S``, of ``address`` (None: of the address
+        with the most such connections); False when there is none."""
+        now = time.monotonic()
+        with self._watch_lock:
+            slow = [(at, addr, s) for s, (at, addr) in self._sending.items()
+                    if now - at >= SLOW_AFTER_S and (address is None or addr == address)]
+            if not slow:
+                return False
+            counts: dict[str, int] = {}
+            for _at, addr, _s in slow:
+                counts[addr] = counts.get(addr, 0) + 1
+            worst = max(counts, key=counts.get)
+            _at, _addr, victim = min((entry for entry in slow if entry[1] == worst), key=lambda entry: entry[0])
+            self._deadlines.pop(victim, None)
+            self._sending.pop(victim, None)
+        self.cut_slow += 1
+        try:
+            victim.shutdown(socket.SHUT_RDWR)  # its handler's blocked read returns; its thread ends, its slot frees
+        except OSError:
+            pass
+        return True
+
+    def slow_senders(self) -> int:
+        """Connections still sending their request after ``SLOW_AFTER_S`` (the ones a newcomer may cut)."""
+        now = time.monotonic()
+        with self._watch_lock:
+            return sum(1 for at, _addr in self._sending.values() if now - at >= SLOW_AFTER_S)
 
     def busy(self) -> int:
         """Requests being served now."""
@@ -203,6 +249,7 @@ class BoundedHTTPServer(ThreadingHTTPServer):
                 late = [s for s, deadline in self._deadlines.items() if deadline <= now]
                 for s in late:
                     del self._deadlines[s]
+                    self._sending.pop(s, None)
             for s in late:
                 self.cut_slow += 1
                 try:

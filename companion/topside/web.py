@@ -8,8 +8,10 @@ It listens on 127.0.0.1 unless told otherwise. Every request needs a Host this s
 but the page itself goes only to same-origin requests (``web_guard``: no other web origin reads the state, no DNS
 rebinding). Anything that changes something is a POST to ``/api/<action>`` and also needs the per-run token carried
 in the URL the tool prints (``?token=``, or the ``X-Merlion-Token`` header; a full-frame fetch spends link
-bandwidth, so it needs it too). Clients cannot pin the server (``http_bounds``: bounded threads, read deadlines,
-bounded head and path), and bad input is a clean 4xx, never a traceback.
+bandwidth, so it needs it too): the surface tool's ``TokenGuard``; a host of the page may bring its own ``Guard``
+(the BlueOS extension's needs no secret, ``companion/extension/vehicle_guard``). Clients cannot pin the server
+(``http_bounds``: bounded threads, read deadlines, bounded head and path), and bad input is a clean 4xx, never a
+traceback.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from pathlib import Path
 
 from companion.errors import UsageError
 from companion.topside.http_bounds import MAX_JSON_DEPTH, BoundedHandler, BoundedHTTPServer, json_too_deep
-from companion.topside.web_guard import TOKEN_HEADER, HostPolicy, cross_origin, refusal, trusted_origin
+from companion.topside.web_guard import TOKEN_HEADER, Guard, HostPolicy, TokenGuard, trusted_origin
 
 __all__ = ["TOKEN_HEADER", "Pages", "WebServer"]
 
@@ -58,13 +60,15 @@ Action = Callable[[dict], dict]
 class Pages:
     """What a host of the page adds (the BlueOS extension, companion/extension/): more GET routes (path -> a function
     of the request's path and query giving the body and its content type, looked up before the page's own), and
-    which of them are pages like the page itself (no state in them: served whatever the origin)."""
+    which of them are pages like the page itself (no state in them: served whatever the origin), and headers sent
+    with every answer (the extension's ``Content-Security-Policy: frame-ancestors``)."""
 
     routes: dict[str, Callable[[str], tuple[bytes, str]]] = field(default_factory=dict)
     open_paths: frozenset[str] = frozenset()
+    headers: dict[str, str] = field(default_factory=dict)
 
 
-def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, hosts: HostPolicy,
+def _make_handler(state: Callable[[], dict], gallery_dir: Path, guard: Guard, hosts: HostPolicy,
                   actions: dict[str, Action], full_frame: FullFrame | None = None,
                   pages: Pages | None = None, trusted: frozenset[str] = frozenset()) -> type[BoundedHandler]:
     root = gallery_dir.resolve()
@@ -81,6 +85,8 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
             self.send_header("Content-Type", ctype)
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
+            for name, value in pages.headers.items():
+                self.send_header(name, value)
             self._cors_headers()
             self.end_headers()
             self.wfile.write(body)
@@ -109,7 +115,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
             if not hosts.allows(host):
                 self._refuse(f"Host {host[:100]!r} is not this server")
                 return False
-            why = None if page else cross_origin(self.headers, hosts, trusted)
+            why = None if page else guard.read_refusal(self.headers)
             if why is not None:
                 self._refuse(why)
                 return False
@@ -138,7 +144,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
                 self._send(b"window.MERLION_STATE = " + json.dumps(state()).encode() + b";\n",
                            "text/javascript; charset=utf-8")
             elif (match := _FULL.fullmatch(path)) and full_frame is not None:
-                why = refusal(self.headers, self.path, token, hosts, trusted)
+                why = guard.fetch_refusal(self.headers, self.path)
                 if why is not None:
                     self._refuse(why)
                     return
@@ -164,7 +170,9 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
                 self.request_read()
                 self.send_error(HTTPStatus.REQUEST_URI_TOO_LONG, "path too long")
                 return
-            why = refusal(self.headers, self.path, token, hosts, trusted)
+            host = self.headers.get("Host", "")
+            why = (f"Host {host[:100]!r} is not this server" if not hosts.allows(host)
+                   else guard.change_refusal(self.headers, self.path))
             if why is not None:
                 self.request_read()
                 log.warning("web: refused POST %s from %s: %s", self.path.split("?", 1)[0][:100],
@@ -201,7 +209,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, token: str, host
                 if not isinstance(body, dict):
                     raise ValueError("expected a JSON object")
                 self._json(action(body))
-            except ValueError as err:
+            except (ValueError, TypeError) as err:  # a field of the wrong type ({"topic": []}) is bad input too
                 self._json({"error": str(err)}, HTTPStatus.BAD_REQUEST)
 
         def _json(self, doc: dict, status: HTTPStatus = HTTPStatus.OK) -> None:
@@ -264,22 +272,24 @@ class WebServer:
     """Serves the live page on ``host:port`` until ``close``; port 0 picks a free one (see ``port``).
 
     ``actions`` are the page's state-changing requests (POST /api/<name>) and ``full_frame`` fetches a frame over
-    the link (GET /full/<n>.jpg); both are guarded by ``token`` (new each run)."""
+    the link (GET /full/<n>.jpg); both are guarded by ``token`` (new each run), unless a ``guard`` of the page's host
+    decides instead (the BlueOS extension's)."""
 
     def __init__(self, state: Callable[[], dict], gallery_dir: str | Path, port: int, host: str = "127.0.0.1",
                  actions: dict[str, Action] | None = None, *, full_frame: FullFrame | None = None,
                  allowed_hosts: tuple[str, ...] | list[str] = (), pages: Pages | None = None,
-                 token: str | None = None, allowed_origins: tuple[str, ...] | list[str] = ()) -> None:
+                 guard: Guard | None = None, allowed_origins: tuple[str, ...] | list[str] = ()) -> None:
         """``allowed_hosts``: Host headers to answer besides this machine's own names at its port (``name`` or
         ``name:port``), e.g. a reverse proxy's name in front of the page. ``pages``: routes a host of the page adds;
-        ``token``: this run's token when the host needs it first (default: a new one); ``allowed_origins``: other
-        web origins (``config.web_origin`` form) whose pages may use the JSON and actions, with CORS (none: same
-        origin only)."""
-        self.token = token or secrets.token_urlsafe(18)
+        ``guard``: who may read and change (default: same origin, and this run's token to change);
+        ``allowed_origins``: other web origins (``config.web_origin`` form) whose pages may use the JSON and
+        actions, with CORS (none: same origin only)."""
+        self.token = secrets.token_urlsafe(18)
         self.host = host
         self._hosts = HostPolicy(host, port, allowed_hosts)
-        handler = _make_handler(state, Path(gallery_dir), self.token, self._hosts, dict(actions or {}), full_frame,
-                                pages, frozenset(allowed_origins))
+        trusted = frozenset(allowed_origins)
+        handler = _make_handler(state, Path(gallery_dir), guard or TokenGuard(self._hosts, self.token, trusted),
+                                self._hosts, dict(actions or {}), full_frame, pages, trusted)
         try:
             self._server = BoundedHTTPServer((host, port), handler)
         except OSError as err:

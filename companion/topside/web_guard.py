@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+from collections.abc import Mapping
+from typing import Protocol
 from urllib.parse import parse_qs, urlsplit
 
 from companion.config import web_origin
@@ -122,3 +124,37 @@ def refusal(headers, path: str, token: str, hosts: HostPolicy, trusted: frozense
     if not hmac.compare_digest(given.encode(), token.encode()):
         return "missing or wrong token"
     return None
+
+
+class Guard(Protocol):
+    """Who may read the state and who may change anything, once the Host is known to be ours (``web`` asks it).
+
+    ``TokenGuard`` is the surface tool's; the BlueOS extension has its own (``companion/extension/vehicle_guard``):
+    behind BlueOS's proxy every answer carries ``Access-Control-Allow-Origin: *``, so no secret may travel in one."""
+
+    def read_refusal(self, headers: Mapping[str, str]) -> str | None:
+        """Why a GET of the state (JSON, thumbnails, logs) must be refused; None: it may go ahead."""
+
+    def change_refusal(self, headers: Mapping[str, str], path: str) -> str | None:
+        """Why a POST (an action) must be refused."""
+
+    def fetch_refusal(self, headers: Mapping[str, str], path: str) -> str | None:
+        """Why a full-frame fetch (it spends link bandwidth) must be refused."""
+
+
+class TokenGuard:
+    """Same origin (or a trusted one) to read; the per-run token as well to change anything or fetch a frame."""
+
+    def __init__(self, hosts: HostPolicy, token: str, trusted: frozenset[str] = frozenset()) -> None:
+        self.hosts = hosts
+        self.token = token
+        self.trusted = trusted
+
+    def read_refusal(self, headers: Mapping[str, str]) -> str | None:
+        return cross_origin(headers, self.hosts, self.trusted)
+
+    def change_refusal(self, headers: Mapping[str, str], path: str) -> str | None:
+        return refusal(headers, path, self.token, self.hosts, self.trusted)
+
+    def fetch_refusal(self, headers: Mapping[str, str], path: str) -> str | None:
+        return refusal(headers, path, self.token, self.hosts, self.trusted)

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from companion import __version__
+from companion.extension.metadata import PORT
 from tests.conftest import REPO
 
 HERE = REPO / "packaging" / "blueos"
@@ -53,7 +54,9 @@ def test_labels_are_what_the_extensions_repository_reads():
     assert authors and all(set(a) == {"name", "email"} for a in authors)
     company = json.loads(labels["company"])
     assert {"name", "about", "email"} <= set(company)
-    assert labels["readme"].startswith(args["PROJECT_URL"]) and "{tag_name}" in labels["readme"]
+    # the Extensions Repository (blueos_repository/extension/extension.py) replaces "{tag}" with the version's tag
+    assert labels["readme"].startswith(args["PROJECT_URL"]) and "{tag}" in labels["readme"]
+    assert "{tag_name}" not in labels["readme"]
     links = json.loads(labels["links"])
     assert {"website", "support", "docs"} <= set(links) and links["website"] == args["PROJECT_URL"]
 
@@ -62,9 +65,9 @@ def test_labels_are_what_the_extensions_repository_reads():
     assert host["NetworkMode"] == "host"  # BlueOS's helper finds the page on the vehicle's own port
     assert f"{DATA}:{DATA}" in host["Binds"]  # store, gallery and settings survive an update
     assert any(rule.startswith("c 81:") for rule in host["DeviceCgroupRules"])  # video4linux, when freed
-    assert "9110/tcp" in permissions["ExposedPorts"]
+    assert set(permissions["ExposedPorts"]) == {f"{PORT}/tcp"}  # the extension's port: none of BlueOS's
     assert cmd[:2] == ["merlion", "extension"] and cmd[cmd.index("--data") + 1] == DATA
-    assert cmd[cmd.index("--port") + 1] == "9110"
+    assert cmd[cmd.index("--port") + 1] == str(PORT)
 
 
 def test_metadata_json_is_what_the_repository_expects():
@@ -73,6 +76,9 @@ def test_metadata_json_is_what_the_repository_expects():
     assert re.fullmatch(r"[a-z0-9._-]+/[a-z0-9._-]+", meta["docker"])
     labels, _, _ = dockerfile_labels(HERE / "Dockerfile")
     assert meta["website"] == json.loads(labels["links"])["website"]
+    # the logo the repository takes from next to metadata.json (extension.py: repository / "../extension_logo.png")
+    logo = (HERE / "extension_logo.png").read_bytes()
+    assert logo[:8] == b"\x89PNG\r\n\x1a\n" and len(logo) < 64 * 1024
 
 
 def docker_or_skip() -> str:
@@ -105,13 +111,13 @@ def test_image_builds_from_a_debian_base_and_serves_register_service():
     name = "merlion-extension-test"
     subprocess.run([docker, "rm", "-f", name], capture_output=True)
     subprocess.run([docker, "run", "-d", "--name", name, "--network", "host", tag, "merlion", "extension",
-                    "--data", "/tmp/merlion", "--port", "9110", "--source", "synthetic://dive", "--no-companion"],
+                    "--data", "/tmp/merlion", "--port", str(PORT), "--source", "synthetic://dive", "--no-companion"],
                    check=True)
     try:
         deadline = time.monotonic() + 120
         while True:
             try:
-                with urllib.request.urlopen("http://127.0.0.1:9110/register_service", timeout=5) as r:
+                with urllib.request.urlopen(f"http://127.0.0.1:{PORT}/register_service", timeout=5) as r:
                     assert json.load(r)["works_in_relative_paths"] is True
                 break
             except OSError:

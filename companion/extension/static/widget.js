@@ -1,11 +1,14 @@
-// The compact view for a Cockpit iframe widget: the newest summary frames with their depth, a status light,
-// "more like this" / "not this", start/stop; every URL is relative, so it works under any path prefix.
+// The compact view for a Cockpit iframe widget: the newest summary frames, each with its topic, score (marked when
+// it was kept below the threshold), depth and capture time; a status light with the reason whenever it is not
+// green; a topic switch; "more like this" / "not this"; start/stop. Every URL is relative, so it works under any
+// path prefix. It posts nothing to Cockpit: Cockpit's iframe widget (src/components/widgets/IFrame.vue) answers only
+// "cockpit:listenToDatalakeVariables", which this widget does not need.
 "use strict";
 
-const TOKEN = new URLSearchParams(location.search).get("token") || "";
 const SHOWN = 4;
-const sentPois = new Set();
+const SILENT_S = 5;
 let lastKey = "";
+let lastTopics = "";
 
 function el(tag, cls, text) {
   const e = document.createElement(tag);
@@ -14,48 +17,52 @@ function el(tag, cls, text) {
   return e;
 }
 
+function known(v) { return v !== null && v !== undefined; }
+
+function pad(n) { return String(n).padStart(2, "0"); }
+
+function clock(t) {
+  if (!known(t)) return "?";
+  const d = new Date(t * 1000);
+  return pad(d.getHours()) + ":" + pad(d.getMinutes()) + ":" + pad(d.getSeconds());
+}
+
+let noteUntil = 0;
+
+// an answer to the pilot (a refusal's reason, what is followed now) stays 10 s before the live line comes back
+function say(text) {
+  noteUntil = Date.now() + 10000;
+  const note = document.getElementById("note");
+  note.textContent = text;
+  note.hidden = false;
+}
+
 async function post(action, body) {
-  const response = await fetch("api/" + action, {
-    method: "POST", cache: "no-store",
-    headers: { "Content-Type": "application/json", "X-Merlion-Token": TOKEN },
-    body: JSON.stringify(body),
-  });
-  const answer = await response.json();
+  // the JSON as text/plain, like Cockpit's actions: no CORS preflight anywhere; the vehicle checks the Origin
+  const response = await fetch("api/" + action, { method: "POST", cache: "no-store", body: JSON.stringify(body) });
+  const answer = await response.json().catch(() => ({ error: response.status + " " + response.statusText }));
   if (!response.ok) throw new Error(answer.error || "refused");
   return answer;
 }
 
-// Cockpit's iframe API: a point of interest on its map for every summary frame whose position is known
-function pointsOfInterest(frames) {
-  const now = new Set();
-  for (const f of frames) {
-    if (f.lat === null || f.lon === null || f.lat === undefined || (f.lat === 0 && f.lon === 0)) continue;
-    const id = "merlion-" + f.dive + "-" + f.image_index;
-    now.add(id);
-    if (sentPois.has(id)) continue;
-    sentPois.add(id);
-    const depth = f.depth_m === null ? "" : " at " + f.depth_m.toFixed(1) + " m";
-    window.parent.postMessage({ type: "cockpit:addPointOfInterest", poi: {
-      id: id, name: "MERLION #" + f.image_index, latitude: f.lat, longitude: f.lon, icon: "mdi-image",
-      description: (f.topic || "summary") + depth + " score " + (f.score || 0).toFixed(2) } }, "*");
-  }
-  for (const id of Array.from(sentPois)) {
-    if (!now.has(id)) {
-      sentPois.delete(id);
-      window.parent.postMessage({ type: "cockpit:removePointOfInterest", id: id }, "*");
-    }
-  }
-}
-
 function frameTile(f, marks) {
-  const tile = el("div", "frame");
+  const tile = el("div", "frame" + (f.below_threshold ? " below" : ""));
   tile.dataset.index = f.image_index;
   const img = el("img");
   img.alt = "#" + f.image_index;
   if (f.thumbnail) img.src = "files/" + f.thumbnail;
   tile.appendChild(img);
-  const depth = f.depth_m === null || f.depth_m === undefined ? "?" : f.depth_m.toFixed(1);
-  tile.appendChild(el("span", "tag", "#" + f.image_index + " " + depth + " m"));
+  const top = el("span", "tag top");
+  top.appendChild(el("span", "topic", f.topic || "no topic"));
+  top.appendChild(document.createTextNode(" "));
+  top.appendChild(el("span", "score", known(f.score) ? f.score.toFixed(2) : "?"));
+  if (f.below_threshold) {
+    top.appendChild(document.createTextNode(" "));
+    top.appendChild(el("span", "below-mark", "below threshold"));
+  }
+  tile.appendChild(top);
+  const depth = known(f.depth_m) ? f.depth_m.toFixed(1) + " m" : "? m";
+  tile.appendChild(el("span", "tag bottom", "#" + f.image_index + " " + depth + " " + clock(f.time_utc)));
   const row = el("div", "marks");
   const state = marks.like.includes(f.image_index) ? "like" : marks.unlike.includes(f.image_index) ? "unlike" : "none";
   for (const [kind, label] of [["like", "like"], ["unlike", "not this"]]) {
@@ -63,31 +70,65 @@ function frameTile(f, marks) {
     b.type = "button";
     b.dataset.kind = kind;
     b.addEventListener("click", () => post("mark", { index: f.image_index, kind: state === kind ? "none" : kind })
-      .catch((err) => { document.getElementById("status").textContent = err.message; }));
+      .catch((err) => say(err.message)));
     row.appendChild(b);
   }
   tile.appendChild(row);
   return tile;
 }
 
-function render(state, extension) {
+// green, or amber/red with the reason a pilot can act on
+function light(state, extension) {
   const comp = state.companion || {};
   const age = comp.heartbeat_age_s;
-  const light = document.getElementById("light");
-  const warnings = (comp.warnings || []).length;
-  light.className = "light " + (age === null || age === undefined ? "down" : age > 5 ? "down" : warnings ? "warn" : "ok");
+  if (extension && extension.supervised && !extension.companion_running) {
+    return ["down", "companion stopped (start it here or from Cockpit)"];
+  }
+  if (!known(age)) return ["down", "companion never heard on the link"];
+  if (age > SILENT_S) return ["down", "companion silent for " + age.toFixed(0) + " s"];
+  const warnings = comp.warnings || [];
+  if (warnings.length) return ["warn", warnings[0].text];
+  return ["ok", ""];
+}
+
+function topicSwitch(extension, state) {
+  const select = document.getElementById("topic");
+  const names = (extension && extension.topics) || [];
+  select.hidden = names.length === 0;
+  document.getElementById("ask").hidden = !extension;
+  const key = JSON.stringify(names);
+  if (key !== lastTopics) {
+    lastTopics = key;
+    select.replaceChildren(el("option", "", "topic\u2026"), ...names.map((n) => {
+      const o = el("option", "", n);
+      o.value = n;
+      return o;
+    }));
+    select.firstChild.value = "";
+  }
+  select.title = "follow a topic (now: " + ((state.topics || []).map((t) => t.name).join(", ") || "?") + ")";
+}
+
+function render(state, extension) {
+  const [level, reason] = light(state, extension);
+  document.getElementById("light").className = "light " + level;
+  const why = document.getElementById("reason");
+  why.hidden = level === "ok";
+  why.className = level;
+  why.textContent = reason;
   const frames = (state.summary || []).slice().sort((a, b) => b.image_index - a.image_index);
-  const running = extension && extension.companion_running;
-  document.getElementById("status").textContent = (age === null || age === undefined ? "no companion"
-    : age > 5 ? "companion silent " + age.toFixed(0) + " s" : "companion live") + " \u00b7 "
-    + frames.length + " frames";
+  const following = (state.topics || []).map((t) => t.name).join(", ");
+  document.getElementById("status").textContent = (level === "ok" ? "live" : level === "warn" ? "live, warning"
+    : "not live") + " \u00b7 " + frames.length + " frames" + (following ? " \u00b7 " + following : "");
+  document.getElementById("note").hidden = Date.now() > noteUntil;
   const run = document.getElementById("run");
   if (extension && extension.supervised) {
+    const running = extension.companion_running;
     run.hidden = false;
     run.textContent = running ? "stop" : "start";
-    run.onclick = () => post("companion", { run: !running }).catch((err) => {
-      document.getElementById("status").textContent = err.message; });
+    run.onclick = () => post("companion", { run: !running }).catch((err) => say(err.message));
   }
+  topicSwitch(extension, state);
   const marks = state.marks || { like: [], unlike: [] };
   const key = JSON.stringify([frames.slice(0, SHOWN), marks]);
   if (key !== lastKey) {
@@ -96,8 +137,27 @@ function render(state, extension) {
     box.replaceChildren(...(frames.length ? frames.slice(0, SHOWN).map((f) => frameTile(f, marks))
       : [el("p", "", "No summary frames yet.")]));
   }
-  pointsOfInterest(frames);
 }
+
+document.getElementById("topic").addEventListener("change", (event) => {
+  const name = event.target.value;
+  if (!name) return;
+  follow({ topic: name }, name).finally(() => { event.target.value = ""; });
+});
+
+function follow(body, what) {
+  say("switching to " + what + "\u2026");
+  return post("topic", body).then((answer) => say("following " + answer.topic + ": " + answer.query))
+    .catch((err) => say(err.message));
+}
+
+// the pilot's own words: the companion checks them with its encoder and says why it cannot follow them
+document.getElementById("ask").addEventListener("submit", (event) => {
+  event.preventDefault();
+  const input = document.getElementById("query");
+  const words = input.value.trim();
+  if (words) follow({ query: words }, "\u201c" + words + "\u201d").then(() => { input.value = ""; });
+});
 
 async function poll() {
   try {
@@ -108,7 +168,11 @@ async function poll() {
     render(state, extension);
   } catch (err) {
     document.getElementById("light").className = "light down";
-    document.getElementById("status").textContent = "surface tool not answering";
+    const why = document.getElementById("reason");
+    why.hidden = false;
+    why.className = "down";
+    why.textContent = "the extension's page is not answering";
+    document.getElementById("status").textContent = "not live";
   }
   setTimeout(poll, 1000);
 }

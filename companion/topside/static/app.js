@@ -340,8 +340,50 @@ async function poll() {
   setTimeout(poll, 1000);
 }
 
+// --- the topic switch, where the page's host has one (the BlueOS extension answers api/extension) ------------
+
+let followShown = "";
+
+async function followSwitch() {
+  let extension = null;
+  try {
+    const response = await fetch("api/extension", { cache: "no-store" });
+    if (response.ok) extension = await response.json();
+  } catch (err) {
+    extension = null;
+  }
+  const form = document.getElementById("follow");
+  form.hidden = !extension;
+  const names = (extension && extension.topics) || [];
+  if (JSON.stringify(names) !== followShown) {
+    followShown = JSON.stringify(names);
+    const select = document.getElementById("follow-topic");
+    select.replaceChildren(...names.map((n) => { const o = el("option", "", n); o.value = n; return o; }));
+    select.hidden = names.length === 0;
+  }
+  if (extension) setTimeout(followSwitch, 5000);
+}
+
+document.getElementById("follow").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const words = document.getElementById("follow-query").value.trim();
+  const body = words ? { query: words } : { topic: document.getElementById("follow-topic").value };
+  const note = document.getElementById("follow-note");
+  note.textContent = "switching\u2026";
+  try {
+    const response = await fetch("api/topic", { method: "POST", cache: "no-store", body: JSON.stringify(body) });
+    const answer = await response.json();
+    if (!response.ok) throw new Error(answer.error || "refused");
+    note.textContent = "following " + answer.topic + ": " + answer.query;
+    document.getElementById("follow-query").value = "";
+  } catch (err) {
+    note.textContent = err.message;
+  }
+});
+
 document.getElementById("viewer").addEventListener("click", closeViewer);
 document.addEventListener("keydown", (e) => { if (e.key === "Escape") closeViewer(); });
 if (!LIVE) document.querySelectorAll("a[data-file]").forEach((a) => { a.href = a.dataset.file; });
 if (window.MERLION_STATE) render(window.MERLION_STATE);
 if (LIVE) poll();
+if (LIVE) followSwitch();

@@ -40,11 +40,12 @@ def chromium_or_skip() -> str:
 class Page:
     """One Chromium with one tab on ``url``; ``close`` ends the browser and removes its profile."""
 
-    def __init__(self, url: str, *, timeout: float = 60.0) -> None:
+    def __init__(self, url: str, *, timeout: float = 60.0, flags: tuple[str, ...] = ()) -> None:
+        """``flags``: more Chromium switches (the extension test maps BlueOS's host names to loopback addresses)."""
         import websocket  # websocket-client
 
         self._profile = tempfile.mkdtemp(prefix="merlion-chromium-")
-        self._proc = subprocess.Popen([chromium_or_skip(), *FLAGS, f"--user-data-dir={self._profile}", url],
+        self._proc = subprocess.Popen([chromium_or_skip(), *FLAGS, *flags, f"--user-data-dir={self._profile}", url],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         self._ids = itertools.count(1)
         try:
@@ -79,10 +80,12 @@ class Page:
                 return value
             time.sleep(0.1)
 
-    def call(self, method: str, **params: Any) -> dict:
-        """One DevTools command; events that arrive meanwhile are skipped."""
+    def call(self, method: str, _session: str | None = None, **params: Any) -> dict:
+        """One DevTools command (to an attached target's ``_session``, e.g. another origin's frame); events that
+        arrive meanwhile are skipped."""
         ident = next(self._ids)
-        self._ws.send(json.dumps({"id": ident, "method": method, "params": params}))
+        self._ws.send(json.dumps({"id": ident, "method": method, "params": params,
+                                  **({"sessionId": _session} if _session else {})}))
         while True:
             reply = json.loads(self._ws.recv())
             if reply.get("id") == ident:
