@@ -13,7 +13,11 @@ The check needs no secret: browsers name the page a request comes from (``Origin
   any check, so trusting them gives nothing away; a stranger's page, or a DNS-rebinding name, is not one.
 - Read (state, thumbnails, logs, a full frame): refused when the request names another page (``Origin`` or
   ``Referer`` not a vehicle page or a trusted origin) or, naming none, comes from another site
-  (``Sec-Fetch-Site: cross-site``, a ``<script>`` or ``<img>`` of a stranger's page).
+  (``Sec-Fetch-Site: cross-site``, a ``<script>`` or ``<img>`` of a stranger's page). Over plain HTTP to a
+  vehicle name a browser sends no ``Sec-Fetch-Site``, and a page can send no ``Referer``
+  (``referrerpolicy="no-referrer"``): what runs or costs in the including page (the state as a script, a full
+  frame) must name its page (``web_guard.unnamed_include``); JSON and images a stranger cannot read without CORS,
+  and a CORS request always carries ``Origin``.
 - Change (POST): only with an ``Origin`` of a vehicle page or a trusted origin. Browsers send ``Origin`` with every
   POST, so a stranger's form or fetch (CSRF) is refused; a client that is not a browser can send any header, but
   on BlueOS's network it can already use BlueOS's own terminal.
@@ -24,7 +28,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from urllib.parse import urlsplit
 
-from companion.topside.web_guard import trusted_origin
+from companion.topside.web_guard import trusted_origin, unnamed_include
 
 BEACON_NAMES = ("blueos", "blueos-ethernet", "companion", "blueos-wifi", "blueos-hotspot")
 """The names BlueOS's beacon gives the vehicle on its interfaces (bluerobotics/BlueOS
@@ -87,8 +91,10 @@ class VehicleGuard:
         return f"cross-origin request from {origin[:100]!r}"
 
     def fetch_refusal(self, headers: Mapping[str, str], path: str) -> str | None:
-        """A full frame is an image the page shows: no ``Origin`` comes with it, so it is read like the state."""
-        return self.read_refusal(headers)
+        """A full frame is an image the page shows: no ``Origin`` comes with it, so it is read like the state, and
+        it must name its page: each one spends the link's bandwidth, and a stranger's
+        ``<img referrerpolicy="no-referrer">`` would otherwise name none and be served (``unnamed_include``)."""
+        return self.read_refusal(headers) or unnamed_include(headers)
 
     def frame_ancestors(self) -> str:
         """The ``Content-Security-Policy`` that lets only vehicle pages (BlueOS, Cockpit) and trusted origins frame

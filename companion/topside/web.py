@@ -31,7 +31,14 @@ from pathlib import Path
 
 from companion.errors import UsageError
 from companion.topside.http_bounds import MAX_JSON_DEPTH, BoundedHandler, BoundedHTTPServer, json_too_deep
-from companion.topside.web_guard import TOKEN_HEADER, Guard, HostPolicy, TokenGuard, trusted_origin
+from companion.topside.web_guard import (
+    TOKEN_HEADER,
+    Guard,
+    HostPolicy,
+    TokenGuard,
+    trusted_origin,
+    unnamed_include,
+)
 
 __all__ = ["TOKEN_HEADER", "Pages", "WebServer"]
 
@@ -141,6 +148,10 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, guard: Guard, ho
             elif path == "/api/state":
                 self._send(json.dumps(state()).encode(), "application/json")
             elif path == "/state.js":
+                why = unnamed_include(self.headers)  # a script runs in whatever page includes it
+                if why is not None:
+                    self._refuse(why)
+                    return
                 self._send(b"window.MERLION_STATE = " + json.dumps(state()).encode() + b";\n",
                            "text/javascript; charset=utf-8")
             elif (match := _FULL.fullmatch(path)) and full_frame is not None:

@@ -11,6 +11,10 @@ A page on another web origin must not read the state (summary, depths, positions
   requests: an ``Origin`` or ``Referer`` naming another host, or a ``Sec-Fetch-Site`` other than ``same-origin``
   or ``none`` (what a browser sends for a script or image included by another site), is refused (behind a
   reverse proxy that rewrites Host, its ``X-Forwarded-Host`` counts as the page's own when it is allowed);
+- the state as a script (``/state.js``) also needs the request to name its page (``Origin``, ``Referer`` or
+  ``Sec-Fetch-Site``): over plain HTTP to a name that is not localhost, a stranger's
+  ``<script referrerpolicy="no-referrer">`` sends none of them (browsers send ``Sec-Fetch-*`` only to HTTPS and
+  localhost), and a script, unlike JSON, runs in the page that includes it (``unnamed_include``);
 - a change (POST) also needs the per-run token;
 - an operator may trust other origins by name (``trusted``, off by default: the BlueOS extension's
   ``extension.allowed_origins``, e.g. Cockpit's desktop app): a request whose ``Origin`` is one of them counts as
@@ -86,6 +90,23 @@ def trusted_origin(headers, trusted: frozenset[str]) -> str | None:
         return origin if web_origin(origin) in trusted else None
     except ValueError:  # "null", or not an origin at all
         return None
+
+
+PAGE_HEADERS = ("Origin", "Referer", "Sec-Fetch-Site")
+"""What a browser's request may say about the page it comes from."""
+
+
+def unnamed_include(headers: Mapping[str, str]) -> str | None:
+    """Why a request for something a page includes (the state as a script, a full frame as an image) is refused
+    when it names no page at all; None when it names one (whether that page may have it is the guard's question).
+
+    Naming none is no proof of coming from our page: over plain HTTP to the vehicle's name a stranger's
+    ``<script referrerpolicy="no-referrer" src=".../state.js">`` carries no ``Origin`` (a classic script), no
+    ``Referer`` and no ``Sec-Fetch-Site`` (sent only to HTTPS and localhost), and the script then runs in the
+    stranger's page with the state in it. Our pages send no referrer policy, so their requests carry a ``Referer``."""
+    if any(headers.get(name) is not None for name in PAGE_HEADERS):
+        return None
+    return "a request for the state as a script or a full frame must name its page (Referer)"
 
 
 def cross_origin(headers, hosts: HostPolicy | None = None, trusted: frozenset[str] = frozenset()) -> str | None:

@@ -382,6 +382,14 @@ def _framed(page: Page) -> dict[str, str]:
     return titles
 
 
+def _include(tag: str, url: str, policy: str = "no-referrer") -> str:
+    """JavaScript that includes ``url`` as a ``<script>`` or ``<img>`` under the referrer ``policy`` (as any page
+    can), answering "loaded" or "error"."""
+    return (f"new Promise((done) => {{ const e = document.createElement({json.dumps(tag)}); "
+            f"e.referrerPolicy = {json.dumps(policy)}; e.onload = () => done('loaded'); "
+            f"e.onerror = () => done('error'); e.src = {json.dumps(url)}; document.body.appendChild(e); }})")
+
+
 def test_a_stranger_reads_only_what_blueos_opens_and_changes_nothing(blueos):
     ext, proxy, service = blueos
     stranger = f"http://{STRANGER}:{proxy.port}"
@@ -392,6 +400,8 @@ def test_a_stranger_reads_only_what_blueos_opens_and_changes_nothing(blueos):
     wait_until(lambda: json.loads(request(f"{proxy.base}{BASE}/api/extension")[2])["companion_running"], 60,
                "the companion running")
     likes = state_through(proxy, service)["marks"]["like"]
+    wait_until(lambda: state_through(proxy, service)["summary"], 180, "a summary frame")
+    frame = state_through(proxy, service)["summary"][0]["image_index"]
 
     with browser(proxy, f"{stranger}/cockpit/host.html?widget={target}/widget") as page:
         assert page.wait_for("typeof window.read === 'function'", 30), "the stranger's page loaded"
@@ -403,6 +413,11 @@ def test_a_stranger_reads_only_what_blueos_opens_and_changes_nothing(blueos):
         for path in ("/api/state", "/api/extension", "/state.js"):
             status, _text = page.evaluate(f"read({json.dumps(target + path)})")
             assert status == 0, path
+        # nor by including what names no page: over plain HTTP to the vehicle's name Chromium sends no Origin (a
+        # classic script, an image), no Sec-Fetch-Site, and no Referer under the stranger's referrer policy
+        assert page.evaluate(_include("script", f"{target}/state.js")) == "error"
+        assert page.evaluate("typeof window.MERLION_STATE") == "undefined"
+        assert page.evaluate(_include("img", f"{target}/full/{frame}.jpg")) == "error"  # it spends the link
         # Cockpit's own action, run from a stranger's page, and a plain cross-site post: refused
         assert page.evaluate(f"runAction({json.dumps(stop)}, {json.dumps(vehicle)})")[0] == 0
         # what a form post does: a no-cors POST (no preflight), whose answer the page never sees
@@ -413,6 +428,8 @@ def test_a_stranger_reads_only_what_blueos_opens_and_changes_nothing(blueos):
         assert _framed(page)[f"{target}/widget"].endswith("@ chrome-error://chromewebdata/"), _framed(page)
     wait_until(lambda: "refused POST /api/mark-newest" in (ext.root / "extension.log").read_text(errors="replace"),
                30, "the form post refused")
+    refusals = (ext.root / "extension.log").read_text(errors="replace")
+    assert "refused GET /state.js" in refusals and f"refused GET /full/{frame}.jpg" in refusals, refusals[-2000:]
     assert json.loads(request(f"{proxy.base}{BASE}/api/extension")[2])["companion_running"] is True
     assert state_through(proxy, service)["marks"]["like"] == likes
 
@@ -420,6 +437,9 @@ def test_a_stranger_reads_only_what_blueos_opens_and_changes_nothing(blueos):
     with browser(proxy, f"{proxy.base}/cockpit/host.html?widget={target}/widget") as page:
         assert poll_until(lambda: _framed(page).get(f"{target}/widget") ==
                           f"MERLION summary (widget) @ {target}/widget", 30, interval=0.5), _framed(page)
+        # and a vehicle page including the state as a script names itself (its Referer): it gets it
+        assert page.evaluate(_include("script", f"{target}/state.js", policy="")) == "loaded"
+        assert page.evaluate("typeof window.MERLION_STATE.summary") == "object"
 
 
 def test_bad_arguments_are_one_line_and_exit_2(tmp_path):

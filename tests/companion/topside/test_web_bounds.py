@@ -97,6 +97,13 @@ def test_state_only_for_this_server_and_the_same_origin(surface):
             assert status == 403 and b"summary" not in body, (path, headers)
     same = {"Origin": f"http://127.0.0.1:{port}", "Sec-Fetch-Site": "same-origin"}
     assert _request(port, "GET", "/api/state", headers=same)[0] == 200
+    # the state as a script runs in the page that includes it: naming no page is no proof of being ours (over plain
+    # HTTP a stranger's <script referrerpolicy="no-referrer"> sends no Origin, Referer or Sec-Fetch-Site)
+    status, body = _request(port, "GET", "/state.js")
+    assert status == 403 and b"summary" not in body
+    for named in ({"Referer": f"http://127.0.0.1:{port}/"}, {"Sec-Fetch-Site": "same-origin"}):
+        status, body = _request(port, "GET", "/state.js", headers=named)
+        assert status == 200 and body.startswith(b"window.MERLION_STATE = {"), named
     assert _request(port, "GET", "/", headers={"Sec-Fetch-Site": "cross-site"})[0] == 200  # a link to the page
 
 
