@@ -6,7 +6,8 @@ commits are those of the copies read), kept here as data so the tests derive wha
   and ``setup_nginx_route`` writes the location block below to ``extensions/<sanitized_name>.conf``;
   ``BLUEOS_SYSTEM_SERVICES_PORTS`` and ``SKIP_PORTS`` are the ports of its own services and those it never scans.
 - ``core/tools/nginx/nginx.conf`` (b1b6909): the port-80 server adds ``Access-Control-Allow-Origin *`` at server
-  level, includes ``/home/pi/tools/nginx/extensions/*.conf``, and proxies its own services' ports.
+  level, includes ``/home/pi/tools/nginx/extensions/*.conf``, proxies its own services' ports, and serves its
+  frontend at ``/`` and for every path matching ``~* \\.html$``.
 - ``core/frontend/src/App.vue`` (9816bcd): the sidebar links ``route ?? address``; ``address`` is
   ``/extensionv2/${sanitized_name}/`` for a service that ``works_in_relative_paths``.
 - ``core/services/beacon/default-settings.json`` (749689a): the vehicle's names per interface.
@@ -30,6 +31,22 @@ LOCATION_TEMPLATE = """
 
 SERVER_HEADERS = ("add_header Access-Control-Allow-Origin *;",)
 """Server-level directives of nginx.conf's port-80 server that every extension route inherits."""
+
+FRONTEND_LOCATIONS = r"""
+        location / {{
+            root {frontend};
+            try_files $uri $uri/ /index.html;
+        }}
+        location ~* \.html$ {{
+            root {frontend};
+            try_files $uri $uri/ /index.html;
+            expires -1;
+            add_header Cache-Control no-store;
+        }}
+        """
+"""nginx.conf's port-80 locations for BlueOS's own frontend (format field: frontend), beside the extensions'. The
+regular expression beats every prefix location, ``/extensionv2/<name>/`` included: any path of the extension
+ending in ``.html`` is BlueOS's frontend, never the extension's page."""
 
 SIDEBAR_ADDRESS = "/extensionv2/{name}/"
 """App.vue's ``createExtensionAddress`` for ``works_in_relative_paths``; the link is ``route ?? address``."""

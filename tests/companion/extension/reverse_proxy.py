@@ -1,11 +1,15 @@
 """A real nginx (Debian's) configured as BlueOS configures its own: the port-80 server with its server-level
-``Access-Control-Allow-Origin *``, and the extension's location block exactly as BlueOS's helper writes it
-(``blueos_facts.LOCATION_TEMPLATE``, included from an ``extensions/`` folder as nginx.conf includes it).
+``Access-Control-Allow-Origin *``, its frontend's locations (``blueos_facts.FRONTEND_LOCATIONS``: the
+``~* \\.html$`` one takes any ``.html`` path, the extension's too), and the extension's location block exactly as
+BlueOS's helper writes it (``blueos_facts.LOCATION_TEMPLATE``, included from an ``extensions/`` folder as nginx.conf
+includes it).
 
 It listens twice: on port 80 of a loopback address of its own (the test maps BlueOS's host names to it in
 Chromium: an origin without a port, as on the vehicle) and on a free port of 127.0.0.1 (BlueOS reached on another
-port: the Host it passes on has no port, the page's origin has one). A static folder at /cockpit/ stands for
-Cockpit's page. Started from the test in a temporary folder: no root paths, no daemon mode.
+port: the Host it passes on has no port, the page's origin has one). A static folder at /cockpit/ (``^~``, so the
+``.html`` location leaves it alone) stands for Cockpit's page,
+which on a vehicle has a port of its own. Started from the test in a temporary folder: no root paths, no daemon
+mode.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.companion.extension.blueos_facts import LOCATION_TEMPLATE, SERVER_HEADERS
+from tests.companion.extension.blueos_facts import FRONTEND_LOCATIONS, LOCATION_TEMPLATE, SERVER_HEADERS
 from tests.conftest import stop_process
 
 CONF = """
@@ -42,11 +46,16 @@ http {{
     listen {vehicle}:{vehicle_port};
     listen 127.0.0.1:{port};
     {server_headers}
-    location /cockpit/ {{ alias {root}/cockpit/; }}
+    {frontend}
+    location ^~ /cockpit/ {{ alias {root}/cockpit/; }}
     include {root}/extensions/*.conf;
   }}
 }}
 """
+
+
+FRONTEND_PAGE = "<!doctype html><title>BlueOS</title>"
+"""What BlueOS's frontend answers (its index.html stands in for the whole of it)."""
 
 
 def nginx_or_skip() -> str:
@@ -76,6 +85,9 @@ class BlueOSProxy:
         self.root = root
         self.cockpit = root / "cockpit"
         self.cockpit.mkdir(parents=True, exist_ok=True)
+        self.frontend = root / "frontend"
+        self.frontend.mkdir(exist_ok=True)
+        (self.frontend / "index.html").write_text(FRONTEND_PAGE)
         (root / "extensions").mkdir(exist_ok=True)
         self.location = LOCATION_TEMPLATE.format(name=name, port=upstream)
         (root / "extensions" / f"{name}.conf").write_text(self.location)
@@ -85,7 +97,8 @@ class BlueOSProxy:
         conf = root / "nginx.conf"
         # workers run as this test's user, so they can read the test's private temporary folder
         conf.write_text(CONF.format(root=root, port=self.port, vehicle=self.vehicle, vehicle_port=self.vehicle_port,
-                                    server_headers="\n    ".join(SERVER_HEADERS), user=getpass.getuser()))
+                                    server_headers="\n    ".join(SERVER_HEADERS), user=getpass.getuser(),
+                                    frontend=FRONTEND_LOCATIONS.format(frontend=self.frontend)))
         self.proc = subprocess.Popen([nginx_or_skip(), "-c", str(conf), "-p", str(root)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         deadline = time.monotonic() + 20

@@ -26,7 +26,7 @@ from companion import __version__
 from companion.extension.metadata import BASE, NAME, PORT, TITLE, cockpit_extras, register_service
 from companion.extension.vehicle_guard import vehicle_names
 from tests.companion.extension import blueos_facts as facts
-from tests.companion.extension.reverse_proxy import BlueOSProxy
+from tests.companion.extension.reverse_proxy import FRONTEND_PAGE, BlueOSProxy
 from tests.companion.live_harness import simulated_vehicle, wait_until, write_config
 from tests.companion.topside.browser import Page, chromium_or_skip
 from tests.conftest import REPO, run_merlion, stop_process
@@ -228,11 +228,26 @@ def test_what_blueos_and_cockpit_read(blueos):
                  "127.0.0.1"):
         assert request(f"{proxy.base}{BASE}/api/extension", host=host)[0] == 200, host
     assert request(f"{proxy.base}{BASE}/api/extension", host="rebound.example")[0] == 403
-    # bad input is a 400 with a reason, not a dropped connection
+    # bad input is a 400 with a reason on every action, not a dropped connection
     origin = {"Origin": f"http://{VEHICLE}"}
-    for body in (b'{"topic": []}', b'{"topic": {"a": 1}}', b"{not json", b"[1, 2]"):
-        status, _, answer = request(f"{proxy.base}{BASE}/api/topic", "POST", host=VEHICLE, headers=origin, body=body)
-        assert status == 400 and json.loads(answer)["error"], body
+    malformed = (b"{not json", b"[1, 2]", b'"text"', b"\xff\xfe{}", b"[" * 100, b'{"a": 1e999999999}x')
+    wrong = {"topic": (b'{"topic": []}', b'{"topic": {"a": 1}}', b'{"query": 5}', b'{"query": ""}'),
+             "mark": (b'{"index": "x", "kind": "like"}', b'{"index": -1, "kind": "like"}', b'{"index": 1, "kind": 2}'),
+             "mark-newest": (b'{"kind": []}',), "companion": (b'{"run": "no"}', b'{}')}
+    for action, bodies in wrong.items():
+        for body in (*malformed, *bodies):
+            status, _, answer = request(f"{proxy.base}{BASE}/api/{action}", "POST", host=VEHICLE, headers=origin,
+                                        body=body)
+            assert status == 400 and json.loads(answer)["error"], (action, body)
+
+    # BlueOS's frontend takes every path ending in .html, the extension's too: nothing of ours may be one
+    assert request(f"{proxy.base}{BASE}/index.html")[2].decode() == FRONTEND_PAGE
+    assert not widget["iframe_url"].endswith(".html")
+    for page in ("/", "/widget"):
+        text = request(f"{proxy.base}{BASE}{page}")[2].decode()
+        assert "<title>MERLION" in text, page
+        links = re.findall(r'(?:src|href)="([^"]*)"', text)
+        assert links and not [link for link in links if urlsplit(link).path.endswith(".html")], (page, links)
 
 
 def test_sidebar_page_through_blueos(blueos):
