@@ -28,9 +28,10 @@ def _static(package: str, name: str) -> bytes:
 
 
 def extension_pages(*, version: str, topics: list[str], status: Callable[[], dict],
-                    frame_ancestors: str) -> Pages:
+                    frame_ancestors: Callable[[], str]) -> Pages:
     """The routes the extension adds; ``status`` answers ``/api/extension`` (is the companion running, which
-    topics can be switched to); ``frame_ancestors`` is the CSP that says who may frame the pages."""
+    topics can be switched to); ``frame_ancestors`` gives the CSP that says who may frame the pages (asked per answer: the vehicle's addresses
+    change while it runs)."""
     def document(make: Callable[[], dict]) -> Route:
         return lambda _path: (json.dumps(make()).encode(), JSON)
 

@@ -12,14 +12,11 @@ from __future__ import annotations
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import psutil
 
 from companion.config import TopicConfig, load_config
 from companion.errors import UsageError
@@ -95,13 +92,6 @@ class CompanionProcess:
         log.info("companion stopped (exit %s)", proc.returncode)
 
 
-def own_addresses() -> list[str]:
-    """This machine's IP addresses, at any port or none: BlueOS's proxy passes ``Host $host`` on (no port); a
-    DNS-rebinding page can only send names, never these."""
-    return sorted({a.address.split("%")[0] for addrs in psutil.net_if_addrs().values() for a in addrs
-                   if a.family in (socket.AF_INET, socket.AF_INET6)})
-
-
 def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
                   on_ready=None) -> int:
     """Serve until ``stop``; ``on_ready(url)`` once the page listens (the command prints it)."""
@@ -135,14 +125,14 @@ def run_extension(opts: ExtensionOptions, version: str, stop: threading.Event,
     web = None
     try:
         tool.open()
-        hosts = (*own_addresses(), *opts.allowed_hosts)
-        guard = VehicleGuard(hosts, frozenset(origins))
+        # the Host check takes the names; an address (the vehicle's, at any time) passes it as any address does
+        guard = VehicleGuard(opts.allowed_hosts, frozenset(origins))
         pages = extension_pages(version=version, topics=[t.name for t in topics], status=status,
-                                frame_ancestors=guard.frame_ancestors())
+                                frame_ancestors=guard.frame_ancestors)
         web = WebServer(tool.snapshot, tool.gallery.root, opts.port, host=opts.host, full_frame=tool.full_frame,
                         actions=extension_actions(tool, connect=hub.url, topics=topics, companion=companion,
                                                   signing_key_file=key),
-                        allowed_hosts=hosts, pages=pages, guard=guard, allowed_origins=origins)
+                        allowed_hosts=opts.allowed_hosts, pages=pages, guard=guard, allowed_origins=origins)
         web.start()
         if opts.run_companion:
             companion.start()

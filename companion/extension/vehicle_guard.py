@@ -25,8 +25,11 @@ The check needs no secret: browsers name the page a request comes from (``Origin
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import socket
+from collections.abc import Callable, Iterable, Mapping
 from urllib.parse import urlsplit
+
+import psutil
 
 from companion.topside.web_guard import trusted_origin, unnamed_include
 
@@ -45,6 +48,13 @@ def vehicle_names(extra: Iterable[str] = ()) -> tuple[str, ...]:
     return tuple(dict.fromkeys(n.strip().lower() for n in (*names, *OTHER_NAMES, *extra) if n.strip()))
 
 
+def own_addresses() -> list[str]:
+    """This machine's IP addresses now (with host networking, the vehicle's): asked per request, since an interface
+    may get its address after the extension started (a Wi-Fi lease, BlueOS's hotspot) or change it."""
+    return sorted({a.address.split("%")[0].lower() for addrs in psutil.net_if_addrs().values() for a in addrs
+                   if a.family in (socket.AF_INET, socket.AF_INET6)})
+
+
 def _host(url: str) -> str | None:
     try:
         parts = urlsplit(url)
@@ -54,15 +64,23 @@ def _host(url: str) -> str | None:
 
 
 class VehicleGuard:
-    """The checks of the module's docstring for ``hosts`` (names and IP addresses) and ``trusted`` origins."""
+    """The checks of the module's docstring for the vehicle's ``names``, its IP addresses as ``addresses`` gives
+    them at the time of each request, and ``trusted`` origins."""
 
-    def __init__(self, hosts: Iterable[str], trusted: frozenset[str] = frozenset()) -> None:
-        self.hosts = frozenset(h.strip("[]").lower() for h in hosts if h)
+    def __init__(self, names: Iterable[str], trusted: frozenset[str] = frozenset(),
+                 addresses: Callable[[], Iterable[str]] = own_addresses) -> None:
+        self.names = frozenset(h.strip("[]").lower() for h in names if h)
         self.trusted = trusted
+        self.addresses = addresses
+
+    def hosts(self) -> frozenset[str]:
+        """The vehicle's names and its addresses now."""
+        return self.names | {a.strip("[]").lower() for a in self.addresses()}
 
     def vehicle_page(self, url: str) -> bool:
         """Whether ``url`` (an Origin or a Referer) is a page the vehicle serves."""
-        return _host(url) in self.hosts
+        host = _host(url)
+        return host is not None and (host in self.names or host in self.hosts())
 
     def _named(self, headers: Mapping[str, str], name: str) -> bool | None:
         value = headers.get(name)
@@ -101,7 +119,7 @@ class VehicleGuard:
         the page and the widget: a stranger's invisible frame cannot get a pilot's click. IPv6 literals have no
         form there; names and IPv4 addresses do."""
         sources = ["'self'"]
-        for host in sorted(self.hosts):
+        for host in sorted(self.hosts()):
             if ":" not in host:
                 sources += [f"http://{host}:*", f"https://{host}:*"]
         sources += sorted(self.trusted)

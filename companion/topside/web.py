@@ -72,7 +72,8 @@ class Pages:
 
     routes: dict[str, Callable[[str], tuple[bytes, str]]] = field(default_factory=dict)
     open_paths: frozenset[str] = frozenset()
-    headers: dict[str, str] = field(default_factory=dict)
+    headers: dict[str, str | Callable[[], str]] = field(default_factory=dict)
+    """A value may be a function, asked for each answer (the vehicle's addresses change while it runs)."""
 
 
 def _make_handler(state: Callable[[], dict], gallery_dir: Path, guard: Guard, hosts: HostPolicy,
@@ -93,7 +94,7 @@ def _make_handler(state: Callable[[], dict], gallery_dir: Path, guard: Guard, ho
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
             for name, value in pages.headers.items():
-                self.send_header(name, value)
+                self.send_header(name, value() if callable(value) else value)
             self._cors_headers()
             self.end_headers()
             self.wfile.write(body)

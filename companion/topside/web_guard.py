@@ -5,8 +5,9 @@ A page on another web origin must not read the state (summary, depths, positions
 
 - every request must carry a Host the server answers to: ``127.0.0.1``, ``localhost`` or ``[::1]`` at the
   server's port, the address it was bound to at that port, any IP address at that port when it listens on every
-  interface (a rebinding page can only send names), or an entry of ``allowed_hosts`` (``name`` for any port or
-  ``name:port``), for a reverse proxy in front of the page;
+  interface (a rebinding page can only send names), or without a port (a reverse proxy on port 80 passing
+  ``Host $host``, as BlueOS's does: the vehicle's address may be one it got after the server started), or an
+  entry of ``allowed_hosts`` (``name`` for any port or ``name:port``), for a reverse proxy in front of the page;
 - everything but the page itself (``/``, ``index.html``, ``app.js``: no state in them) is served only to same-origin
   requests: an ``Origin`` or ``Referer`` naming another host, or a ``Sec-Fetch-Site`` other than ``same-origin``
   or ``none`` (what a browser sends for a script or image included by another site), is refused (behind a
@@ -74,6 +75,8 @@ class HostPolicy:
             return False
         if host in self.extra:
             return True
+        if port is None and self.bind_host in WILDCARDS and _is_ip(host):
+            return True  # a proxy's Host $host: an address (a browser sends a port to any port but 80)
         if (port or 80) != self.port:
             return False
         if host in LOOPBACK_NAMES or (host == self.bind_host and self.bind_host not in WILDCARDS):

@@ -223,9 +223,10 @@ def test_what_blueos_and_cockpit_read(blueos):
     suggestions = extras["joystickSuggestions"][0]["buttonMappingSuggestions"]
     assert {s["actionId"] for s in suggestions} <= {a["id"] for a in extras["actions"]}
 
-    # BlueOS's names and addresses are this server (Host $host: no port), a rebinding name is not
+    # BlueOS's names and addresses are this server (Host $host: no port), a rebinding name is not; any address is
+    # (one the vehicle got after the extension started: a rebinding page can only send names)
     for host in (VEHICLE, "blueos.local", "blueos-ethernet.local", "blueos-hotspot.local", "companion.local",
-                 "127.0.0.1"):
+                 "127.0.0.1", "203.0.113.7", "[2001:db8::7]"):
         assert request(f"{proxy.base}{BASE}/api/extension", host=host)[0] == 200, host
     assert request(f"{proxy.base}{BASE}/api/extension", host="rebound.example")[0] == 403
     # bad input is a 400 with a reason on every action, not a dropped connection
