@@ -217,7 +217,8 @@ def web_origin(text: str) -> str:
 class ExtensionConfig(_Section):
     allowed_origins: list[str] = Field(default_factory=list)
     """Web origins (SCHEME://HOST[:PORT]) whose pages may call the extension's HTTP actions and read its JSON, e.g.
-    Cockpit's desktop app; empty (the default): same-origin requests only."""
+    Cockpit served over HTTP from the topside computer (not its desktop app: ``file://`` is no such origin); empty
+    (the default): same-origin requests only."""
 
     @field_validator("allowed_origins")
     @classmethod

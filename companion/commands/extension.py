@@ -32,7 +32,8 @@ def register(add_command) -> None:
                         "companion.local; with or without .local)")
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
                    help="a web origin (SCHEME://HOST[:PORT]) whose pages may use the actions and JSON, with CORS "
-                        "(e.g. Cockpit's desktop app); adds to extension.allowed_origins (default: none)")
+                        "(e.g. Cockpit served over HTTP from the topside computer); adds to "
+                        "extension.allowed_origins (default: none)")
     p.add_argument("--no-companion", action="store_true", help="serve the page only; start the companion later "
                                                                 "from the widget or Cockpit")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (tests)")

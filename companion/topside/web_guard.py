@@ -18,7 +18,7 @@ A page on another web origin must not read the state (summary, depths, positions
   localhost), and a script, unlike JSON, runs in the page that includes it (``unnamed_include``);
 - a change (POST) also needs the per-run token;
 - an operator may trust other origins by name (``trusted``, off by default: the BlueOS extension's
-  ``extension.allowed_origins``, e.g. Cockpit's desktop app): a request whose ``Origin`` is one of them counts as
+  ``extension.allowed_origins``, e.g. Cockpit served over HTTP from the topside computer): a request whose ``Origin`` is one of them counts as
   same-origin, and ``web`` answers it and its CORS preflight with CORS headers naming that origin alone.
 """
 
