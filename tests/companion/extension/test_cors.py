@@ -1,4 +1,4 @@
-"""CORS for origins the operator names (Cockpit's desktop app on another origin running our HTTP actions): a real
+"""CORS for origins the operator names (Cockpit served over HTTP from the topside running our HTTP actions): a real
 `merlion extension` process, real HTTP requests carrying Origin headers. Off by default, where only the vehicle's
 own pages may change anything (``vehicle_guard``), without any secret."""
 
