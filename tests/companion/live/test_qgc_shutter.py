@@ -21,6 +21,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from tests.companion.export.readers import coco_read, dive_read, fathomnet_read
 from tests.companion.live_harness import (
     Companion,
     ftp_get_json,
@@ -30,6 +31,7 @@ from tests.companion.live_harness import (
     wait_until,
     write_config,
 )
+from tests.conftest import run_merlion
 from vehicle.sim.dive_profile import DEFAULT_PROFILE, compile_profile
 
 NAN = float("nan")
@@ -173,6 +175,7 @@ def test_qgc_shutter_storage_and_map_against_the_simulated_ardusub(tmp_path: Pat
         assert not any(t.startswith("Request flood") for t in listener.texts())  # QGroundControl's pace is fine
         sidecar = json.loads((store / "frames" / f"{second:06d}.json").read_text())
         assert sidecar["pilot"] is True and sidecar["pose"]["lat"] == pytest.approx(ORIGIN[0], abs=0.01)
+        assert sidecar["pose"]["water_temp_c"] == 15.0  # the simulated Bar30's SCALED_PRESSURE2.temperature
 
         # QGroundControl's map: a marker for the placed capture, and none anywhere at 0, 0
         markers = _markers(listener)
@@ -180,3 +183,25 @@ def test_qgc_shutter_storage_and_map_against_the_simulated_ardusub(tmp_path: Pat
         assert companion.terminate() == 0, companion.output
     finally:
         gcs.close()
+    _exports_of_the_live_store(store, tmp_path, {first, second})
+
+
+def _exports_of_the_live_store(store: Path, tmp_path: Path, pilots: set[int]) -> None:
+    """The store the live run left, exported and read back by each science tool's own rules."""
+    pytest.importorskip("pycocotools")
+    pytest.importorskip("fathomnet")
+    for fmt in ("coco", "fathomnet", "csv"):
+        proc = run_merlion("export", str(store), "--format", fmt, "--out", str(tmp_path / f"live.{fmt}"))
+        assert proc.returncode == 0, proc.stderr
+    coco = coco_read(tmp_path / "live.coco")  # annToMask on every annotation
+    images = {img["frame"]: img for img in coco.loadImgs(coco.getImgIds())}
+    assert pilots <= set(images) and all(images[i]["pilot"] for i in pilots)
+    assert all(isinstance(img["threshold"], float) and isinstance(img["below_threshold"], bool)
+               for img in images.values())
+    assert all(img["date_captured"] for img in images.values())
+    placed = [img for img in images.values() if "lat" in img]
+    assert placed and all((img["lat"], img["lon"]) != (0.0, 0.0) for img in placed)
+    records = fathomnet_read(json.loads((tmp_path / "live.fathomnet").read_text()))
+    assert all(r.imagingType == "ROV" and r.temperatureCelsius == 15.0 for r in records if r.depthMeters)
+    rows = dive_read(tmp_path / "live.csv")  # DIVE's imageMap puts every row on its own frame
+    assert {r["attrs"]["frame"] for r in rows if r["attrs"].get("pilot")} == pilots
