@@ -266,8 +266,8 @@ class LiveCompanion:
         self.surface.on_marks_changed(self.on_marks)
         self.on_shutter = ShutterHandler(self.control, lambda: self.capture.latest if self.capture else None,
                                          self._pose_at)
-        self.surface.on_shutter(self.on_shutter)
-        self.surface.storage_from(self.store.space)
+        self.surface.camera.shutter.wire(self.on_shutter)  # from now on CAMERA_INFORMATION offers a shutter
+        self.surface.camera.storage = self.store.space  # STORAGE_INFORMATION and the capture status read it
         self.surface.set_marks(self.marks.like, self.marks.unlike)
         serve_keeper_document(self.control, self.on_marks)
         self.link.on_autopilot(AutopilotNotice(self.control))

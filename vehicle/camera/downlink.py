@@ -36,8 +36,6 @@ from vehicle.camera.params import REQUEST_TYPES as PARAM_REQUESTS
 from vehicle.camera.params import ParamServer, ParamSpec
 from vehicle.camera.request_worker import RequestWorker
 from vehicle.camera.requests import RequestRouter, requester
-from vehicle.camera.shutter import Take
-from vehicle.camera.storage import StorageSpace
 from vehicle.camera.thumbnails import Thumbnail, make_thumbnail
 from vehicle.link.budget import LinkBudget, Priority
 from vehicle.link.fair_replies import FairReplies, Requester
@@ -224,15 +222,6 @@ class Downlink:
         """``callback(like, unlike)`` (image indices) after a client uploaded a valid marks file; the callback
         raises ValueError to refuse it (e.g. a frame it does not hold), which the client gets as a NAK."""
         self._marks_cbs.append(callback)
-
-    def on_shutter(self, take: Take) -> None:
-        """``take(done)`` keeps the current frame as the pilot's on MAV_CMD_IMAGE_START_CAPTURE (``Shutter``);
-        from then on CAMERA_INFORMATION offers the shutter."""
-        self.camera.shutter.wire(take)
-
-    def storage_from(self, space: Callable[[], StorageSpace | None]) -> None:
-        """Where STORAGE_INFORMATION and the capture status read the store's room (``Store.space``)."""
-        self.camera.storage = space
 
     def _camera_state(self) -> None:
         """CAMERA_CAPTURE_STATUS and STORAGE_INFORMATION as they are now: sent on every change (a capture in or

@@ -1,6 +1,6 @@
 """The pilot's shutter (MAV_CMD_IMAGE_START_CAPTURE): the current frame kept as the pilot's own summary frame.
 
-``Downlink.on_shutter``'s callback. It runs on the link's control worker, which must answer at once
+The camera's ``Shutter.wire`` callback (``vehicle/camera/shutter.py``). It runs on the link's control worker, which must answer at once
 (QGroundControl re-sends a command it got no ACK for within its timeout, and a re-sent press would keep a second
 frame), so it only picks the frame: the newest one the camera gave, with the pose at its capture time. The
 keeping itself (scoring, numbering, storing, announcing: ``Pipeline.capture`` inside a keeper change) runs on a
