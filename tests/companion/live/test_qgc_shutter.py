@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
 
 import pytest
@@ -69,6 +68,12 @@ def _next(listener, kind: str, start: int, what: str, timeout: float = 30.0,
                              and m in listener.messages[start:], timeout, what)
 
 
+def _pace(listener) -> None:
+    """QGroundControl's one-second timer between requests, kept by the camera's own 1 Hz heartbeat (a condition,
+    not a sleep): a ground station at its pace is never taken for a flood."""
+    _next(listener, "HEARTBEAT", len(listener.messages), "the camera's next heartbeat", 10)
+
+
 def _pilot_frames(store: Path) -> set[int]:
     """Image indices the store keeps as the pilot's (its sidecars say so)."""
     found = set()
@@ -88,8 +93,8 @@ def _take_photo(gcs, listener, store: Path) -> mav.MAVLink_message:
     start = len(listener.messages)
     ack = _command(gcs, listener, mav.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1)
     assert ack.result == mav.MAV_RESULT_ACCEPTED  # anything but ACCEPTED/TEMP_REJECTED/FAILED hangs its button
-    for _ in range(60):
-        time.sleep(1.0)  # QGroundControl's _captureStatusTimer period: its cadence, not a wait for a condition
+    for _ in range(60):  # every second while not idle, as _captureStatusTimer does
+        _pace(listener)
         mark = len(listener.messages)
         _command(gcs, listener, mav.MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS, 1)
         status = _next(listener, "CAMERA_CAPTURE_STATUS", mark, "capture status")
@@ -144,9 +149,10 @@ def test_qgc_shutter_storage_and_map_against_the_simulated_ardusub(tmp_path: Pat
         gcs.mav.set_gps_global_origin_send(1, int(ORIGIN[0] * 1e7), int(ORIGIN[1] * 1e7), 0)
         wait_until(lambda: any(m.lat != 0 for m in listener.of_type("GLOBAL_POSITION_INT")), 30,
                    "a global position from the autopilot")
-        placed = None
-        for _ in range(10):  # the pose of the newest frame may predate the first position by a sample
+        taken = [first]
+        for _ in range(20):  # until the companion's poses have the position too: press again, as a pilot would
             placed = _take_photo(gcs, listener, store)
+            taken.append(placed.image_index)
             if placed.capture_result == 1:
                 break
         assert placed.capture_result == 1
@@ -165,13 +171,16 @@ def test_qgc_shutter_storage_and_map_against_the_simulated_ardusub(tmp_path: Pat
         served = {f["image_index"]: f for f in index["summary"]}
         assert served[first]["pilot"] and served[second]["pilot"]
 
-        # K = 2 per topic keeps trimming: the pilot's frames never leave the summary to make room
-        trims = len([t for t in listener.texts() if t.startswith("Summary -#")])
-        wait_until(lambda: len([t for t in listener.texts() if t.startswith("Summary -#")]) >= trims + 3, 120,
-                   "the sampler trimming frames for room")
+        # K = 2 per topic: the sampler trims for room while the pilot's frames are held, and never takes one
+        def trimmed_since_first_pilot() -> bool:
+            texts = listener.texts()
+            since = next(i for i, t in enumerate(texts) if t.startswith(f"Summary +#{first} "))
+            return any(t.startswith("Summary -#") for t in texts[since:])
+
+        wait_until(trimmed_since_first_pilot, 120, "the sampler trimming a frame for room")
         held = store_summary(store)
-        assert {first, second} <= set(held["summary"])
-        assert not any(t.startswith((f"Summary -#{first} ", f"Summary -#{second} ")) for t in listener.texts())
+        assert set(taken) <= set(held["summary"])
+        assert not any(t.startswith(tuple(f"Summary -#{i} " for i in taken)) for t in listener.texts())
         assert not any(t.startswith("Request flood") for t in listener.texts())  # QGroundControl's pace is fine
         sidecar = json.loads((store / "frames" / f"{second:06d}.json").read_text())
         assert sidecar["pilot"] is True and sidecar["pose"]["lat"] == pytest.approx(ORIGIN[0], abs=0.01)
@@ -183,7 +192,7 @@ def test_qgc_shutter_storage_and_map_against_the_simulated_ardusub(tmp_path: Pat
         assert companion.terminate() == 0, companion.output
     finally:
         gcs.close()
-    _exports_of_the_live_store(store, tmp_path, {first, second})
+    _exports_of_the_live_store(store, tmp_path, set(taken))
 
 
 def _exports_of_the_live_store(store: Path, tmp_path: Path, pilots: set[int]) -> None:
