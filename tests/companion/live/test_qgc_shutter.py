@@ -112,7 +112,6 @@ def _markers(listener) -> list[tuple[float, float]]:
     return [(m.lat / 1e7, m.lon / 1e7) for m in listener.of_type("CAMERA_IMAGE_CAPTURED") if m.capture_result == 1]
 
 
-@pytest.mark.slow
 def test_qgc_shutter_storage_and_map_against_the_simulated_ardusub(tmp_path: Path, no_origin_vehicle) -> None:
     hub, sim, listener = no_origin_vehicle
     store = tmp_path / "store"
