@@ -6,7 +6,9 @@ says idle: on ACCEPTED it asks for the capture status a second later, and again 
 status is not idle; on TEMPORARILY_REJECTED or FAILED it retries twice, then resets the button; any other answer
 (UNSUPPORTED, DENIED) leaves the button "in progress" for good. So a press is answered at once (the frame is kept
 on the companion's own thread): ACCEPTED when a capture was started, TEMPORARILY_REJECTED when there is nothing to
-capture yet; the capture status says "in progress" until the frame was announced, then idle.
+capture yet or a capture is still being kept (one at a time: QGroundControl never presses while its button is
+"in progress", so only a flood does); the capture status says "in progress" until the frame was announced, then
+idle.
 """
 
 from __future__ import annotations
@@ -58,8 +60,10 @@ class Shutter:
         if self._take is None:
             return mav.MAV_RESULT_UNSUPPORTED
         with self._lock:
-            self._pending += 1
             self.presses += 1
+            if self._pending:
+                return mav.MAV_RESULT_TEMPORARILY_REJECTED  # one capture at a time
+            self._pending += 1
         try:
             started = self._take(self._done)
         except Exception:

@@ -20,6 +20,11 @@ from vehicle.camera import status as st
 
 log = logging.getLogger(__name__)
 
+MAX_PILOT_FRAMES = 200
+"""The pilot's frames the summary holds at most. They are never trimmed for room, and without a signing key
+anyone on the link can press: past this a press is refused (TEMPORARILY_REJECTED, said on the surface) rather
+than growing the summary and the store without end."""
+
 
 class ShutterHandler:
     """``take(done)``: start keeping the newest frame; False when the camera gave none yet."""
@@ -31,11 +36,15 @@ class ShutterHandler:
         self.pose_at = pose_at
         self.taken: list[int] = []
         """Image indices the pilot's presses kept (this run)."""
+        self.max_frames = MAX_PILOT_FRAMES
 
     def __call__(self, done: Callable[[bool], None]) -> bool:
         frame = self.latest()
         if frame is None:
             self.ctx.say("Shutter: no camera frame yet", st.WARNING)
+            return False
+        if sum(len(t.pilot) for t in self.ctx.pipeline.topics) >= self.max_frames:
+            self.ctx.say(f"Shutter: {self.max_frames} pilot frames held", st.WARNING)
             return False
         threading.Thread(target=self._keep, args=(frame, done), name="shutter", daemon=True).start()
         return True

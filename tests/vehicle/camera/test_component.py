@@ -99,6 +99,8 @@ def test_the_shutter_answers_at_once_and_is_busy_until_the_capture_is_done(camer
     (ack,) = cam.handle(press)
     assert ack.result == mav.MAV_RESULT_ACCEPTED and len(finish) == 1
     assert cam.capture_status().image_status == 1  # in progress: QGroundControl asks again a second later
+    (again,) = cam.handle(press)  # a press while one is kept (a flood: QGroundControl waits): one at a time
+    assert again.result == mav.MAV_RESULT_TEMPORARILY_REJECTED and len(finish) == 1
     finish[0](True)
     assert cam.capture_status().image_status == 0  # idle: its shutter button is ready again
     series = mav.MAVLink_command_long_message(1, 100, mav.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 2, 0, NAN, NAN, NAN,

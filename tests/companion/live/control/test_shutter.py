@@ -62,6 +62,10 @@ def test_a_pressed_frame_is_stored_as_the_pilots_and_comes_back_after_a_restart(
         assert wait_until(lambda: app.surface.camera.capture_status().image_status == 0, 30)
         assert app.store.sidecar(key)["pilot"] is True and key in app.store.summary
         assert any(key in t.pilot and key not in t.sampler.keys for t in app.pipeline.topics)
+        app.on_shutter.max_frames = 1  # (200 in service) never trimmed, so never more than that many
+        assert _press(gcs, listener) == mav.MAV_RESULT_TEMPORARILY_REJECTED
+        assert wait_until(lambda: "Shutter: 1 pilot frames held" in listener.texts(), 10)
+        assert app.on_shutter.taken == [key]
     finally:
         app.stop()
     again = LiveCompanion(_config(store, hub.url, uri))
