@@ -29,6 +29,7 @@ from companion.live.control.marks import MarksHandler
 from companion.live.control.notices import AutopilotNotice, source_notice
 from companion.live.control.params import ParamHandler, default_params
 from companion.live.control.queries import QueriesHandler, follow_saved_queries
+from companion.live.control.shutter import ShutterHandler
 from companion.live.control.summary_file import keeper_document, serve_keeper_document
 from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
@@ -108,6 +109,7 @@ class LiveCompanion:
         self.on_param: ParamHandler | None = None
         self.on_queries: QueriesHandler | None = None
         self.on_marks: MarksHandler | None = None
+        self.on_shutter: ShutterHandler | None = None
         self.link: MavLink | None = None
         self.telemetry: VehicleTelemetry | None = None
         self.surface: Downlink | None = None
@@ -214,6 +216,7 @@ class LiveCompanion:
             topic = next((t for t in self.pipeline.topics if t.name == frame.topic), self.pipeline.topics[0])
             presampler = topic.presampler
             return {"query": presampler.positive,  # the topic's live query, which the surface may change
+                    "tau_ss": presampler.tau_ss,  # the threshold its score is read against (exports flag below)
                     "encoder": getattr(self.encoder, "name", ""), "source": self.cfg.source.uri}
 
         return SummaryKeeper(self.pipeline, self.store, tags=tags, publish=self._publish)
@@ -270,6 +273,10 @@ class LiveCompanion:
             self._on_store_health(True, self.store.memory_only_reason)
         self.surface.on_queries_changed(self.on_queries)
         self.surface.on_marks_changed(self.on_marks)
+        self.on_shutter = ShutterHandler(self.control, lambda: self.capture.latest if self.capture else None,
+                                         self._pose_at)
+        self.surface.camera.shutter.wire(self.on_shutter)  # from now on CAMERA_INFORMATION offers a shutter
+        self.surface.camera.storage = self.store.space  # STORAGE_INFORMATION and the capture status read it
         self.surface.set_marks(self.marks.like, self.marks.unlike)
         serve_keeper_document(self.control, self.on_marks)
         self.link.on_autopilot(AutopilotNotice(self.control))

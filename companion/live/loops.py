@@ -78,6 +78,8 @@ class CaptureLoop(threading.Thread):
         self.counters = counters
         self.stop_event = stop
         self.ended = threading.Event()
+        self.latest: Frame | None = None
+        """The newest frame the camera gave: what the pilot's shutter keeps (``control.shutter``)."""
 
     def run(self) -> None:
         self.health.register("capture")
@@ -86,6 +88,7 @@ class CaptureLoop(threading.Thread):
                 self.health.beat("capture")
                 self.counters.frames_seen += 1
                 self.counters.recent_seen.append(time.monotonic())
+                self.latest = frame
                 self.queue.put(frame)
                 if self.stop_event.is_set():
                     break
