@@ -54,12 +54,13 @@ def run(args: argparse.Namespace) -> int:
     with blamed_queries(cfg, config=args.config, overrides=over):
         scored = score_images(cfg, args.paths, like=args.like, unlike=args.unlike, dive=args.dive)
         first = next(scored, None)  # the queries are read before the first image is scored
-    failed = 0
+    failed = scored_any = 0
     for item in itertools.chain([first] if first is not None else [], scored):
         if item.score is None:
             failed += 1
             print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)
             continue
+        scored_any = 1
         several = len(item.topics) > 1
         if args.json:
             row: dict[str, Any] = {"file": str(item.file), "score": round(item.score, 6)}
@@ -71,4 +72,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"{item.file}\t{item.score:.4f}\t{each}", flush=True)
         else:
             print(f"{item.file}\t{item.score:.4f}", flush=True)
-    return 1 if failed else 0
+    # README's rule: nothing could be read is bad input (2, as for every command); some could, the work ran and
+    # part of it failed (1)
+    return 0 if not failed else 1 if scored_any else 2
