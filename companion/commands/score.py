@@ -8,7 +8,7 @@ import json
 import sys
 from typing import Any, get_args
 
-from companion.commands.overrides import Overrides, add_topic_option, put_queries_and_encoder
+from companion.commands.overrides import NEGATIVE_HELP, Overrides, add_topic_option, put_queries_and_encoder
 from companion.config import Precision
 
 
@@ -16,8 +16,7 @@ def register(add_command) -> None:
     p = add_command("score", "score images (files or folders) against the queries: one line per image")
     p.add_argument("paths", metavar="PATH", nargs="+", help="image files or folders of images")
     p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
-    p.add_argument("--negative", metavar="TEXT", action="append",
-                   help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    p.add_argument("--negative", metavar="TEXT", action="append", help=NEGATIVE_HELP)
     add_topic_option(p, "each image scored against each (the highest first, then one score per topic)")
     p.add_argument("--encoder", choices=["auto", "clip", "imagenet", "visual"], help="which encoder scores images")
     p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
@@ -47,6 +46,7 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     from companion.commands.query_source import blamed_queries, explained_config
+    from companion.vision.progress_lines import ProgressLines
     from companion.vision.score_images import score_images
 
     over = overrides_from(args)
@@ -55,11 +55,16 @@ def run(args: argparse.Namespace) -> int:
         scored = score_images(cfg, args.paths, like=args.like, unlike=args.unlike, dive=args.dive)
         first = next(scored, None)  # the queries are read before the first image is scored
     failed = scored_any = 0
+    # on a terminal the scores themselves show the progress; in a log, a line now and then says it is working
+    lines = None if sys.stderr.isatty() else ProgressLines("score", "image", None)
     for item in itertools.chain([first] if first is not None else [], scored):
         if item.score is None:
             failed += 1
             print(f"merlion: error: {item.file}: {item.error}", file=sys.stderr)
             continue
+        if lines is not None:  # images scored (an unreadable one has its own line above)
+            lines.set_postfix(**({"unreadable": failed} if failed else {}))
+            lines.update(1)
         scored_any = 1
         several = len(item.topics) > 1
         if args.json:
