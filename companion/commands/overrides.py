@@ -69,6 +69,11 @@ def topic_option(text: str) -> dict[str, Any]:
     return {"name": name.strip(), "positive": parts[0], "negatives": parts[1:]}
 
 
+PRECISIONS = ("auto", "fp32", "fp16-weights", "bf16", "fp16", "int8")
+"""``companion.config.Precision``'s values, for ``--precision``'s choices without importing the configuration
+(pydantic, 0.15-0.25 s measured) into every ``merlion`` call; tests/companion/commands/test_help_speed.py checks
+that the two agree."""
+
 NEGATIVE_HELP = ("negative query, repeatable; with --query and none given, CLIP weighs the positive against the "
                  "generic 'an underwater image', and the packaged encoder, which cannot read that phrase, scores the "
                  "positive alone (its probability)")

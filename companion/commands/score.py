@@ -6,10 +6,15 @@ import argparse
 import itertools
 import json
 import sys
-from typing import Any, get_args
+from typing import Any
 
-from companion.commands.overrides import NEGATIVE_HELP, Overrides, add_topic_option, put_queries_and_encoder
-from companion.config import Precision
+from companion.commands.overrides import (
+    NEGATIVE_HELP,
+    PRECISIONS,
+    Overrides,
+    add_topic_option,
+    put_queries_and_encoder,
+)
 
 
 def register(add_command) -> None:
@@ -22,7 +27,7 @@ def register(add_command) -> None:
     p.add_argument("--model", help="open_clip architecture for --encoder clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file (or open_clip model folder)")
     p.add_argument("--pretrained", metavar="TAG", help="open_clip pretrained tag, used if already cached")
-    p.add_argument("--precision", choices=get_args(Precision), help="encoder precision")
+    p.add_argument("--precision", choices=PRECISIONS, help="encoder precision")
     p.add_argument("--batch", type=int, help="images encoded together (default 8)")
     p.add_argument("--like", metavar="FILE", action="append", default=[],
                    help="an example of what is wanted (image or folder of images), repeatable")
