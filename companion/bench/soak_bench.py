@@ -81,6 +81,9 @@ class SoakResult:
     """What the companion read: the generated dive drawn live, or the file rendered from it (``WxH file``)."""
     dropped_pct: float = 0.0
     """Frames dropped at the input, in percent of the frames seen."""
+    dropped_after_warmup: int = 0
+    """Of those, the ones dropped after the warm-up (the encoder's first slow batches, and the gate admitting
+    the first twenty frames all, fall in it)."""
     decode_fps: float | None = None
     """The clip decoded flat out, frames/s, measured in this process after the run (``clip_size`` only)."""
     decode_vs_source: float | None = None
@@ -193,6 +196,7 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
         result.encoder = getattr(companion.encoder, "name", encoder)
         t0 = time.monotonic()
         after_warmup = None
+        dropped_at_warmup = 0
         while True:
             elapsed = time.monotonic() - t0
             if elapsed >= duration:
@@ -202,10 +206,12 @@ def run_soak(minutes: float, *, encoder: str = "auto", fps: float = 15.0, store_
             result.peak_rss_mb = max(result.peak_rss_mb, rss)
             if after_warmup is None and elapsed >= warmup:
                 after_warmup = rss
+                dropped_at_warmup = companion.queue.dropped
             if progress is not None:
                 progress(elapsed, duration, companion.status_line())
             time.sleep(min(1.0, max(0.0, duration - elapsed)))
         companion.stop_pipeline()
+        result.dropped_after_warmup = companion.queue.dropped - dropped_at_warmup
         end_rss = proc.memory_info().rss / 2**20
         result.rss_end_mb = end_rss
         result.peak_rss_mb = max(result.peak_rss_mb, end_rss)

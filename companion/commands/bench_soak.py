@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"encoder           {d['encoder']}, {camera} at {d['source_fps']:g} fps, {d['minutes']:g} min")
     print(f"frames            seen {d['frames_seen']}, scored {d['frames_scored']} ({d['scored_fps']} /s), "
           f"skipped by the gate ({d['gate']}) {d['frames_skipped']}, dropped at the input {d['frames_dropped']} "
-          f"({d['dropped_pct']:g}% of seen)")
+          f"({d['dropped_pct']:g}% of seen; {d['dropped_after_warmup']} after the {d['warmup_s']:g}-s warm-up)")
     if d["decode_fps"] is not None:
         print(f"decode            {d['decode_fps']} frames/s flat out, {d['decode_vs_source']:g} x the source's "
               f"{d['source_fps']:g} fps (at ~1 or below the run is decode bound)")
