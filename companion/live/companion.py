@@ -33,7 +33,7 @@ from companion.live.control.shutter import ShutterHandler
 from companion.live.control.summary_file import keeper_document, serve_keeper_document
 from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
-from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
+from companion.live.loops import CaptureLoop, FrameAdmission, InferenceLoop, LiveCounters, is_skipped
 from companion.live.notify import Notifier
 from companion.live.queues import DropOldestQueue
 from companion.live.quiet_notice import QuietNotice
@@ -42,7 +42,6 @@ from companion.live.resume_features import refresh_features
 from companion.live.summary_keeper import SummaryKeeper
 from companion.live.watchdog import Watchdog
 from companion.sources.factory import open_source
-from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
@@ -67,7 +66,9 @@ log = logging.getLogger(__name__)
 
 LIVE_PREFIXES = ("/dev/video", "/dev/v4l/", "v4l2://", "rtsp://", "rtsps://", "udp://")
 CAPTURE_QUEUE = 4
-"""Frames waiting for inference; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
+"""Frames waiting to be encoded; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
+SKIPPED_QUEUE = 512
+"""Frames the gate skipped waiting for the inference thread to count them (no pixels: ~8 s at 60 fps)."""
 
 
 def is_live_uri(uri: str) -> bool:
@@ -97,7 +98,7 @@ class LiveCompanion:
         self.health = Health(cfg.health.stall_after_s)
         self.counters = LiveCounters()
         self.stop_event = threading.Event()
-        self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
+        self.queue = DropOldestQueue(CAPTURE_QUEUE, light=is_skipped, light_max=SKIPPED_QUEUE)
         self.started_at = time.monotonic()
         self.store_lock = self.options.store_lock or StoreLock(cfg.store.dir)
         self.store: Store | None = None
@@ -299,7 +300,8 @@ class LiveCompanion:
             initial_s=cfg.retry_initial_s, max_s=cfg.retry_max_s, on_state=lambda state, _detail: source_notice(self.control, self.source, state),
             beat=lambda: self.health.beat("capture"),
         )
-        self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event)
+        admission = FrameAdmission(self.pipeline.prepare, lambda: self.control.frame_gate, self.pipeline.encode_size)
+        self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event, admission)
         self.inference = InferenceLoop(
             self.pipeline, self.queue, self.health, self.counters, self.stop_event,
             batch=self.cfg.encoder.batch, pose_at=self._pose_at, keeper=self.keeper, selective=self.selective,
