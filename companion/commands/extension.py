@@ -10,7 +10,6 @@ from pathlib import Path
 from companion import __version__
 from companion.errors import UsageError
 from companion.extension.metadata import PORT
-from companion.extension.vehicle_guard import vehicle_names
 
 
 def register(add_command) -> None:
@@ -58,9 +57,10 @@ def allowed_origins(given: list[str]) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    # imported here: the runner brings the surface tool and MAVLink (1.1 s measured with -X importtime), which
-    # every other merlion command would pay at start-up
+    # imported here: the runner brings the surface tool and MAVLink (1.1 s measured with -X importtime), and the
+    # guard pydantic through web_guard (0.15-0.25 s), which every other merlion command would pay at start-up
     from companion.extension.runner import ExtensionOptions, run_extension
+    from companion.extension.vehicle_guard import vehicle_names
 
     if not 0 <= args.port < 65536:
         raise UsageError(f"--port {args.port}: not a TCP port")
