@@ -17,6 +17,7 @@ from pathlib import Path
 
 from companion.atomic_write import atomic_write
 from companion.evaluation.plots import plot_depth, plot_scores
+from companion.export.viame_csv import sheet_safe
 from companion.export.writer import write_campaign_exports
 
 INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
@@ -92,7 +93,8 @@ def write_campaign_report(out_dir: Path, names: list[str]) -> Path:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=INDEX_FIELDS, lineterminator="\n")
     writer.writeheader()
-    writer.writerows(rows)
+    # a query is anyone's text on the link: no cell of it may run as a spreadsheet formula (index.json keeps it)
+    writer.writerows({k: sheet_safe(v) if isinstance(v, str) else v for k, v in row.items()} for row in rows)
     atomic_write(out_dir / "index.csv", buf.getvalue())
     atomic_write(out_dir / "index.json", json.dumps(rows, indent=2) + "\n")
     exports = write_campaign_exports(out_dir, names)

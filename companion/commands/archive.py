@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from companion.commands.overrides import OPTION_NAMES, Overrides, add_summary_options, put_summary_options
-from companion.config import load_config
 from companion.errors import UsageError
 
 
@@ -45,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--gpus-per-task must be 0 or more, got {args.gpus_per_task}")
     if args.address and args.workers:
         raise UsageError("--workers applies to the local Ray only; the cluster at --address has its own CPUs")
+    from companion.config import load_config  # pydantic: 0.15-0.25 s measured, not for every merlion call
+
     cfg = load_config(args.config, overrides=overrides_from(args), options=OPTION_NAMES)
     opts = ArchiveOptions(args.sources, Path(args.out), tlogs=args.tlog, mapping=args.mapping,
                           address=args.address, workers=args.workers, cpus_per_task=args.cpus_per_task,

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import get_args
 
-from companion.config import Precision
+from companion.commands.overrides import PRECISIONS
 
 
 def register(add_command) -> None:
@@ -19,7 +18,7 @@ def register(add_command) -> None:
     p.add_argument("--model", help="open_clip architecture for clip (default ViT-B-32)")
     p.add_argument("--weights", metavar="PATH", help="local CLIP checkpoint file")
     p.add_argument("--batch", type=int, help="frames encoded together (default 8)")
-    p.add_argument("--precision", choices=get_args(Precision), help="encoder precision")
+    p.add_argument("--precision", choices=PRECISIONS, help="encoder precision")
     p.add_argument("--runtime", choices=["torch", "onnx"], help="CLIP image tower runtime (default torch)")
     p.add_argument("--frames", type=int, default=256, help="frames to push through (default 256)")
     p.add_argument("--paper-frames", type=int, default=32,

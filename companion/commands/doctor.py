@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 
 def register(add_command) -> None:
@@ -27,8 +30,38 @@ def run(args: argparse.Namespace) -> int:
 
         load_key(args.signing_key)
     overrides = {"mavlink": {"signing_key_file": args.signing_key}} if args.signing_key else None
-    results = run_checks(args.config, dict(os.environ), heartbeat_wait_s=args.wait, overrides=overrides,
-                         emit=lambda c: print(c.line(), flush=True))
+    with logs_after_the_table():
+        results = run_checks(args.config, dict(os.environ), heartbeat_wait_s=args.wait, overrides=overrides,
+                             emit=lambda c: print(c.line(), flush=True))
     failed = [c for c in results if c.status == FAIL]
     print(f"merlion doctor: {len(failed)} problem(s)" if failed else "merlion doctor: all checks passed", flush=True)
     return 1 if failed else 0
+
+
+class _Held(logging.Handler):
+    """Keeps each distinct record once (level, logger, message), in the order first seen."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: dict[tuple[int, str, str], logging.LogRecord] = {}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.setdefault((record.levelno, record.name, record.getMessage()), record)
+
+
+@contextmanager
+def logs_after_the_table() -> Iterator[None]:
+    """The checks' log lines, each once, after the table instead of inside it: the autopilot and signing checks
+    each open the link (its open line came twice), and a key mismatch logged its ERROR from both; the table's own
+    line already says what it means, the log's is the detail."""
+    root = logging.getLogger()
+    shown, held = list(root.handlers), _Held()
+    root.handlers = [held]
+    try:
+        yield
+    finally:
+        root.handlers = shown
+        for record in held.records.values():
+            if record.levelno >= root.getEffectiveLevel():
+                for handler in shown:
+                    handler.handle(record)

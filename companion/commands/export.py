@@ -14,6 +14,8 @@ def register(add_command) -> None:
                                                           "campaign folder")
     p.add_argument("--format", "-f", required=True, metavar="FORMAT", help=f"one of {', '.join(FORMAT_NAMES)}")
     p.add_argument("--out", "-o", required=True, metavar="FILE", help="file to write (replaced if it exists)")
+    p.add_argument("--base-url", metavar="URL", help="fathomnet: where the images will be served (default: "
+                                                      "their file:// URLs)")
     p.set_defaults(func=run)
 
 
@@ -22,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     # command would pay at start-up
     from companion.export.writer import export
 
-    records = export(args.source, args.format, args.out)
+    records = export(args.source, args.format, args.out, args.base_url)
     dives = len({r.dive for r in records})
     placed = sum(r.lat is not None for r in records)
     print(f"{args.out}: {len(records)} frames from {dives} dive(s) as {args.format} ({placed} with a position)")

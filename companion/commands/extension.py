@@ -8,10 +8,8 @@ import threading
 from pathlib import Path
 
 from companion import __version__
-from companion.config import web_origin
 from companion.errors import UsageError
 from companion.extension.metadata import PORT
-from companion.extension.vehicle_guard import vehicle_names
 
 
 def register(add_command) -> None:
@@ -52,15 +50,18 @@ def router_address(text: str | None) -> tuple[str, int] | None:
 def allowed_origins(given: list[str]) -> tuple[str, ...]:
     """``--allow-origin`` values as browsers send them; a malformed one is a usage error naming it."""
     try:
+        from companion.config import web_origin  # pydantic: 0.15-0.25 s measured, only for this command
+
         return tuple(web_origin(text) for text in given)
     except ValueError as err:
         raise UsageError(f"--allow-origin {err}") from None
 
 
 def run(args: argparse.Namespace) -> int:
-    # imported here: the runner brings the surface tool and MAVLink (1.1 s measured with -X importtime), which
-    # every other merlion command would pay at start-up
+    # imported here: the runner brings the surface tool and MAVLink (1.1 s measured with -X importtime), and the
+    # guard pydantic through web_guard (0.15-0.25 s), which every other merlion command would pay at start-up
     from companion.extension.runner import ExtensionOptions, run_extension
+    from companion.extension.vehicle_guard import vehicle_names
 
     if not 0 <= args.port < 65536:
         raise UsageError(f"--port {args.port}: not a TCP port")

@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from companion.config import EncoderConfig
-
 _GROUP_HELP = "CLIP weights: download them where a network exists, list what is available offline"
 
 
 def register(add_command) -> None:
     p = add_command("pull", "download and verify CLIP weights into the local cache (needs a network)",
                     group="models", group_help=_GROUP_HELP)
-    p.add_argument("name", nargs="?", default=EncoderConfig().model, metavar="NAME",
+    p.add_argument("name", nargs="?", metavar="NAME",
                    help="open_clip architecture, optionally ARCH:TAG (default ViT-B-32)")
     p.add_argument("--pretrained", metavar="TAG", help="pretrained tag (default: the configured one for ViT-B-32, "
                                                        "else the architecture's first tag)")
@@ -23,9 +21,13 @@ def register(add_command) -> None:
     p.set_defaults(func=run_list)
 
 
-def _name_and_tag(name: str, tag: str | None) -> tuple[str, str]:
+def _name_and_tag(name: str | None, tag: str | None) -> tuple[str, str]:
     import open_clip
 
+    # pydantic: 0.15-0.25 s measured, not for every merlion call (the default NAME is read here, not in register)
+    from companion.config import EncoderConfig
+
+    name = name or EncoderConfig().model
     if ":" in name and tag is None:
         name, tag = name.split(":", 1)
     if tag is None:

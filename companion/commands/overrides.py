@@ -69,6 +69,17 @@ def topic_option(text: str) -> dict[str, Any]:
     return {"name": name.strip(), "positive": parts[0], "negatives": parts[1:]}
 
 
+PRECISIONS = ("auto", "fp32", "fp16-weights", "bf16", "fp16", "int8")
+"""``companion.config.Precision``'s values, for ``--precision``'s choices without importing the configuration
+(pydantic, 0.15-0.25 s measured) into every ``merlion`` call; tests/companion/commands/test_help_speed.py checks
+that the two agree."""
+
+NEGATIVE_HELP = ("negative query, repeatable; with --query and none given, CLIP weighs the positive against the "
+                 "generic 'an underwater image', and the packaged encoder, which cannot read that phrase, scores the "
+                 "positive alone (its probability)")
+"""What a positive without a negative is scored against, as ``companion.vision.presampler`` does it."""
+
+
 def add_topic_option(p: argparse.ArgumentParser, each: str = "each with its own summary") -> None:
     """``each``: what every topic gets from this command (a summary; a score per image for ``score``)."""
     p.add_argument("--topic", metavar="NAME=POSITIVE[;NEGATIVE...]", action="append", type=topic_option,
@@ -81,8 +92,7 @@ def add_summary_options(p: argparse.ArgumentParser, *, weights_help: str = "loca
     that summarizes a source (``summarize`` one, ``archive`` many): same names, same meaning."""
     p.add_argument("-k", "--k", type=int, help="summary size (default 6)")
     p.add_argument("--query", metavar="TEXT", help="positive query (default: 'underwater image with fish')")
-    p.add_argument("--negative", metavar="TEXT", action="append",
-                   help="negative query, repeatable (with --query and no --negative: a generic negative)")
+    p.add_argument("--negative", metavar="TEXT", action="append", help=NEGATIVE_HELP)
     add_topic_option(p)
     p.add_argument("--threshold", type=float, metavar="TAU",
                    help="pre-sampling threshold tau_ss, a fraction (0.5) or a percentage (50); 0: no semantic gate")

@@ -8,12 +8,16 @@ import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from companion.commands.overrides import OPTION_NAMES
-from companion.config import ENV_PREFIX, Config, QueryConfig, env_overrides, given_in, load_config
 from companion.errors import UsageError
-from companion.vision.encoders.query_words import UnknownWord
+
+if TYPE_CHECKING:
+    from companion.config import Config, QueryConfig
+
+# merlion imports every module here to build its parser: the configuration (pydantic, 0.15-0.25 s measured) and
+# the query words are imported where they are used, by the commands that run
 
 
 def query_keys(queries: QueryConfig) -> Iterator[tuple[tuple[str, ...], str]]:
@@ -32,6 +36,8 @@ def query_keys(queries: QueryConfig) -> Iterator[tuple[tuple[str, ...], str]]:
 def query_source(cfg: Config, query: str, *, config: str | None, overrides: dict[str, Any] | None) -> str | None:
     """The option or ``FILE: key`` that set ``query``; None when the configuration does not hold it (a query
     uploaded from the surface before a restart, say)."""
+    from companion.config import env_overrides, given_in
+
     for key, text in query_keys(cfg.queries):
         if text.strip().lower() != query.strip().lower():
             continue
@@ -47,6 +53,8 @@ def query_source(cfg: Config, query: str, *, config: str | None, overrides: dict
 
 def _variable(env: dict[str, Any], key: tuple[str, ...]) -> str:
     """The MERLION__ variable that set ``key``: its path down to the value it gave (a whole list, say)."""
+    from companion.config import ENV_PREFIX
+
     node: Any = env
     parts: list[str] = []
     for part in key:
@@ -60,6 +68,8 @@ def _variable(env: dict[str, Any], key: tuple[str, ...]) -> str:
 @contextmanager
 def blamed_queries(cfg: Config, *, config: str | None, overrides: dict[str, Any] | None) -> Iterator[None]:
     """A query word the encoder does not know is bad input (exit 2), named by where the query was set."""
+    from companion.vision.encoders.query_words import UnknownWord
+
     try:
         yield
     except UnknownWord as err:
@@ -69,6 +79,7 @@ def blamed_queries(cfg: Config, *, config: str | None, overrides: dict[str, Any]
 
 def explained_config(args: argparse.Namespace, overrides: dict[str, Any]) -> Config:
     """The command's configuration; with ``--explain``, what each query was read as, on stderr, first."""
+    from companion.config import load_config
     from companion.vision.query_explain import explain_queries  # WordNet only when asked
 
     cfg = load_config(args.config, overrides=overrides, options=OPTION_NAMES)

@@ -7,16 +7,14 @@ import logging
 import signal
 import socket
 import threading
+from typing import TYPE_CHECKING
 
 from companion.commands.arg_checks import require_positive, require_resolvable_host
 from companion.commands.station_options import check_station_ids, companion_ids
 from companion.errors import MerlionError
-from companion.topside.actions import page_mark
-from companion.topside.gallery import Gallery
-from companion.topside.tool import SurfaceOptions, SurfaceTool
-from companion.topside.web import WebServer, check_web_port
-from vehicle.link.endpoint import parse_connection
-from vehicle.link.signing import load_key
+
+if TYPE_CHECKING:
+    from companion.topside.tool import SurfaceOptions
 
 log = logging.getLogger("merlion.surface")
 
@@ -48,6 +46,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # the surface tool (pymavlink, cv2, numpy): 0.4-1.3 s measured, only for this command
+    from companion.topside.tool import SurfaceOptions
+    from companion.topside.web import check_web_port
+    from vehicle.link.signing import load_key
+
     check_station_ids(args.system_id, args.component_id)
     require_positive("--duration", args.duration)
     require_positive("--push-timeout", args.push_timeout)
@@ -65,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def check_port_free(connect: str) -> None:
+    from vehicle.link.endpoint import parse_connection  # pymavlink: 0.2-0.4 s measured, only for this command
+
     """A ``udpin`` port someone else holds (QGroundControl on 14550) would only get part of the traffic, or none:
     say so before starting, instead of a half-working tool."""
     endpoint = parse_connection(connect)
@@ -86,6 +91,11 @@ def serve(options: SurfaceOptions, out_dir: str, *, web_port: int | None = None,
           duration: float | None = None, stop: threading.Event | None = None,
           web_allowed_hosts: list[str] | tuple[str, ...] = ()) -> int:
     """Run the surface tool until SIGINT/SIGTERM, ``stop``, or ``duration``; what tests and the demo call."""
+    from companion.topside.actions import page_mark  # the surface tool: see run()
+    from companion.topside.gallery import Gallery
+    from companion.topside.tool import SurfaceTool
+    from companion.topside.web import WebServer
+
     stop = stop or threading.Event()
     gallery = Gallery(out_dir)
     tool = SurfaceTool(options, gallery)

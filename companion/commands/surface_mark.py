@@ -6,10 +6,7 @@ import argparse
 import logging
 
 from companion.commands.station_options import add_station_options, check_station_options
-from companion.config import MavlinkConfig
 from companion.errors import UsageError
-from companion.topside.marks_upload import upload_marks
-from vehicle.link.signing import load_key
 
 
 def register(add_command) -> None:
@@ -25,6 +22,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # the link and its configuration (pymavlink, pydantic): 0.4 s measured, only for this command
+    from companion.config import MavlinkConfig
+    from companion.topside.marks_upload import upload_marks
+    from vehicle.link.signing import load_key
+
     if not args.like and not args.unlike and not args.clear:
         raise UsageError("surface-mark: give --like INDEX and/or --unlike INDEX, or --clear")
     if args.clear and (args.like or args.unlike):

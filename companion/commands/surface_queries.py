@@ -7,10 +7,7 @@ import logging
 
 from companion.commands.overrides import topic_option
 from companion.commands.station_options import add_station_options, check_station_options
-from companion.config import MavlinkConfig
 from companion.errors import MerlionError, UsageError
-from companion.topside.queries_upload import queries_from_file, queries_from_options, upload_queries
-from vehicle.link.signing import load_key
 
 
 def register(add_command) -> None:
@@ -30,6 +27,11 @@ def register(add_command) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # the link and its configuration (pymavlink, pydantic): 0.4 s measured, only for this command
+    from companion.config import MavlinkConfig
+    from companion.topside.queries_upload import queries_from_file, queries_from_options, upload_queries
+    from vehicle.link.signing import load_key
+
     if args.file is not None and (args.query is not None or args.topic or args.negative):
         raise UsageError(f"surface-queries: give FILE ({args.file}) or --query/--topic, not both")
     check_station_options(args)

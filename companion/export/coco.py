@@ -1,9 +1,13 @@
 """COCO: ``images``, ``annotations`` and ``categories`` as pycocotools' ``COCO()`` loads them.
 
 A summary frame is tagged as a whole, not by boxes: each image gets one annotation covering the whole frame,
-whose category is its topic (named by the topic's query) and whose ``score`` is the frame's relevance. The
-image's capture time is COCO's ``date_captured``; depth, altitude, heading, attitude, position (when valid) and
-both clocks ride along as extra keys of the image, which COCO readers keep.
+whose category is its topic (named by the topic's query) and whose ``score`` is the frame's relevance, with
+``below_threshold`` and the ``threshold`` beside it (a stand-in or a pilot's frame under the threshold is not a
+match of its category). The whole frame is also the annotation's ``segmentation`` (one polygon), which
+pycocotools' ``annToMask``/``annToRLE`` need (pycocotools/coco.py reads ``segmentation`` unconditionally). The
+image's best known time is COCO's ``date_captured`` (an offline summary: the video file's, ``date_source`` says
+which); depth, altitude, heading, attitude, position (when valid), water temperature and pressure, the source
+video and the frame's time into it ride along as extra keys of the image, which COCO readers keep.
 """
 
 from __future__ import annotations
@@ -16,8 +20,9 @@ from typing import Any
 from companion.export.paths import relative_url
 from companion.export.records import FrameRecord
 
-EXTRA = ("dive", "frame", "source", "time_s", "capture_utc", "autopilot_utc", "time_boot_ms", "depth_m", "altitude_m",
-         "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon", "query", "topic", "score")
+EXTRA = ("dive", "frame", "source", "video", "time_s", "capture_utc", "autopilot_utc", "time_boot_ms", "date_source",
+         "depth_m", "altitude_m", "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon", "water_temp_c",
+         "pressure_dbar", "query", "topic", "score", "threshold", "below_threshold", "pilot")
 
 
 def _coco_time(iso: str | None) -> str:
@@ -37,9 +42,12 @@ def document(records: list[FrameRecord], out: Path) -> dict[str, Any]:
         extra = {k: getattr(r, k) for k in EXTRA if getattr(r, k) is not None}
         images.append({"id": n, "file_name": relative_url(r.image, out), "width": r.width, "height": r.height,
                        "date_captured": _coco_time(r.best_utc), **extra})
+        w, h = r.width, r.height
         annotations.append({"id": n, "image_id": n, "category_id": categories[(r.topic, r.query)],
-                            "bbox": [0, 0, r.width, r.height], "area": r.width * r.height, "iscrowd": 0,
-                            "score": round(r.score, 6)})
+                            "bbox": [0, 0, w, h], "area": w * h, "iscrowd": 0,
+                            "segmentation": [[0, 0, w, 0, w, h, 0, h]],
+                            "score": round(r.score, 6), "threshold": r.threshold,
+                            "below_threshold": r.below_threshold, "pilot": r.pilot})
     return {
         "info": {"description": "MERLION summary frames", "version": "1.0",
                  "date_created": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S")},

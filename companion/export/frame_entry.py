@@ -60,7 +60,8 @@ class FrameEntry:
         return value if isinstance(value, str) else ""
 
     def image(self, folder: Path) -> Path:
-        """The entry's image file: a relative path inside ``folder`` that exists."""
+        """The entry's image file: a relative path inside ``folder`` that exists, with no symbolic link on the way
+        (a link in a store would have an export point at, and hash, a file outside it: /etc/hostname)."""
         file = self.data.get("file")
         if file is None:
             raise UsageError(f"{self.where}: no 'file'")
@@ -68,6 +69,9 @@ class FrameEntry:
         if not parts or PurePosixPath(file).is_absolute() or ".." in parts:
             raise self._bad("file", "a path inside the folder")
         image = folder / file
+        for depth in range(1, len(parts) + 1):
+            if folder.joinpath(*parts[:depth]).is_symlink():
+                raise UsageError(f"{folder.joinpath(*parts[:depth])}: a symbolic link; an export follows none")
         if not image.is_file():
             raise UsageError(f"{image}: frame image missing")
         return image

@@ -20,6 +20,7 @@ import cv2
 
 from companion.errors import UsageError
 from companion.export.frame_entry import FrameEntry
+from companion.export.video_time import video_start
 
 
 @dataclass(frozen=True)
@@ -54,11 +55,42 @@ class FrameRecord:
     lon: float | None = None
     source: str | None = None
     """The still's own file name, for a summary of an image folder (``summary.json`` frames' ``source``)."""
+    video: str | None = None
+    """The video the frame was taken from (a summarize/archive folder's ``source``; ``time_s`` is into it)."""
+    threshold: float | None = None
+    """The threshold (tau_ss) the score is read against, where the input records it."""
+    stand_in: bool = False
+    """Shown although nothing passed the threshold (``vision.below_threshold``)."""
+    pilot: bool = False
+    """Kept by the pilot's shutter, whatever its score (``vision.pilot_capture``)."""
+    water_temp_c: float | None = None
+    """Water temperature from the autopilot's external pressure sensor (SCALED_PRESSURE2: the Bar30)."""
+    pressure_dbar: float | None = None
+    """Absolute water pressure there, in decibar (FathomNet's ``pressureDbar``)."""
+    video_utc: str | None = None
+    """The frame's time from the video file (offline summaries without a dive log): its start plus ``time_s``."""
+    video_time_source: str | None = None
+    """How the video's start is known: video_creation_time (its container tag) | video_file_time (its file)."""
+
+    @property
+    def below_threshold(self) -> bool:
+        """Not a match of the query: a stand-in, or (a pilot's frame) a score at or under the threshold."""
+        return self.stand_in or (self.threshold is not None and self.score <= self.threshold)
 
     @property
     def best_utc(self) -> str | None:
-        """The autopilot's time where it has one (it survives a wrong companion clock), else the companion's."""
-        return self.autopilot_utc or self.capture_utc
+        """The autopilot's time where it has one (it survives a wrong companion clock), else the companion's, else
+        the video file's creation time plus the frame's time into it."""
+        return self.autopilot_utc or self.capture_utc or self.video_utc
+
+    @property
+    def date_source(self) -> str | None:
+        """Which clock ``best_utc`` is: autopilot | companion | video_creation_time | video_file_time."""
+        for name, value in (("autopilot", self.autopilot_utc), ("companion", self.capture_utc),
+                            (self.video_time_source, self.video_utc)):
+            if value:
+                return name
+        return None
 
 
 def iso_utc(t: float | None) -> str | None:
@@ -79,6 +111,22 @@ def _degrees(radians: Any) -> float | None:
     return None if value is None else math.degrees(value)
 
 
+def _heading(value: Any) -> float | None:
+    """A heading in [0, 360), also once written with 2 decimals (359.999 would print as 360.00)."""
+    h = _number(value)
+    if h is None:
+        return None
+    h %= 360.0
+    return 0.0 if round(h, 2) >= 360.0 else h
+
+
+def _water(pose: dict) -> dict[str, float | None]:
+    """Water temperature (degC) and pressure (dbar) of a pose that has them (SCALED_PRESSURE2)."""
+    hpa = _number(pose.get("pressure_hpa"))
+    return {"water_temp_c": _number(pose.get("water_temp_c")),
+            "pressure_dbar": None if hpa is None else round(hpa / 100.0, 4)}
+
+
 def _valid_position(lat: Any, lon: Any) -> tuple[float | None, float | None]:
     la, lo = _number(lat), _number(lon)
     if la is None or lo is None or not (-90 <= la <= 90 and -180 <= lo <= 180) or (la == 0 and lo == 0):
@@ -94,10 +142,10 @@ def _pose_fields(pose: dict | None) -> dict[str, Any]:
     unix_us = _number(pose.get("autopilot_unix_usec"))
     boot = _number(pose.get("time_boot_ms"))
     return {"depth_m": _number(pose.get("depth_m")), "altitude_m": _number(pose.get("alt_m")),
-            "heading_deg": _number(pose.get("heading_deg")), "roll_deg": _degrees(pose.get("roll")),
+            "heading_deg": _heading(pose.get("heading_deg")), "roll_deg": _degrees(pose.get("roll")),
             "pitch_deg": _degrees(pose.get("pitch")), "yaw_deg": _degrees(pose.get("yaw")), "lat": lat, "lon": lon,
             "autopilot_utc": iso_utc(unix_us / 1e6) if unix_us else None,
-            "time_boot_ms": int(boot) if boot is not None else None}
+            "time_boot_ms": int(boot) if boot is not None else None, **_water(pose)}
 
 
 def _read_json(path: Path) -> Any:
@@ -130,14 +178,19 @@ def _store_records(folder: Path, doc: dict) -> list[FrameRecord]:
             image=image, dive=dive, frame=entry.whole("image_index", position), width=width, height=height,
             score=entry.number("score", 0.0), topic=entry.text("topic"), query=entry.text("query", tags),
             time_s=_number(side.get("time_s")), capture_utc=iso_utc(_number(side.get("capture_time"))),
-            **_pose_fields(side.get("pose"))))
+            threshold=_number(tags.get("tau_ss")), stand_in=side.get("below_threshold") is True,
+            pilot=side.get("pilot") is True, **_pose_fields(side.get("pose"))))
     return out
 
 
 def _summary_records(folder: Path, doc: dict, dive: str) -> list[FrameRecord]:
     params = doc.get("params") if isinstance(doc.get("params"), dict) else {}
-    topics = params.get("topics") or [{"name": "", "query": params.get("query", "")}]
+    topics = params.get("topics") or [{"name": "", "query": params.get("query", ""), "tau_ss": params.get("tau_ss")}]
     queries = {str(t.get("name", "")): str(t.get("query", "")) for t in topics if isinstance(t, dict)}
+    taus = {str(t.get("name", "")): _number(t.get("tau_ss", params.get("tau_ss"))) for t in topics
+            if isinstance(t, dict)}
+    video = doc.get("source") if isinstance(doc.get("source"), str) and doc.get("source") else None
+    started = video_start(video, folder) if video else None
     tags_path = folder / "tags.json"
     tags = _read_json(tags_path) if tags_path.exists() else {}
     by_index = {f.get("index"): f for f in tags.get("frames", []) if isinstance(f, dict)} \
@@ -149,12 +202,17 @@ def _summary_records(folder: Path, doc: dict, dive: str) -> list[FrameRecord]:
         width, height = _image_size(image)
         tag = by_index.get(data.get("index"), {})
         topic = entry.text("topic")
+        still = entry.text("source") or None
+        time_s = _number(data.get("time_s"))
         out.append(FrameRecord(
             image=image, dive=dive, frame=entry.whole("index", position), width=width, height=height,
             score=entry.number("score", 0.0), topic=topic,
-            query=queries.get(topic, str(params.get("query", ""))), time_s=_number(data.get("time_s")),
-            capture_utc=iso_utc(_number(tag.get("wall_time"))), source=entry.text("source") or None,
-            **_pose_fields(tag.get("pose"))))
+            query=queries.get(topic, str(params.get("query", ""))), time_s=time_s,
+            capture_utc=iso_utc(_number(tag.get("wall_time"))), source=still,
+            video=None if still else video, threshold=taus.get(topic, _number(params.get("tau_ss"))),
+            stand_in=data.get("below_threshold") is True,
+            video_utc=iso_utc(started[0] + time_s) if started and time_s is not None and not still else None,
+            video_time_source=started[1] if started else None, **_pose_fields(tag.get("pose"))))
     return out
 
 

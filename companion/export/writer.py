@@ -30,14 +30,29 @@ def check_out(out: Path) -> None:
         raise UsageError(f"--out {out}: folder {out.parent} does not exist")
 
 
-def export(source: str | Path, fmt: str, out: str | Path) -> list[FrameRecord]:
-    """Write the frames at ``source`` to ``out`` in ``fmt``; returns the records written."""
+def _write(records: list[FrameRecord], fmt: str, out: Path, base_url: str | None = None) -> None:
+    """One format to ``out``; the CSV's image folder first (``viame_csv.copy_images``: the rows name its images)."""
+    if fmt == "csv":
+        viame_csv.copy_images(records, out)
+    text = fathomnet.render(records, out, base_url) if fmt == "fathomnet" else FORMATS[fmt](records, out)
+    atomic_write(out, text)
+
+
+def check_base_url(base_url: str | None) -> None:
+    if base_url is not None and not base_url.startswith(("http://", "https://")):
+        raise UsageError(f"--base-url {base_url}: not an http:// or https:// URL")
+
+
+def export(source: str | Path, fmt: str, out: str | Path, base_url: str | None = None) -> list[FrameRecord]:
+    """Write the frames at ``source`` to ``out`` in ``fmt`` (FathomNet URLs under ``base_url`` when given);
+    returns the records written."""
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt}: not one of {', '.join(FORMATS)}")
+    check_base_url(base_url)
     out = Path(out)
     check_out(out)
     records = read_records(source)
-    atomic_write(out, FORMATS[fmt](records, out))
+    _write(records, fmt, out, base_url)
     return records
 
 
@@ -51,6 +66,6 @@ def write_campaign_exports(out_dir: Path, names: list[str]) -> dict[str, Path]:
     written = {}
     for fmt, name in CAMPAIGN_FILES.items():
         path = out_dir / name
-        atomic_write(path, FORMATS[fmt](records, path))
+        _write(records, fmt, path)
         written[fmt] = path
     return written

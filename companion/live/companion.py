@@ -29,10 +29,11 @@ from companion.live.control.marks import MarksHandler
 from companion.live.control.notices import AutopilotNotice, source_notice
 from companion.live.control.params import ParamHandler, default_params
 from companion.live.control.queries import QueriesHandler, follow_saved_queries
+from companion.live.control.shutter import ShutterHandler
 from companion.live.control.summary_file import keeper_document, serve_keeper_document
 from companion.live.enhance_worker import EnhanceWorker, SelectiveStage
 from companion.live.health import Health
-from companion.live.loops import CaptureLoop, InferenceLoop, LiveCounters
+from companion.live.loops import CaptureLoop, FrameAdmission, InferenceLoop, LiveCounters, is_skipped
 from companion.live.notify import Notifier
 from companion.live.queues import DropOldestQueue
 from companion.live.quiet_notice import QuietNotice
@@ -41,7 +42,6 @@ from companion.live.resume_features import refresh_features
 from companion.live.summary_keeper import SummaryKeeper
 from companion.live.watchdog import Watchdog
 from companion.sources.factory import open_source
-from companion.sources.frame import Frame
 from companion.sources.retrying import RetryingSource
 from companion.storage.marks_file import MarksFile, SavedMarks
 from companion.storage.params_file import ParamsFile
@@ -66,7 +66,9 @@ log = logging.getLogger(__name__)
 
 LIVE_PREFIXES = ("/dev/video", "/dev/v4l/", "v4l2://", "rtsp://", "rtsps://", "udp://")
 CAPTURE_QUEUE = 4
-"""Frames waiting for inference; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
+"""Frames waiting to be encoded; beyond this the oldest is dropped (at 5 fps: under a second of backlog)."""
+SKIPPED_QUEUE = 512
+"""Frames the gate skipped waiting for the inference thread to count them (no pixels: ~8 s at 60 fps)."""
 
 
 def is_live_uri(uri: str) -> bool:
@@ -96,7 +98,7 @@ class LiveCompanion:
         self.health = Health(cfg.health.stall_after_s)
         self.counters = LiveCounters()
         self.stop_event = threading.Event()
-        self.queue: DropOldestQueue[Frame] = DropOldestQueue(CAPTURE_QUEUE)
+        self.queue = DropOldestQueue(CAPTURE_QUEUE, light=is_skipped, light_max=SKIPPED_QUEUE)
         self.started_at = time.monotonic()
         self.store_lock = self.options.store_lock or StoreLock(cfg.store.dir)
         self.store: Store | None = None
@@ -108,6 +110,7 @@ class LiveCompanion:
         self.on_param: ParamHandler | None = None
         self.on_queries: QueriesHandler | None = None
         self.on_marks: MarksHandler | None = None
+        self.on_shutter: ShutterHandler | None = None
         self.link: MavLink | None = None
         self.telemetry: VehicleTelemetry | None = None
         self.surface: Downlink | None = None
@@ -214,6 +217,7 @@ class LiveCompanion:
             topic = next((t for t in self.pipeline.topics if t.name == frame.topic), self.pipeline.topics[0])
             presampler = topic.presampler
             return {"query": presampler.positive,  # the topic's live query, which the surface may change
+                    "tau_ss": presampler.tau_ss,  # the threshold its score is read against (exports flag below)
                     "encoder": getattr(self.encoder, "name", ""), "source": self.cfg.source.uri}
 
         return SummaryKeeper(self.pipeline, self.store, tags=tags, publish=self._publish)
@@ -270,6 +274,10 @@ class LiveCompanion:
             self._on_store_health(True, self.store.memory_only_reason)
         self.surface.on_queries_changed(self.on_queries)
         self.surface.on_marks_changed(self.on_marks)
+        self.on_shutter = ShutterHandler(self.control, lambda: self.capture.latest if self.capture else None,
+                                         self._pose_at)
+        self.surface.camera.shutter.wire(self.on_shutter)  # from now on CAMERA_INFORMATION offers a shutter
+        self.surface.camera.storage = self.store.space  # STORAGE_INFORMATION and the capture status read it
         self.surface.set_marks(self.marks.like, self.marks.unlike)
         serve_keeper_document(self.control, self.on_marks)
         self.link.on_autopilot(AutopilotNotice(self.control))
@@ -292,7 +300,8 @@ class LiveCompanion:
             initial_s=cfg.retry_initial_s, max_s=cfg.retry_max_s, on_state=lambda state, _detail: source_notice(self.control, self.source, state),
             beat=lambda: self.health.beat("capture"),
         )
-        self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event)
+        admission = FrameAdmission(self.pipeline.prepare, lambda: self.control.frame_gate, self.pipeline.encode_size)
+        self.capture = CaptureLoop(self.source, self.queue, self.health, self.counters, self.stop_event, admission)
         self.inference = InferenceLoop(
             self.pipeline, self.queue, self.health, self.counters, self.stop_event,
             batch=self.cfg.encoder.batch, pose_at=self._pose_at, keeper=self.keeper, selective=self.selective,

@@ -80,11 +80,14 @@ class SelectiveStage:
         keep = self.gate.admit_batch(small, [f.time_s for f in frames])  # a gate that is off admits every frame
         return [s if k else None for s, k in zip(small, keep, strict=True)]
 
-    def score(self, frames: list[Frame], poses: list | None) -> list[tuple[Frame, float, bool, bool]]:
+    def score(self, frames: list[Frame], poses: list | None,
+              prepared: list[np.ndarray | None] | None = None) -> list[tuple[Frame, float, bool, bool]]:
         """(frame, best ss_t over the topics, passed, encoded) per frame: the gate goes first, then one encoder
         pass for every topic; a frame above any topic's tau_ss is queued for the enhancer (the oldest waiting one
-        may go). A frame the gate skips is seen, never scored (NaN) and never a candidate."""
-        prepared = self.admit(frames)
+        may go). A frame the gate skips is seen, never scored (NaN) and never a candidate. ``prepared``: the
+        capture thread gated and downscaled them already (``companion.live.loops.FrameAdmission``)."""
+        if prepared is None:
+            prepared = self.admit(frames)
         go = [i for i, p in enumerate(prepared) if p is not None]
         out = [(frame, float("nan"), False, False) for frame in frames]
         if not go:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import cv2
 
-from companion.errors import MerlionError, UsageError
+from companion.errors import UsageError
 from companion.sources.base import FrameSource
 from companion.sources.frame import Frame
 from companion.sources.subsample import Pacer
@@ -117,6 +117,6 @@ class FolderSource(FrameSource):
                     yield Frame(image, index, time_s, time.time())
                 index += 1
             if decoded == 0:
-                raise MerlionError(f"{self.folder}: none of its {len(self.files)} images could be read")
+                raise UsageError(f"{self.folder}: none of its {len(self.files)} images could be read")
             if not self.loop:
                 return

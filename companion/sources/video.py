@@ -16,7 +16,7 @@ from pathlib import Path
 
 import cv2
 
-from companion.errors import MerlionError, UsageError
+from companion.errors import UsageError
 from companion.sources.base import FrameSource
 from companion.sources.ffmpeg_log import opening
 from companion.sources.frame import Frame
@@ -55,8 +55,8 @@ class VideoSource(FrameSource):
         if not cap.isOpened():
             cap.release()
             if missing_mp4_index(self.path):
-                raise MerlionError(no_index_message(self.path))
-            raise MerlionError(f"{self.path}: cannot be opened as a video (unknown format, or damaged beyond reading)")
+                raise UsageError(no_index_message(self.path))
+            raise UsageError(f"{self.path}: cannot be opened as a video (unknown format, or damaged beyond reading)")
         return cap
 
     def _probe(self) -> tuple[float, int]:
@@ -80,7 +80,7 @@ class VideoSource(FrameSource):
             if self._closed:
                 return
             if self.decoded == 0:
-                raise MerlionError(f"{self.path}: no frame could be decoded (corrupt or truncated video)")
+                raise UsageError(f"{self.path}: no frame could be decoded (corrupt or truncated video)")
             if not self.loop or read == 0:
                 return
             offset_index += read

@@ -70,6 +70,7 @@ def sidecar_for(frame: SummaryFrame, *, tags: dict[str, Any] | None = None) -> d
         "pose": frame.pose.to_dict() if frame.pose is not None else None,
         "topic": frame.topic,
         "below_threshold": bool(frame.below_threshold),
+        "pilot": bool(frame.pilot),
         "tags": dict(tags or {}),
     }
 
@@ -162,6 +163,7 @@ def _held_from(store_dir: Path, sidecar: dict[str, Any], image: np.ndarray, feat
         enhanced=bool(sidecar.get("enhanced", False)),
         topic=str(sidecar.get("topic") or ""),
         below_threshold=bool(sidecar.get("below_threshold", False)),
+        pilot=bool(sidecar.get("pilot", False)),
         raw_score=None if sidecar.get("raw_score") is None else float(sidecar["raw_score"]),
     )
     return HeldFrame(frame=frame, sidecar=sidecar, on_disk=True)

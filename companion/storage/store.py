@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -55,6 +56,7 @@ from companion.storage.store_health import Listener, StoreHealth
 from companion.storage.summary_file import read_summary_file
 from companion.storage.versioned import upgrade
 from companion.vision.events import SummaryEvent, SummaryFrame
+from vehicle.camera.storage import StorageSpace
 
 log = logging.getLogger(__name__)
 
@@ -440,6 +442,21 @@ class Store:
                 log.warning("store %s: the summary alone (%d bytes) exceeds the disk budget (%d bytes)",
                             self.dir, usage, self.budget_bytes)
         self.stats.bytes_on_disk = usage
+
+    def space(self) -> StorageSpace:
+        """The store's room as the camera reports it (STORAGE_INFORMATION): its disk budget, what its files use,
+        and what is left of the budget, no more than the file system has free (0 while memory-only: nothing more
+        reaches the disk)."""
+        used = self.stats.bytes_on_disk
+        left = max(0, self.budget_bytes - used)
+        if self.memory_only:
+            left = 0
+        else:
+            try:
+                left = min(left, shutil.disk_usage(self.dir).free)
+            except OSError:
+                left = 0
+        return StorageSpace(total=self.budget_bytes, used=used, available=left)
 
     # ---- degrading ----------------------------------------------------------------------------------------------
     def _degrade(self, err: OSError) -> None:

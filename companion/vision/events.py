@@ -36,6 +36,9 @@ class SummaryFrame:
     """The name of the topic whose summary it entered (``queries.topics``; the default topic's name with one)."""
     below_threshold: bool = False
     """A stand-in: nothing passed tau_ss for a while, so the best frame seen is shown (``vision.below_threshold``)."""
+    pilot: bool = False
+    """Kept by the pilot's shutter (MAV_CMD_IMAGE_START_CAPTURE), whatever its score: never trimmed to make room
+    (``companion.vision.pilot_capture``)."""
     raw_score: float | None = None
     """ss_t of the raw frame when ``score`` is the enhanced copy's ss_e (selective enhancement): the two gates it
     passed, side by side. None where the frame was not enhanced, or the encoder never saw it raw (``always``)."""

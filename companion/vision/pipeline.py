@@ -50,6 +50,7 @@ from companion.vision.events import SummaryEvent, SummaryFrame
 from companion.vision.frame_result import BatchOutcome, FrameResult, raw_behind
 from companion.vision.gate import FrameGate
 from companion.vision.image_indices import ImageIndices
+from companion.vision.pilot_capture import refile_pilot_frames, take_pilot_frame
 from companion.vision.presampler import PreSampler
 from companion.vision.sampler import InformativeSampler
 from companion.vision.stand_in_stage import all_keys, finish_events, stand_in_events
@@ -217,6 +218,7 @@ class Pipeline:
                 follow(spec, topic.presampler, self.encoder, self.default_tau_ss, self.dive)
             topics.append(topic)
         self.topics = topics
+        refile_pilot_frames(list(old.values()), topics[0])  # the pilot's frames stay, under the first topic
         gone = [frame for topic in old.values() for frame in topic.summary]
         keys = self._all_keys()
         return [SummaryEvent("removed", frame, list(keys)) for frame in gone]
@@ -271,11 +273,20 @@ class Pipeline:
         frames = sorted(frames, key=lambda f: f.image_index)
         by_topic, dropped = by_topic_name(frames, [t.name for t in self.topics], self.untagged_topic())
         removed = []
+        pilots = [f for f in dropped if f.pilot]  # a pilot's frame never leaves: under the topic frames untagged go to
+        dropped = [f for f in dropped if not f.pilot]
+        for frame in pilots:
+            frame.topic = self.untagged_topic()
+            by_topic[frame.topic].append(frame)
         for topic in self.topics:
-            mine = [f for f in by_topic[topic.name] if not f.below_threshold]
+            mine = [f for f in by_topic[topic.name] if not f.below_threshold and not f.pilot]
             removed.append((topic, topic.sampler.restore((f.image_index, f.feature) for f in mine)))
             topic.held = {f.image_index: f for f in mine}
+            topic.pilot = [f.image_index for f in by_topic[topic.name] if f.pilot]
+            topic.held.update((f.image_index, f) for f in by_topic[topic.name] if f.pilot)
             for f in by_topic[topic.name]:
+                if f.pilot:
+                    continue
                 if f.below_threshold and not mine:  # shown again until a frame passes
                     topic.below.showing(f)
                     topic.below.candidates.append(f)
@@ -286,6 +297,10 @@ class Pipeline:
         events = self._removal_events(removed)
         keys = self._all_keys()
         return events + [SummaryEvent("removed", frame, list(keys)) for frame in dropped]
+
+    def capture(self, frame: Frame, pose: Pose | None) -> list[SummaryEvent]:
+        """The pilot's shutter: keep ``frame`` as the pilot's own summary frame (``pilot_capture``)."""
+        return take_pilot_frame(self.encoder, self.prepare(frame.image), self.topics, self.indices, frame, pose)
 
     def _removal_events(self, removed: Sequence[tuple[Topic, Sequence[int]]]) -> list[SummaryEvent]:
         gone = [topic.held.pop(key) for topic, keys in removed for key in keys]

@@ -15,14 +15,12 @@ import json
 import logging
 import math
 import shutil
-import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
-from tqdm import tqdm
 
 from companion.config import Config
 from companion.errors import MerlionError, UsageError
@@ -30,6 +28,7 @@ from companion.sources.base import FrameSource
 from companion.sources.factory import open_source
 from companion.sources.folder import FolderSource
 from companion.sources.frame_feed import FrameFeed
+from companion.vision import progress_lines
 from companion.vision.contact_sheet import Tile, contact_sheet
 from companion.vision.encoders.base import Encoder
 from companion.vision.encoders.factory import make_encoder
@@ -94,9 +93,6 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
         raise UsageError(f"{out_dir}: parent directory {parent} does not exist")
 
 
-def _progress(total: int | None, enabled: bool | None):
-    show = sys.stderr.isatty() if enabled is None else enabled
-    return tqdm(total=total, unit="frame", desc="summarize", disable=not show, file=sys.stderr)
 
 
 def build_document(cfg: Config, encoder: Encoder, pipeline: Pipeline, frames: list[SummaryFrame],
@@ -246,15 +242,15 @@ def _summarize_into(cfg: Config, out_dir: Path, out_tmp: Path, encoder: Encoder 
     seen = passed = 0
     gate = pipeline.gate if pipeline.gate.on else None  # gated in the decode thread: full batches to encode
     with FrameFeed(source, pipeline.prepare, gate=gate) as feed, \
-            _progress(expected_frames(source), progress) as bar:
+            progress_lines.progress("summarize", "frame", expected_frames(source), progress) as bar:
         for batch in feed.batches(cfg.encoder.batch):
             out = pipeline.process([f for f, _ in batch], [s for _, s in batch], gated=feed.gated)
             seen += len(batch)
             passed += sum(r.passed for r in out.results)
             if on_results is not None:
                 on_results(out.results)
-            bar.update(len(batch))
             bar.set_postfix(passed=passed, held=len(pipeline.summary))
+            bar.update(len(batch))
     stand_ins = pipeline.finish()  # a topic nothing passed for shows its best frames, marked below threshold
     if stand_ins:
         log.warning("no frame passed tau_ss for topic(s) %s: the best-scoring frames are kept, marked "

@@ -52,16 +52,20 @@ class Topic:
     """The summary frames by image index (the sampler's keys)."""
     below: BestBelow = field(default_factory=BestBelow)
     """Stand-ins while nothing passes: in the summary (``below.shown``) only while the sampler holds nothing."""
+    pilot: list[int] = field(default_factory=list)
+    """The pilot's own captures filed under this topic (in ``held`` too): outside the sampler, so nothing it
+    trims for room ever takes one."""
 
     @property
     def keys(self) -> list[int]:
-        """Image indices in the summary: the sampler's, then any stand-ins."""
-        return [*self.sampler.keys, *self.below.shown]
+        """Image indices in the summary: the sampler's, then any stand-ins, then the pilot's captures."""
+        return [*self.sampler.keys, *self.below.shown, *self.pilot]
 
     @property
     def summary(self) -> list[SummaryFrame]:
-        """The frames held now, in the order they entered (stand-ins last)."""
-        return [self.held[key] for key in self.sampler.keys] + list(self.below.shown.values())
+        """The frames held now, in the order they entered (stand-ins, then the pilot's captures, last)."""
+        return ([self.held[key] for key in self.sampler.keys] + list(self.below.shown.values())
+                + [self.held[key] for key in self.pilot])
 
 
 def check_names(names: Sequence[str]) -> None:

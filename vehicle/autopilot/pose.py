@@ -36,6 +36,10 @@ class Pose:
     """LOCAL_POSITION_NED, only with a position source (DVL, USBL)."""
     east_m: float | None = None
     down_m: float | None = None
+    water_temp_c: float | None = None
+    """Water temperature from the external pressure sensor (SCALED_PRESSURE2.temperature: the Bar30), degC."""
+    pressure_hpa: float | None = None
+    """Absolute water pressure there (SCALED_PRESSURE2.press_abs), hPa."""
     time_boot_ms: int | None = None
     """The autopilot's own clock at ``time`` (milliseconds since its boot), beside the companion's ``time``."""
     autopilot_unix_usec: int | None = None

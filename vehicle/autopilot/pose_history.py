@@ -117,6 +117,10 @@ class _Channel:
         return tuple(x + (y - x) * f for x, y in zip(a, b, strict=True)), tag
 
 
+WATER_LIMIT_S = 2.0
+"""SCALED_PRESSURE2 comes about once a second (water temperature changes slowly): a sample this near still counts."""
+
+
 class PoseHistory:
     """Thread-safe store of timestamped samples (companion clock) and ``pose_at(t)``; see the module docstring."""
 
@@ -130,6 +134,7 @@ class PoseHistory:
         self._heading = _Channel()
         self._local = _Channel()
         self._global = _Channel()
+        self._water = _Channel()
         self._newest = -math.inf
 
     def add_depth(self, t: float, depth_m: float, source: str, rate_mps: float | None = None) -> None:
@@ -148,10 +153,14 @@ class PoseHistory:
     def add_global_position(self, t: float, lat: float, lon: float, alt_m: float) -> None:
         self._add(self._global, t, (lat, lon, alt_m))
 
+    def add_water(self, t: float, pressure_hpa: float, temp_c: float) -> None:
+        """The external pressure sensor's absolute pressure and water temperature (SCALED_PRESSURE2: the Bar30)."""
+        self._add(self._water, t, (pressure_hpa, temp_c))
+
     def clear(self) -> None:
         """Forget every sample (an autopilot reboot restarts its clock, so old times mean nothing any more)."""
         with self._lock:
-            for ch in (self._depth, self._attitude, self._heading, self._local, self._global):
+            for ch in (self._depth, self._attitude, self._heading, self._local, self._global, self._water):
                 ch.prune(math.inf)
             # the new boot's times start below the old newest one; left as it was, pruning (which only runs
             # when a sample is the newest yet) would stop until the new uptime passed the old one
@@ -163,7 +172,7 @@ class PoseHistory:
             if t > self._newest:
                 self._newest = t
                 if channel.times[0] < t - 2 * self.history_s:  # prune in batches, not per sample
-                    for ch in (self._depth, self._attitude, self._heading, self._local, self._global):
+                    for ch in (self._depth, self._attitude, self._heading, self._local, self._global, self._water):
                         ch.prune(t - self.history_s)
 
     def pose_at(self, t: float) -> Pose:
@@ -194,6 +203,9 @@ class PoseHistory:
             glob = self._global.linear(t, limit)
             if glob is not None:
                 fields["lat"], fields["lon"], fields["alt_m"] = glob[0]
+            water = self._water.linear(t, max(limit, WATER_LIMIT_S))
+            if water is not None:
+                fields["pressure_hpa"], fields["water_temp_c"] = water[0]
         return Pose(time=t, age_s=age, stale=False, **fields)
 
     def _depth_at(self, t: float, limit: float) -> tuple[float, str] | None:

@@ -274,6 +274,8 @@ class VehicleTelemetry:
         elif mtype == "SCALED_PRESSURE2":
             depth = depth_from_pressure(msg.press_abs, self.cfg.fluid_density, self.cfg.surface_pressure_hpa)
             self._depth(update, t, arrival, "scaled_pressure2", depth)
+            if h is not None:  # the Bar30's water temperature and pressure ride along on every frame's pose
+                h.add_water(t, msg.press_abs, msg.temperature / 100.0)
         elif mtype == "VFR_HUD":
             self._depth(update, t, arrival, "vfr_hud", -msg.alt)
             if h is not None:

@@ -20,6 +20,10 @@ from vehicle.autopilot.pose import Pose
 from vehicle.camera.capture_frame import CaptureFrame
 
 CAPTURE_OK = 1
+CAPTURE_UNPLACED = 0
+"""``capture_result`` of a capture without a valid position. QGroundControl (src/Vehicle/Vehicle.cc,
+``_handleCameraImageCaptured``) puts a map marker at lat/lon for every capture with ``capture_result == 1`` and
+checks nothing else: 1 with 0/0 drew a marker off West Africa. 0 is the only value it draws nothing for."""
 UNKNOWN_Q = (float("nan"), 0.0, 0.0, 0.0)
 """MAVLink's way to say "attitude unknown": NaN in the first quaternion element."""
 
@@ -56,7 +60,9 @@ def _finite(value: float | None) -> bool:
 
 def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg", camera_id: int = 1,
                      dive: str = "") -> mav.MAVLink_camera_image_captured_message:
-    """CAMERA_IMAGE_CAPTURED for a summary frame; fields the pose lacks are 0 (position) or NaN (attitude)."""
+    """CAMERA_IMAGE_CAPTURED for a summary frame; fields the pose lacks are 0 (position) or NaN (attitude). With
+    no valid position (no EKF origin, a stale pose) ``capture_result`` is 0: QGroundControl then draws no marker,
+    rather than one at 0°, 0° (docs/surface-link.md)."""
     pose = None if frame.pose is None or frame.pose.stale else frame.pose
     placed = pose is not None and _finite(pose.lat) and _finite(pose.lon) and abs(pose.lat) <= 90 \
         and abs(pose.lon) <= 180  # QGroundControl marks the map at lat/lon: both valid, or both 0 (unknown)
@@ -66,7 +72,7 @@ def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg"
     rel = int(round(-pose.depth_m * 1000)) if pose is not None and _finite(pose.depth_m) else 0
     return mav.MAVLink_camera_image_captured_message(
         time_boot_ms & 0xFFFFFFFF, int(frame.capture_time * 1e6), camera_id, lat, lon, alt, rel,
-        list(quaternion(pose)), frame.image_index, CAPTURE_OK, file_url(frame.image_index, ext, dive).encode())
+        list(quaternion(pose)), frame.image_index, CAPTURE_OK if placed else CAPTURE_UNPLACED, file_url(frame.image_index, ext, dive).encode())
 
 
 def trimmed_text(frame: CaptureFrame, held: int) -> str:

@@ -16,6 +16,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from vehicle.camera.capture_frame import MAX_IMAGE_INDEX
 from vehicle.camera.captures import CaptureLog
 from vehicle.camera.requests import addressed_to
+from vehicle.camera.shutter import Shutter
+from vehicle.camera.storage import StorageSpace, available_mib, storage_information
 
 VENDOR = "MERLION"
 MSG_CAMERA_INFORMATION = 259
@@ -28,8 +30,15 @@ CMD_REQUEST_MESSAGE = mav.MAV_CMD_REQUEST_MESSAGE  # 512
 CMD_REQUEST_CAMERA_INFORMATION = mav.MAV_CMD_REQUEST_CAMERA_INFORMATION  # 521
 CMD_REQUEST_CAMERA_CAPTURE_STATUS = mav.MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS  # 527
 CMD_REQUEST_CAMERA_IMAGE_CAPTURE = mav.MAV_CMD_REQUEST_CAMERA_IMAGE_CAPTURE  # 2002
-_SUPPORTED = {CMD_REQUEST_MESSAGE, CMD_REQUEST_CAMERA_INFORMATION, CMD_REQUEST_CAMERA_CAPTURE_STATUS,
-              CMD_REQUEST_CAMERA_IMAGE_CAPTURE}
+CMD_REQUEST_STORAGE_INFORMATION = mav.MAV_CMD_REQUEST_STORAGE_INFORMATION  # 525
+CMD_IMAGE_START_CAPTURE = mav.MAV_CMD_IMAGE_START_CAPTURE  # 2000
+CMD_IMAGE_STOP_CAPTURE = mav.MAV_CMD_IMAGE_STOP_CAPTURE  # 2001
+_BROADCAST_MESSAGES = (MSG_CAMERA_INFORMATION, MSG_STORAGE_INFORMATION, MSG_CAMERA_CAPTURE_STATUS,
+                       MSG_CAMERA_IMAGE_CAPTURED)
+_BROADCAST_COMMANDS = {CMD_REQUEST_MESSAGE, CMD_REQUEST_CAMERA_INFORMATION, CMD_REQUEST_CAMERA_CAPTURE_STATUS,
+                       CMD_REQUEST_CAMERA_IMAGE_CAPTURE, CMD_REQUEST_STORAGE_INFORMATION}
+"""Requests answered also when sent to every component (the shutter only when addressed to us)."""
+Reply = tuple[int, "mav.MAVLink_message | None"]
 
 
 def _text(value: str, size: int) -> list[int]:
@@ -79,6 +88,20 @@ class CameraComponent:
         self.component_id = component_id
         self.identity = identity or CameraIdentity()
         self.commands_seen = 0
+        self.shutter = Shutter()
+        """MAV_CMD_IMAGE_START_CAPTURE: the pilot's own capture, once the companion wired it (``Shutter.wire``)."""
+        self.storage: Callable[[], StorageSpace | None] = lambda: None
+        """The store's room now (the companion's ``Store.space``); None: no store."""
+        self._commands: dict[int, Callable[[mav.MAVLink_message], Reply]] = {
+            CMD_REQUEST_MESSAGE: self._request_message,
+            CMD_REQUEST_CAMERA_INFORMATION: lambda _m: (mav.MAV_RESULT_ACCEPTED, self.information()),
+            CMD_REQUEST_CAMERA_CAPTURE_STATUS: lambda _m: (mav.MAV_RESULT_ACCEPTED, self.capture_status()),
+            CMD_REQUEST_STORAGE_INFORMATION: self._request_storage,
+            CMD_REQUEST_CAMERA_IMAGE_CAPTURE: lambda m: self._capture(m.param1, latest_if_unset=False),
+            CMD_IMAGE_START_CAPTURE: lambda m: (self.shutter.press(m), None),
+            CMD_IMAGE_STOP_CAPTURE: lambda _m: (mav.MAV_RESULT_ACCEPTED, None),  # one image per press: none running
+        }
+        """Command -> its handler: the one table of what this camera does (anything else is UNSUPPORTED)."""
 
     # ---- the messages we provide ----------------------------------------------------------------------------
 
@@ -87,14 +110,19 @@ class CameraComponent:
         return mav.MAVLink_camera_information_message(
             self.captures.time_boot_ms(), _text(VENDOR, 32), _text(ident.model, 32), ident.firmware_version,
             float("nan"), float("nan"), float("nan"), ident.width, ident.height, 0,
-            mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE, 0, b"")
+            mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE if self.shutter.wired else 0, 0, b"")
 
     def capture_status(self) -> mav.MAVLink_camera_capture_status_message:
-        """image_status 0 (idle: captures come from the sampler, not a shutter); image_count counts captures, an
-        int32 on the wire: once every image index was used (2^31 captures) it says 2^31-1, the most it can, rather
-        than a message pymavlink cannot pack."""
+        """image_status 1 while a pilot's capture is being kept, else 0 (idle: QGroundControl resets its shutter
+        button on it); available_capacity the store's room left in MiB (never NaN: QGroundControl casts it to
+        uint32); image_count counts captures, an int32 on the wire: once every image index was used (2^31
+        captures) it says 2^31-1, the most it can, rather than a message pymavlink cannot pack."""
         return mav.MAVLink_camera_capture_status_message(
-            self.captures.time_boot_ms(), 0, 0, 0.0, 0, float("nan"), min(self.captures.image_count, MAX_IMAGE_INDEX))
+            self.captures.time_boot_ms(), self.shutter.image_status, 0, 0.0, 0, available_mib(self.storage()),
+            min(self.captures.image_count, MAX_IMAGE_INDEX))
+
+    def storage_information(self) -> mav.MAVLink_storage_information_message:
+        return storage_information(self.storage(), self.captures.time_boot_ms())
 
     # ---- dispatch -------------------------------------------------------------------------------------------
 
@@ -119,32 +147,39 @@ class CameraComponent:
 
     def _answers_broadcast(self, msg: mav.MAVLink_message) -> bool:
         if msg.command == CMD_REQUEST_MESSAGE:
-            return param_index(msg.param1) in (MSG_CAMERA_INFORMATION, MSG_CAMERA_CAPTURE_STATUS,
-                                               MSG_CAMERA_IMAGE_CAPTURED)
-        return msg.command in _SUPPORTED
+            return param_index(msg.param1) in _BROADCAST_MESSAGES
+        return msg.command in _BROADCAST_COMMANDS
 
-    def _run(self, msg: mav.MAVLink_message) -> tuple[int, mav.MAVLink_message | None]:
-        command = msg.command
-        if command == CMD_REQUEST_MESSAGE:
-            wanted = param_index(msg.param1)
-            if wanted == MSG_CAMERA_INFORMATION:
-                return mav.MAV_RESULT_ACCEPTED, self.information()
-            if wanted == MSG_CAMERA_CAPTURE_STATUS:
-                return mav.MAV_RESULT_ACCEPTED, self.capture_status()
-            if wanted == MSG_CAMERA_IMAGE_CAPTURED:
-                return self._capture(msg.param2, latest_if_unset=True)
-            if wanted is None:
-                return mav.MAV_RESULT_DENIED, None
-            return mav.MAV_RESULT_UNSUPPORTED, None
-        if command == CMD_REQUEST_CAMERA_INFORMATION:
+    def _run(self, msg: mav.MAVLink_message) -> Reply:
+        handler = self._commands.get(msg.command)
+        return (mav.MAV_RESULT_UNSUPPORTED, None) if handler is None else handler(msg)
+
+    def _request_message(self, msg: mav.MAVLink_message) -> Reply:
+        wanted = param_index(msg.param1)
+        if wanted == MSG_CAMERA_INFORMATION:
             return mav.MAV_RESULT_ACCEPTED, self.information()
-        if command == CMD_REQUEST_CAMERA_CAPTURE_STATUS:
+        if wanted == MSG_CAMERA_CAPTURE_STATUS:
             return mav.MAV_RESULT_ACCEPTED, self.capture_status()
-        if command == CMD_REQUEST_CAMERA_IMAGE_CAPTURE:
-            return self._capture(msg.param1, latest_if_unset=False)
+        if wanted == MSG_STORAGE_INFORMATION:
+            return self._storage_for(msg.param2)
+        if wanted == MSG_CAMERA_IMAGE_CAPTURED:
+            return self._capture(msg.param2, latest_if_unset=True)
+        if wanted is None:
+            return mav.MAV_RESULT_DENIED, None
         return mav.MAV_RESULT_UNSUPPORTED, None
 
-    def _capture(self, raw_index: float, *, latest_if_unset: bool) -> tuple[int, mav.MAVLink_message | None]:
+    def _request_storage(self, msg: mav.MAVLink_message) -> Reply:
+        """MAV_CMD_REQUEST_STORAGE_INFORMATION: p1 the storage id (0: all), p2 1 to ask."""
+        return self._storage_for(msg.param1)
+
+    def _storage_for(self, raw_id: float) -> Reply:
+        """Storage 0 (all), 1 (ours) or unset: its STORAGE_INFORMATION; any other id: DENIED (there is none)."""
+        wanted = param_index(raw_id)
+        if raw_id is not None and not math.isnan(raw_id) and wanted not in (0, 1):
+            return mav.MAV_RESULT_DENIED, None
+        return mav.MAV_RESULT_ACCEPTED, self.storage_information()
+
+    def _capture(self, raw_index: float, *, latest_if_unset: bool) -> Reply:
         unset = raw_index is None or math.isnan(raw_index) or raw_index == -1
         index = param_index(raw_index)
         if index is None and not (unset and latest_if_unset):

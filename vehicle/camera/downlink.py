@@ -71,6 +71,7 @@ def _frame_tags(frame: CaptureFrame) -> dict[str, Any]:
         "utc": datetime.fromtimestamp(frame.capture_time, timezone.utc).isoformat(timespec="milliseconds"),
         "score": _json_safe(round(float(frame.score), 4)), "enhanced": bool(frame.enhanced),
         "below_threshold": bool(getattr(frame, "below_threshold", False)),  # a stand-in: nothing passed
+        "pilot": bool(getattr(frame, "pilot", False)),  # kept by the pilot's shutter
     }
     raw_score = getattr(frame, "raw_score", None)
     if raw_score is not None:
@@ -123,6 +124,7 @@ class Downlink:
         self.camera = CameraComponent(self.captures, system_id=lambda: link.system_id,
                                       component_id=link.component_id,
                                       identity=identity or CameraIdentity(firmware_version=firmware_version_of(version)))
+        self.camera.shutter.on_change = self._camera_state
         self.status = st.StatusReporter(self.captures.time_boot_ms)
         self.params = ParamServer(self._with_own_params(params or []), system_id=lambda: link.system_id,
                                   component_id=link.component_id, saved=saved_params,
@@ -223,6 +225,12 @@ class Downlink:
         raises ValueError to refuse it (e.g. a frame it does not hold), which the client gets as a NAK."""
         self._marks_cbs.append(callback)
 
+    def _camera_state(self) -> None:
+        """CAMERA_CAPTURE_STATUS and STORAGE_INFORMATION as they are now: sent on every change (a capture in or
+        out, a shutter done), the latest replacing one still queued."""
+        for msg in (self.camera.capture_status(), self.camera.storage_information()):
+            self.budget.submit(msg, Priority.STATUS, tag=("camera", msg.get_type()), replace=True)
+
     def set_marks(self, like: list[int], unlike: list[int]) -> None:
         """The marks in force, as /config/marks.json shows them (restored at start, cleared with the queries)."""
         self._marks = (list(like), list(unlike))
@@ -304,6 +312,7 @@ class Downlink:
                 self._forget(old)
             self.event(trimmed_text(frame, len(event.summary)))
         self.status.update(summary=len(self._held))
+        self._camera_state()
 
     def _prune(self, summary: list[int]) -> list[int]:
         """Drop frames the event's summary list no longer holds; called with the lock held, so it only

@@ -11,7 +11,7 @@ const TOKEN = new URLSearchParams(location.search).get("token") || "";
 const VALUE_LABELS = {
   MRL_FPS: ["Frames", 1, "/s"],
   MRL_SEEN: ["Seen", 1, "/s"],
-  MRL_SCORE: ["Score", 2, ""],
+  MRL_SCORE: ["Latest frame", 2, ""],
   MRL_SUMN: ["Summary", 0, "frames"],
   MRL_LINKBS: ["Link", 0, "B/s"],
   MRL_DEPTH: ["Depth", 1, "m"],
@@ -54,6 +54,8 @@ function valueText(name, value, values) {
     const seen = values ? values.MRL_SEEN : undefined;
     return ["Frames", "scored " + fmt(value, 1, "/s") + (known(seen) ? " of " + fmt(seen, 1, "/s") + " seen" : "")];
   }
+  // the frame just scored, not the summary's: said so beside the cards' scores (a 0.06 beside cards at 1.00)
+  if (name === "MRL_SCORE") return ["Latest frame", "score " + fmt(value, 2, "")];
   const label = VALUE_LABELS[name];
   if (!label) return [name, known(value) ? Number(value).toFixed(2) : "?"];
   return [label[0], known(value) ? Number(value).toFixed(label[1]) + (label[2] ? " " + label[2] : "") : "?"];

@@ -1,7 +1,9 @@
 """Builds the configured encoder; ``auto`` takes CLIP when its weights are on disk, else the packaged one.
 
-The choice is logged as a WARNING either way: an operator who expected CLIP and got the ImageNet fallback (or the
-reverse) must see it in the first lines of the log, since scores and thresholds depend on it.
+The choice is logged at INFO either way, in the first lines of the log (scores and thresholds depend on it), but as
+no alarm: the packaged encoder is the offline default the README promises, so a start without CLIP weights is
+the normal case, not a fault (it was a WARNING, which landed in the middle of every new user's first
+``summarize``). Why CLIP was not taken is at DEBUG (``-vv``); asking for ``clip`` without weights is an error.
 """
 
 from __future__ import annotations
@@ -23,16 +25,17 @@ def make_encoder(cfg: EncoderConfig) -> Encoder:
     if name == "auto" and cfg.runtime == "onnx" and not cfg.weights:
         # torch-free: a tag a child process found on an earlier start
         if recorded_weights(cfg) is not None:
-            log.warning("encoder auto: using CLIP %s (weights found offline on an earlier start)", cfg.model)
+            log.info("encoder auto: using CLIP %s (weights found offline on an earlier start)", cfg.model)
             name = "clip"
     if name == "auto":
         ok, why_not = clip_weights_available(cfg.model, cfg.weights, cfg.pretrained)
         if ok:
-            log.warning("encoder auto: using CLIP %s (weights found offline)", cfg.model)
+            log.info("encoder auto: using CLIP %s (weights found offline)", cfg.model)
             name = "clip"
         else:
-            log.warning("encoder auto: using the packaged imagenet encoder (EfficientNet-Lite0), because %s",
-                        why_not)
+            log.info("encoder auto: using the packaged imagenet encoder (EfficientNet-Lite0), the offline default; "
+                     "CLIP %s is used instead once its weights are on disk (merlion models list)", cfg.model)
+            log.debug("encoder auto: not CLIP, because %s", why_not)
             name = "imagenet"
     if name == "clip" and cfg.runtime == "onnx":
         return OnnxClipEncoder(cfg)

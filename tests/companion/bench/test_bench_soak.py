@@ -34,3 +34,25 @@ def test_soak_without_the_gate_scores_every_frame_it_takes() -> None:
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["gate"] == "none" and result["frames_skipped"] == 0 and result["frames_scored"] > 0
     assert "x that" in done.stdout
+
+
+@pytest.mark.slow
+def test_soak_from_a_rendered_clip_reports_the_decode_rate_beside_the_drops() -> None:
+    """`--clip WxH`: the generated dive as an H.264 file played in real time (skipped without ffmpeg, which
+    .ci/run installs); the decode rate is measured beside the drops, and the gate runs on the capture thread."""
+    import shutil
+
+    if shutil.which("ffmpeg") is None:
+        pytest.skip("ffmpeg is not installed")
+    done = run_merlion("bench", "soak", "--clip", "320x180", "--fps", "30", "--duration", "8", "--encoder",
+                       "visual", "--json", timeout=300)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["source"] == "320x180 file" and result["frames_seen"] > 0
+    assert result["decode_fps"] > 0 and abs(result["decode_vs_source"] - result["decode_fps"] / 30) < 0.01
+    assert result["admit_ms"] is not None and result["admit_ms"] > 0  # gated and downscaled on the capture thread
+    assert 0 <= result["dropped_after_warmup"] <= result["frames_dropped"]
+    assert abs(result["dropped_pct"] - 100 * result["frames_dropped"] / result["frames_seen"]) < 0.01
+    assert "decode            " in done.stdout and "x the source's 30 fps" in done.stdout
+    bad = run_merlion("bench", "soak", "--clip", "1920by1080", timeout=60)
+    assert bad.returncode == 2 and bad.stderr.strip().startswith("merlion: error: bench soak --clip")

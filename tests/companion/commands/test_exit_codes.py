@@ -1,5 +1,6 @@
 """Exit codes follow the README's rule: 2 for bad arguments or configuration (a missing or unusable input among
-them), 1 only when the work itself fails. These five used to exit 1 (or disagree between commands)."""
+them), 1 only when the work itself fails, or part of it (``score`` with some images unreadable). These used to exit
+1 (or disagree between commands)."""
 
 from __future__ import annotations
 
@@ -56,3 +57,20 @@ def test_a_dive_profile_with_an_unknown_key_is_exit_2(tmp_path):
     profile.write_text("legs:\n  - descend: {to_m: 3}\nbogus: 1\n")
     proc = run_merlion("sim-vehicle", "--profile", str(profile), "--connect", "udpout:127.0.0.1:9", timeout=60)
     assert proc.returncode == 2 and one_line(proc) == f"merlion: error: {profile}: unknown key 'bogus'"
+
+
+@pytest.mark.parametrize("command", ["summarize", "score", "run", "demo"])
+def test_a_text_file_named_mp4_is_exit_2_from_every_command(tmp_path, command):
+    """The same input, the same exit: ``summarize`` and ``score`` exited 1 where ``run`` and ``demo`` exited 2."""
+    notes = tmp_path / "notes.mp4"
+    notes.write_text("not a video\n")
+    out = tmp_path / "out"
+    extra = {"summarize": [str(notes), "--out", str(out), "--encoder", "visual"],
+             "score": [str(notes), "--encoder", "visual"],
+             "run": ["--source", str(notes), "--store", str(out), "--mavlink", "none", "--duration", "20"],
+             "demo": ["--source", str(notes), "--out", str(out), "--duration", "20"]}[command]
+    proc = run_merlion(command, *extra, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    line = one_line(proc)
+    assert str(notes) in line and ("cannot be opened as a video" in line or "cannot decode as an image" in line)
+    assert not out.exists()

@@ -208,11 +208,12 @@ def test_an_mp4_cut_before_its_index_says_why_and_how_to_recover(tmp_path):
     cut = tmp_path / "cut.mp4"
     cut.write_bytes(data[:200_000])
     proc = run_merlion("summarize", str(cut), "--out", str(tmp_path / "out"), "--encoder", "visual")
-    assert proc.returncode == 1  # the work fails on a damaged video (README: exit 1)
+    assert proc.returncode == 2  # nothing can be read: bad input (README: exit 2), as in run and demo
     line = one_error_line(proc.stderr)
     assert line.startswith(f"merlion: error: {cut}: cannot be opened as a video: an MP4 without its index")
     assert "recording cut short" in line and "untrunc" in line and ".mkv" in line
     other = tmp_path / "notes.mp4"
     other.write_text("not a video")
     proc = run_merlion("summarize", str(other), "--out", str(tmp_path / "out"), "--encoder", "visual")
+    assert proc.returncode == 2
     assert "(unknown format, or damaged beyond reading)" in one_error_line(proc.stderr)

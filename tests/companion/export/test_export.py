@@ -11,6 +11,7 @@ import math
 import re
 import shutil
 from pathlib import Path
+from urllib.parse import urlparse
 
 import cv2
 import numpy as np
@@ -81,7 +82,8 @@ def test_fathomnet_records_read_back_with_fathomnet_py(store, tmp_path):
     for i, doc in enumerate(docs):
         assert set(doc) <= known, set(doc) - known  # only fathomnet-py's own field names
         image = dto.Image.from_dict(doc)
-        path = out.parent / image.url
+        path = Path(urlparse(image.url).path)  # no --base-url: the image's own absolute file:// URL
+        assert image.url.startswith("file:///") and path.is_absolute() and image.imagingType == "ROV"
         assert hashlib.sha256(path.read_bytes()).hexdigest() == image.sha256
         assert (image.width, image.height) == (480, 270) and image.mediaType == "image/jpeg"
         assert image.depthMeters == (pytest.approx(4.0 + i) if i < 2 else None)

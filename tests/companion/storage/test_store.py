@@ -189,3 +189,22 @@ def test_a_store_written_by_a_newer_version_is_refused_and_left_untouched(tmp_pa
                                              r"version 1 at most"):
         Store(StoreConfig(dir=str(tmp_path)))
     assert index.read_bytes() == before
+
+
+def test_space_reports_the_budget_its_files_and_the_room_left(tmp_path: Path) -> None:
+    """What STORAGE_INFORMATION says (QGroundControl shows it as the camera's free space): never more than the
+    budget's rest, nor than the file system has; nothing at all once the disk is full and the store in memory."""
+    store = Store(StoreConfig(dir=str(tmp_path / "store"), disk_budget_mb=4.0))
+    empty = store.space()
+    assert empty.total == 4 * 1024 * 1024 and empty.available == empty.total - empty.used
+    store.apply(added(make_frame(0), [0]))
+    space = store.space()
+    assert space.used > empty.used and space.available == space.total - space.used
+    with tiny_tmpfs(tmp_path / "small", "size=160k") as mnt:
+        small = Store(StoreConfig(dir=str(mnt), disk_budget_mb=4.0))
+        assert small.space().available <= 160 * 1024  # the file system's free space, below the budget's rest
+        summary: list[int] = []
+        for i in range(30):
+            summary = (summary + [i])[-6:]
+            small.apply(added(make_frame(i, size=(200, 260)), summary))
+        assert small.memory_only and small.space().available == 0

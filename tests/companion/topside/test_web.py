@@ -79,6 +79,8 @@ def test_merlion_surface_serves_the_live_summary_to_a_real_browser(tmp_path):
                                    " && document.getElementById('values').innerText")
             # frames scored, said beside the camera's rate (never "4.8 fps", which reads as the camera's)
             assert re.search(r"Frames\s+scored 4\.8/s of 10\.0/s seen", values), values
+            # the header's score is the frame just scored, said so beside the cards' scores
+            assert re.search(r"Latest frame\s+score 0\.66", values) and "Score" not in values, values
             assert re.search(r"Depth\s+23\.0 m", values) and "Seen" not in values, values
             assert re.search(r"Link\s+\d+ B/s", values) and "MRL_" not in values, values
             assert page.wait_for("document.getElementById('warnings').innerText.includes('Camera lost')")

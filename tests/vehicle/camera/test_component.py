@@ -15,6 +15,7 @@ from vehicle.autopilot.pose import Pose
 from vehicle.camera.captures import CaptureLog, captured_message, quaternion
 from vehicle.camera.component import CameraComponent
 from vehicle.camera.downlink import Downlink
+from vehicle.camera.storage import MIB, StorageSpace
 from vehicle.link.budget import Priority
 
 NAN = float("nan")
@@ -39,8 +40,10 @@ def test_every_command_for_us_is_acknowledged(camera):
     assert (info[0].result, info[0].target_system, info[0].target_component) == (mav.MAV_RESULT_ACCEPTED, 255, 190)
     assert bytes(info[1].vendor_name).rstrip(b"\0") == b"MERLION"
     assert info[1].cam_definition_uri in ("", b"")
-    for unsupported in (_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 260), _cmd(mav.MAV_CMD_REQUEST_MESSAGE, 261),
-                        _cmd(mav.MAV_CMD_REQUEST_MESSAGE, 270), _cmd(mav.MAV_CMD_IMAGE_START_CAPTURE)):
+    # no shutter wired (no companion behind the link): no shutter offered, and a press is UNSUPPORTED
+    assert not info[1].flags & mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE
+    for unsupported in (_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 260), _cmd(mav.MAV_CMD_REQUEST_MESSAGE, 270),
+                        _cmd(mav.MAV_CMD_IMAGE_START_CAPTURE)):
         (ack,) = cam.handle(unsupported)
         assert ack.result == mav.MAV_RESULT_UNSUPPORTED
     (ack,) = cam.handle(_cmd(mav.MAV_CMD_REQUEST_MESSAGE, NAN))  # which message? unset: denied, never int(NaN)
@@ -53,6 +56,60 @@ def test_every_command_for_us_is_acknowledged(camera):
                                              0, 0, NAN)
     as_int._header = mav.MAVLink_header(as_int.id, srcSystem=255, srcComponent=190)
     assert [m.get_type() for m in cam.handle(as_int)] == ["COMMAND_ACK", "CAMERA_CAPTURE_STATUS"]
+
+
+def test_storage_reports_the_stores_room_and_never_nan(camera):
+    cam, _ = camera
+    for request in (_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 261), _cmd(mav.MAV_CMD_REQUEST_STORAGE_INFORMATION, 0, 1)):
+        ack, info = cam.handle(request)
+        assert ack.result == mav.MAV_RESULT_ACCEPTED
+        assert info.status == mav.STORAGE_STATUS_NOT_SUPPORTED  # no store behind this link
+        assert (info.total_capacity, info.available_capacity) == (0.0, 0.0)
+    cam.storage = lambda: StorageSpace(total=2048 * MIB, used=300 * MIB, available=1748 * MIB)
+    for request in (_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 261), _cmd(mav.MAV_CMD_REQUEST_STORAGE_INFORMATION, 1, 1),
+                    _cmd(mav.MAV_CMD_REQUEST_MESSAGE, 261, target=(1, 0))):
+        ack, info = cam.handle(request)
+        assert (info.status, info.storage_id, info.storage_count) == (mav.STORAGE_STATUS_READY, 1, 1)
+        assert (info.total_capacity, info.used_capacity, info.available_capacity) == (2048.0, 300.0, 1748.0)
+    (other,) = cam.handle(_cmd(mav.MAV_CMD_REQUEST_STORAGE_INFORMATION, 2, 1))  # a second storage: there is none
+    assert other.result == mav.MAV_RESULT_DENIED
+    status = cam.handle(_cmd(mav.MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS, 1))[1]
+    assert status.available_capacity == 1748.0 and math.isfinite(status.available_capacity)
+    assert status.image_status == 0
+
+
+def test_the_shutter_answers_at_once_and_is_busy_until_the_capture_is_done(camera):
+    cam, _ = camera
+    finish: list = []
+    frames = iter([None, "frame"])  # the first press finds no camera frame yet
+
+    def take(done):
+        if next(frames) is None:
+            return False
+        finish.append(done)
+        return True
+
+    cam.shutter.wire(take)
+    assert cam.information().flags & mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE  # now QGroundControl shows a shutter
+    press = mav.MAVLink_command_long_message(1, 100, mav.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 0, 1, NAN, NAN, NAN, NAN)
+    press._header = mav.MAVLink_header(press.id, srcSystem=255, srcComponent=190)
+    (ack,) = cam.handle(press)
+    assert ack.result == mav.MAV_RESULT_TEMPORARILY_REJECTED  # QGroundControl retries, then resets its button
+    assert cam.capture_status().image_status == 0
+    (ack,) = cam.handle(press)
+    assert ack.result == mav.MAV_RESULT_ACCEPTED and len(finish) == 1
+    assert cam.capture_status().image_status == 1  # in progress: QGroundControl asks again a second later
+    (again,) = cam.handle(press)  # a press while one is kept (a flood: QGroundControl waits): one at a time
+    assert again.result == mav.MAV_RESULT_TEMPORARILY_REJECTED and len(finish) == 1
+    finish[0](True)
+    assert cam.capture_status().image_status == 0  # idle: its shutter button is ready again
+    series = mav.MAVLink_command_long_message(1, 100, mav.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 2, 0, NAN, NAN, NAN,
+                                              NAN)
+    series._header = press._header
+    (ack,) = cam.handle(series)  # time-lapse forever: the summary is the series
+    assert ack.result == mav.MAV_RESULT_DENIED and len(finish) == 1
+    (ack,) = cam.handle(_cmd(mav.MAV_CMD_IMAGE_STOP_CAPTURE, 0))
+    assert ack.result == mav.MAV_RESULT_ACCEPTED
 
 
 def test_captures_are_answerable_by_index(camera):
@@ -135,7 +192,8 @@ def test_a_resumed_summary_is_served_but_not_counted_or_announced_again():
         assert surface.camera.handle(_cmd(mav.MAV_CMD_REQUEST_MESSAGE, 263, 8))[1].image_index == 8
         surface.publish(added(10, [8, 10]))
         assert surface.captures.image_count == 11
-        assert surface.budget.pending(Priority.THUMBNAIL) > 0 and surface.budget.pending(Priority.STATUS) == 2
+        # the capture and its STATUSTEXT, then the capture status and storage as they are now (on every change)
+        assert surface.budget.pending(Priority.THUMBNAIL) > 0 and surface.budget.pending(Priority.STATUS) == 4
         served = {t["image_index"]: t for t in json.loads(surface.tree.read("/summary/index.json"))["summary"]}
         assert (served[8]["score"], served[8]["raw_score"], served[8]["raw"]) == (0.8, 0.61, "/summary/raw/8.jpg")
         assert "raw_score" not in served[10] and "raw" not in served[10]

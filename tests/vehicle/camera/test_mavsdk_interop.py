@@ -11,8 +11,9 @@ import time
 import pytest
 
 from companion.config import SurfaceConfig
+from companion.vision.events import SummaryEvent
 from tests.conftest import free_udp_port
-from tests.vehicle.surface_env import added, companion_link
+from tests.vehicle.surface_env import added, companion_link, summary_frame
 from vehicle.camera.downlink import Downlink
 
 mavsdk = pytest.importorskip("mavsdk")
@@ -64,11 +65,14 @@ def test_mavsdk_finds_the_camera_sees_captures_and_downloads(tmp_path):
         assert [(c.component_id, c.vendor_name) for c in cameras] == [(100, "MERLION")]
         captures = []
         camera.subscribe_capture_info(lambda info, _u: captures.append(info))
-        surface.publish(added(5, [3, 4, 5]))
+        # a placed capture: one without a position has capture_result 0 (QGroundControl draws no marker for it),
+        # which MAVSDK reports as is_success False (docs/surface-link.md)
+        surface.publish(SummaryEvent("added", summary_frame(5, lat=1.2834), summary=[3, 4, 5]))
         assert _until(lambda: captures, 10)
         info = captures[0]
         assert (info.index, info.file_url, info.is_success) == (5, "mftp://summary/5.jpg", True)
         assert info.position.relative_altitude_m == pytest.approx(-12.5)
+        assert info.position.latitude_deg == pytest.approx(1.2834)
 
         ftp = Ftp(system)
         ftp.set_target_compid(100)

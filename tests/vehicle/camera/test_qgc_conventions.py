@@ -9,7 +9,8 @@ VehicleCameraControl.cc, src/Vehicle/Vehicle.cc):
 - vendor_name and model_name are read as C strings (a NUL must end them inside their 32 bytes); an empty
   cam_definition_uri makes a "basic" camera, which is then asked for its settings and storage (it must answer,
   or QGroundControl keeps retrying); HAS_VIDEO_STREAM makes it ask for streams;
-- each CAMERA_IMAGE_CAPTURED with capture_result == 1 adds a map marker at lat/1e7, lon/1e7;
+- each CAMERA_IMAGE_CAPTURED with capture_result == 1 adds a map marker at lat/1e7, lon/1e7, with no 0/0 check
+  (Vehicle.cc ``_handleCameraImageCaptured``): a capture without a position must carry capture_result 0;
 - STATUSTEXT at ERROR or worse pops up (CRITICAL or worse is spoken): only real faults may use them.
 """
 
@@ -88,7 +89,9 @@ def test_qgc_finds_the_camera_and_accepts_its_information_both_ways(qgc):
     for info in infos:
         assert c_string(info.vendor_name) == "MERLION" and c_string(info.model_name)
         assert c_string(info.cam_definition_uri) == ""  # a basic camera: no definition file to fetch
-        assert info.flags & mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE
+        # a shutter is offered only with a companion to take the captures (tests/companion/live/test_qgc_shutter.py):
+        # QGroundControl shows its button for this flag, and a press nobody takes would hang it
+        assert not info.flags & mav.CAMERA_CAP_FLAGS_CAPTURE_IMAGE
         assert not info.flags & mav.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM  # no stream to ask for
         assert info.firmware_version == firmware_version_of("0.4.2") == 0 | 4 << 8 | 2 << 16
     # what QGroundControl asks a basic camera next is answered (not left to its retries)
@@ -112,7 +115,7 @@ def test_captures_put_a_map_marker_only_where_the_position_is_valid(qgc):
     surface, gcs = qgc
     cases = {
         0: (pose(1.2501, 103.8002), (12_501_000, 1_038_002_000)),  # an EKF origin: a real position
-        1: (pose(), (0, 0)),  # no position source (no DVL/USBL): 0/0, as QGroundControl expects
+        1: (pose(), (0, 0)),  # no position source (no DVL/USBL): no marker at all
         2: (pose(1.25, None), (0, 0)),  # half a position is no position
         3: (pose(1.25, 103.8, stale=True), (0, 0)),  # telemetry lost: the old position is not this frame's
         4: (pose(NAN, NAN), (0, 0)),
@@ -130,9 +133,9 @@ def test_captures_put_a_map_marker_only_where_the_position_is_valid(qgc):
     markers = []
     for index, (_, (lat, lon)) in cases.items():
         msg = got[index]
-        assert msg.capture_result == 1 and msg.get_srcComponent() == 100
+        assert msg.capture_result == (1 if (lat, lon) != (0, 0) else 0) and msg.get_srcComponent() == 100
         assert (msg.lat, msg.lon) == (lat, lon)
-        if msg.capture_result == 1 and (msg.lat, msg.lon) != (0, 0):  # QGroundControl's rule, 0/0 = unknown
+        if msg.capture_result == 1:  # QGroundControl's rule, exactly: no 0/0 check of its own
             markers.append((msg.lat / 1e7, msg.lon / 1e7))
     assert markers == [(1.2501, 103.8002)]
     assert got[1].relative_alt == -8000 and got[5].relative_alt == 0  # depth still rides along without position
