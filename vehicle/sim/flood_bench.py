@@ -68,7 +68,7 @@ class _Event:
 
 
 @dataclass
-class _Station:
+class SignedStation:
     """The signed ground station's ears: when each capture, thumbnail chunk and answer to the flood arrived."""
 
     gcs: mavutil.mavfile
@@ -134,7 +134,7 @@ def measure_flood(seconds: float, *, rate: float = 1500.0, ids: int = 200, budge
         gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190,
                                          dialect="ardupilotmega")
         gcs.setup_signing(key_from_bytes(PASSPHRASE), sign_outgoing=True)
-        station = _Station(gcs)
+        station = SignedStation(gcs)
         listener = threading.Thread(target=station.run, name="flood-station", daemon=True)
         try:
             gcs.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
@@ -149,7 +149,7 @@ def measure_flood(seconds: float, *, rate: float = 1500.0, ids: int = 200, budge
             gcs.close()
 
 
-def _phases(surface: Downlink, station: _Station, port: int, seconds: float, rate: float, ids: int,
+def _phases(surface: Downlink, station: SignedStation, port: int, seconds: float, rate: float, ids: int,
             every: float, report: Callable[[str], None] | None) -> dict[str, Any]:
     ctx = multiprocessing.get_context("spawn")
     results = ctx.Queue()
