@@ -88,10 +88,14 @@ class SignedStation:
     truncated: int = 0
     """Datagrams that left half a packet (garbage) before the next began."""
 
-    def _parser(self) -> mavlink2.MAVLink:
+    def _parser(self, before: mavlink2.MAVLink | None = None) -> mavlink2.MAVLink:
+        """A parser with an empty buffer; it keeps ``before``'s signing state (the streams' last timestamps)."""
         parser = mavlink2.MAVLink(None)
         parser.robust_parsing = True
-        parser.signing.secret_key = self.gcs.mav.signing.secret_key  # unsigned messages come out as BAD_DATA
+        if before is not None:
+            parser.signing = before.signing
+        else:
+            parser.signing.secret_key = self.gcs.mav.signing.secret_key  # unsigned messages come out as BAD_DATA
         return parser
 
     def run(self) -> None:
@@ -106,11 +110,11 @@ class SignedStation:
                 continue
             if parser.buf_len() and data[:1] in _MAGIC:
                 self.truncated += 1
-                parser = self._parser()
+                parser = self._parser(parser)
             try:
                 msgs = parser.parse_buffer(data) or []
             except mavlink2.MAVError:
-                parser = self._parser()
+                parser = self._parser(parser)
                 continue
             now = time.monotonic()
             for msg in msgs:
