@@ -252,7 +252,9 @@ def _phases(station: SignedStation, store: Path, companion: subprocess.Popen, hu
                      "chunks_per_s": round(sum(mono0 <= t < mono1 for t in station.chunks) / length, 2),
                      "answers_to_flood": sum(mono0 <= t < mono1 for t in station.answers),
                      "companion_cpu_pct": round(100.0 * busy / length, 1)}
-    flood_end = phases["flood"][3]
+    # the flood's process starts (and so ends) a moment after its phase: its last datagram at the station counts
+    flood_end = max(phases["flood"][3], station.last_unsigned)
+    out["flood_ended_after_phase_s"] = round(flood_end - phases["flood"][3], 2)
     out["answers_after_quiet"] = sum(t > flood_end + QUIET_S + 1.0 for t in station.answers)
     base = max(out["before"]["received_per_min"], 1e-9)
     for name in ("flood", "after"):

@@ -87,6 +87,8 @@ class SignedStation:
     stop: threading.Event = field(default_factory=threading.Event)
     truncated: int = 0
     """Datagrams that left half a packet (garbage) before the next began."""
+    last_unsigned: float = 0.0
+    """When the last unsigned or garbage datagram arrived (the flood's end, seen from the station)."""
 
     def _parser(self, before: mavlink2.MAVLink | None = None) -> mavlink2.MAVLink:
         """A parser with an empty buffer; it keeps ``before``'s signing state (the streams' last timestamps)."""
@@ -122,7 +124,8 @@ class SignedStation:
 
     def _note(self, msg: mavlink2.MAVLink_message, now: float) -> None:
         kind = msg.get_type()
-        if kind == "BAD_DATA":
+        if kind == "BAD_DATA":  # unsigned or garbage: the flood, where a router forwards it to the station too
+            self.last_unsigned = now
             return
         self.wire.append((now, len(msg.get_msgbuf())))
         if kind == "CAMERA_IMAGE_CAPTURED":
