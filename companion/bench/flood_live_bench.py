@@ -256,6 +256,7 @@ def _phases(station: SignedStation, store: Path, companion: subprocess.Popen, hu
     flood_end = max(phases["flood"][3], station.last_unsigned)
     out["flood_ended_after_phase_s"] = round(flood_end - phases["flood"][3], 2)
     out["answers_after_quiet"] = sum(t > flood_end + QUIET_S + 1.0 for t in station.answers)
+    out["last_answer_after_flood_s"] = round(max((t - flood_end for t in station.answers), default=0.0), 2)
     base = max(out["before"]["received_per_min"], 1e-9)
     for name in ("flood", "after"):
         out[name]["received_pct_of_before"] = round(100.0 * out[name]["received_per_min"] / base, 1)
@@ -271,6 +272,7 @@ def _line(out: dict[str, Any]) -> str:
             f"{a['received_per_min']:g} after ({a['received_pct_of_before']:.0f}%); thumbnail chunks/s "
             f"{b['chunks_per_s']:g} / {f['chunks_per_s']:g} / {a['chunks_per_s']:g}; companion CPU "
             f"{b['companion_cpu_pct']:g}% / {f['companion_cpu_pct']:g}% / {a['companion_cpu_pct']:g}%; answers to "
-            f"the flood later than {QUIET_S:g} s + 1 s after it: {out['answers_after_quiet']}; log lines about "
+            f"the flood later than {QUIET_S:g} s + 1 s after it: {out['answers_after_quiet']} (the last "
+            f"{out['last_answer_after_flood_s']:g} s after it); log lines about "
             f"refused unsigned messages: {out['companion_log_refusal_lines']}; datagrams dropped at full receive "
             f"buffers: {out['udp_receive_drops']}")
