@@ -32,6 +32,10 @@ def register(add_command) -> None:
                    help="flood datagrams per second (default 1500)")
     p.add_argument("--flood-ids", metavar="N", type=int, default=200,
                    help="made-up unsigned system ids the flood comes from (default 200)")
+    p.add_argument("--live", action="store_true",
+                   help="with --flood: flood the whole live companion instead (merlion run on a video file, "
+                        "merlion sim-vehicle and a signed ground station behind a router, one signing key): S "
+                        "seconds without it, S with it, S/2 after it")
     p.add_argument("--json", action="store_true", help="last line: one JSON object")
     p.set_defaults(func=run)
 
@@ -55,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--duration {args.duration}: must be a positive number of seconds")
     if args.flood is not None:
         return _flood(args)
+    if args.live:
+        raise UsageError("bench link: --live goes with --flood S")
     if args.clients is not None:
         from vehicle.sim.link_bench import stress
 
@@ -91,6 +97,14 @@ def _flood(args: argparse.Namespace) -> int:
         raise UsageError(f"--flood-rate {args.flood_rate}: datagrams per second must be between 1 and 20000")
     if not 1 <= args.flood_ids <= 240:
         raise UsageError(f"--flood-ids {args.flood_ids}: must be between 1 and 240 (system ids 10-249)")
+    if args.live:
+        from companion.bench.flood_live_bench import measure_live_flood
+
+        result = measure_live_flood(args.flood, rate=args.flood_rate, ids=args.flood_ids,
+                                    report=lambda line: print(line, flush=True))
+        if args.json:
+            print(json.dumps({"live_flood": result}), flush=True)
+        return 0
     from vehicle.sim.flood_bench import measure_flood
 
     result = measure_flood(args.flood, rate=args.flood_rate, ids=args.flood_ids,

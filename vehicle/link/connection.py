@@ -95,6 +95,7 @@ class MavLink:
         self._tx = mavlink2.MAVLink(None, srcSystem=self.system_id, srcComponent=self.component_id)
         self.signing = LinkSigning.from_settings(cfg, name=name)
         self.signing.watch.clock = clock
+        self.signing.refusal_log.clock = clock
         self.signing.watch.window_s = max(cfg.heartbeat_timeout_s, 1.0)  # a signed heartbeat comes at 1 Hz
         self._rx = self._new_parser()
         self._send_lock = threading.Lock()
@@ -445,6 +446,7 @@ class MavLink:
         while not self._stop.is_set():
             self.watch.watch(_POLL_S)
             self.signing.watch.judge(self._probe_autopilot)
+            self.signing.refusal_log.flush()
             if not self._send_heartbeat:
                 continue
             now = self.clock()

@@ -39,6 +39,7 @@ from vehicle.link.autopilot_signing import (
     AutopilotSigning,
 )
 from vehicle.link.autopilot_watch import is_autopilot_heartbeat
+from vehicle.link.refusal_log import RefusalLog
 from vehicle.link.warning_bucket import WarningBucket
 from vehicle.protocol.ftp import Op
 from vehicle.settings import MavlinkConfig
@@ -251,6 +252,9 @@ class LinkSigning:
         self.dropped_for_others = 0
         self.warnings_withheld = 0
         self._warnings = WarningBucket()
+        self.refusal_log = RefusalLog(name, log)
+        """The log lines about new refused sources: the first in full, then a count per interval (a flood of
+        made-up ids wrote a line each); the link's timer thread flushes it and sets its clock."""
         self.rejected: dict[tuple[int, int], int] = {}
         """Refused state-changing messages by source (system, component)."""
         self.reasons: dict[tuple[int, int], str] = {}
@@ -395,7 +399,7 @@ class LinkSigning:
             self.reasons[source] = reason
             name = "FTP write" if msg.get_type() == "FILE_TRANSFER_PROTOCOL" else msg.get_type()
             text = f"{reason} {name} from {source[0]}/{source[1]} ignored"  # fits STATUSTEXT's 50 characters
-            log.warning("%s: %s (further ones from it are only counted)", self.name, text)
+            self.refusal_log.refused(text)
             if self.announce_refusals and self._warnings.take():
                 send(mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text[:50].encode()))
             elif self.announce_refusals:

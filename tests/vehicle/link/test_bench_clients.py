@@ -33,6 +33,7 @@ def test_bench_link_clients_reports_corruption_and_stalls():
     (("--flood", "2"), "--flood 2.0: seconds per phase must be between 5 and 600"),
     (("--flood", "10", "--flood-rate", "0"), "--flood-rate 0.0: datagrams per second must be between 1"),
     (("--flood", "10", "--flood-ids", "300"), "--flood-ids 300: must be between 1 and 240"),
+    (("--live",), "bench link: --live goes with --flood S"),
 ])
 def test_bench_link_bad_arguments_are_one_line(args, message):
     result = run_merlion("bench", "link", *args, timeout=60)
