@@ -149,6 +149,9 @@ def _pose_fields(pose: dict | None) -> dict[str, Any]:
 
 
 def _read_json(path: Path) -> Any:
+    """A store's or summary's own JSON; a symbolic link is refused (it would read, and export, another folder's)."""
+    if path.is_symlink():
+        raise UsageError(f"{path}: a symbolic link; an export follows none")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -192,7 +195,7 @@ def _summary_records(folder: Path, doc: dict, dive: str) -> list[FrameRecord]:
     video = doc.get("source") if isinstance(doc.get("source"), str) and doc.get("source") else None
     started = video_start(video, folder) if video else None
     tags_path = folder / "tags.json"
-    tags = _read_json(tags_path) if tags_path.exists() else {}
+    tags = _read_json(tags_path) if tags_path.exists() or tags_path.is_symlink() else {}
     by_index = {f.get("index"): f for f in tags.get("frames", []) if isinstance(f, dict)} \
         if isinstance(tags, dict) else {}
     out = []
@@ -226,7 +229,11 @@ def campaign_records(folder: Path, names: list[str] | None = None) -> list[Frame
         names = sorted(finished)
     out: list[FrameRecord] = []
     for name in names:
-        dive = folder / name
+        dive = folder / str(name)
+        if not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name or "\\" in name:
+            raise UsageError(f"{folder / 'manifest.json'}: dive {str(name)!r:.60} is not a folder of the campaign")
+        if dive.is_symlink():
+            raise UsageError(f"{dive}: a symbolic link; an export follows none")
         out.extend(_summary_records(dive, _read_json(dive / "summary.json"), name))
     return out
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import re
 import shutil
 import tempfile
@@ -106,6 +107,17 @@ def render(records: list[FrameRecord], out: Path) -> str:
     return buf.getvalue()
 
 
+def _copy_no_link(src: Path, dst: Path) -> None:
+    """``src``'s bytes to a new ``dst``, opened with ``O_NOFOLLOW``: a frame swapped for a link after it was
+    checked is refused (``copyfile(follow_symlinks=False)`` copied the link itself into the export)."""
+    try:
+        fd = os.open(src, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError as err:
+        raise UsageError(f"{src}: not copied ({err.strerror}); an export follows no link") from None
+    with os.fdopen(fd, "rb") as fh, dst.open("xb") as out:
+        shutil.copyfileobj(fh, out)
+
+
 def copy_images(records: list[FrameRecord], out: Path) -> Path:
     """``image_dir(out)`` with exactly the rows' images, replaced whole (built aside, then swapped in); a folder
     there that holds anything else is left alone and refused."""
@@ -116,7 +128,7 @@ def copy_images(records: list[FrameRecord], out: Path) -> Path:
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=out.parent))
     try:
         for n, r in enumerate(records):
-            shutil.copyfile(r.image, staging / image_name(n, r), follow_symlinks=False)
+            _copy_no_link(r.image, staging / image_name(n, r))
         if target.exists():
             shutil.rmtree(target)
         staging.rename(target)

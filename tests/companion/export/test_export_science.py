@@ -10,6 +10,7 @@ peer as a formula never yields a formula cell; a symlinked frame is refused.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import json
 import math
@@ -21,7 +22,9 @@ import pytest
 
 from companion.archive.report import write_campaign_report
 from companion.config import StoreConfig
-from companion.export.viame_csv import sheet_safe
+from companion.errors import UsageError
+from companion.export.records import read_records
+from companion.export.viame_csv import copy_images, image_dir, sheet_safe
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent, SummaryFrame
 from tests.companion.export.readers import coco_read, dive_read, fathomnet_read, formula_cells
@@ -201,6 +204,38 @@ def test_a_symlinked_frame_is_refused_not_followed(store, tmp_path):
     frames.symlink_to(tmp_path / "real_frames")  # the whole folder linked elsewhere: refused too
     proc = run_merlion("export", str(linked), "--format", "csv", "--out", str(tmp_path / "y.csv"))
     assert proc.returncode == 2 and "frames: a symbolic link" in one_error_line(proc.stderr)
+
+
+def test_a_campaign_dive_or_sidecar_that_is_a_link_is_refused(campaign, tmp_path):  # noqa: F811
+    root = tmp_path / "campaign"
+    shutil.copytree(campaign, root)
+    (root / "dive1").rename(tmp_path / "elsewhere")
+    (root / "dive1").symlink_to(tmp_path / "elsewhere")  # the dive folder itself links out of the campaign
+    proc = run_merlion("export", str(root), "--format", "csv", "--out", str(tmp_path / "a.csv"))
+    assert proc.returncode == 2 and "dive1: a symbolic link" in one_error_line(proc.stderr)
+    (root / "dive1").unlink()
+    shutil.copytree(tmp_path / "elsewhere", root / "dive1")
+    (root / "manifest.json").write_text(json.dumps({"finished": {"../elsewhere": {}}}))  # a name out of it
+    proc = run_merlion("export", str(root), "--format", "coco", "--out", str(tmp_path / "b.json"))
+    assert proc.returncode == 2 and "'../elsewhere' is not a folder of the campaign" in one_error_line(proc.stderr)
+    (root / "manifest.json").write_text(json.dumps({"finished": {"dive1": {}}}))
+    tags = root / "dive1" / "tags.json"
+    tags.rename(tmp_path / "tags.json")
+    tags.symlink_to(tmp_path / "tags.json")  # a sidecar linked in
+    proc = run_merlion("export", str(root), "--format", "fathomnet", "--out", str(tmp_path / "c.json"))
+    assert proc.returncode == 2 and "tags.json: a symbolic link" in one_error_line(proc.stderr)
+    assert not any((tmp_path / n).exists() for n in ("a.csv", "b.json", "c.json", "a_images"))
+
+
+def test_a_frame_swapped_for_a_link_after_the_check_is_not_copied(store, tmp_path):
+    records = read_records(store)
+    swapped = tmp_path / "swapped.jpg"
+    swapped.symlink_to("/etc/hostname")
+    records[1] = dataclasses.replace(records[1], image=swapped)  # as if replaced between the check and the copy
+    out = tmp_path / "x.csv"
+    with pytest.raises(UsageError, match="swapped.jpg: not copied"):
+        copy_images(records, out)
+    assert not image_dir(out).exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".x_images")]
 
 
 @pytest.fixture(scope="module")
