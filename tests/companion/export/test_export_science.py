@@ -168,6 +168,20 @@ def test_the_campaign_index_escapes_a_formula_behind_blanks_or_quotes(campaign, 
         assert {row["query"] for row in csv.DictReader(fh)} == {"'" + query}
 
 
+def test_the_campaign_index_writes_no_heading_of_360(campaign, tmp_path):  # noqa: F811
+    root = tmp_path / "campaign"
+    shutil.copytree(campaign, root)
+    tags_path = root / "dive1" / "tags.json"
+    tags = json.loads(tags_path.read_text())
+    for frame, heading in zip(tags["frames"], [360.0, 359.5, -90.0], strict=False):
+        frame["pose"]["heading_deg"] = heading  # as an older tool's pose (% 360.0) could hold
+    tags_path.write_text(json.dumps(tags))
+    write_campaign_report(root, ["dive1"])
+    with (root / "index.csv").open(newline="", encoding="utf-8") as fh:
+        headings = [float(row["heading_deg"]) for row in csv.DictReader(fh)]
+    assert headings[:3] == [0.0, 359.5, 270.0][:len(headings)] and all(0.0 <= h < 360.0 for h in headings)
+
+
 def test_numbers_stay_numbers_and_float_lookalikes_do_not():
     assert [sheet_safe(c) for c in ("-1.5", "+2", "-3e-05", ".5", "0")] == ["-1.5", "+2", "-3e-05", ".5", "0"]
     assert [sheet_safe(c) for c in ("-1_0", "-inf", " -1", "-nan")] == ["'-1_0", "'-inf", "' -1", "'-nan"]
