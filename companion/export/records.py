@@ -230,7 +230,7 @@ def campaign_records(folder: Path, names: list[str] | None = None) -> list[Frame
     out: list[FrameRecord] = []
     for name in names:
         dive = folder / str(name)
-        if not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name or "\\" in name:
+        if not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name:
             raise UsageError(f"{folder / 'manifest.json'}: dive {str(name)!r:.60} is not a folder of the campaign")
         if dive.is_symlink():
             raise UsageError(f"{dive}: a symbolic link; an export follows none")
