@@ -17,10 +17,12 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from companion.errors import UsageError
 from companion.export.frame_entry import FrameEntry
 from companion.export.video_time import video_start
+from companion.storage.frame_files import read_no_link
 
 
 @dataclass(frozen=True)
@@ -160,8 +162,17 @@ def _read_json(path: Path) -> Any:
         raise UsageError(f"{path}: not readable JSON ({err})") from None
 
 
+def image_bytes(path: Path) -> bytes:
+    """A frame's bytes as checked (``FrameEntry.image``), opened with ``O_NOFOLLOW``: a frame swapped for a link
+    after its check is refused, never hashed or measured through the link."""
+    data = read_no_link(path)
+    if data is None:
+        raise UsageError(f"{path}: not read (missing, unreadable or a symbolic link); an export follows no link")
+    return data
+
+
 def _image_size(path: Path) -> tuple[int, int]:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image = cv2.imdecode(np.frombuffer(image_bytes(path), np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise UsageError(f"{path}: frame image missing or not an image")
     return int(image.shape[1]), int(image.shape[0])

@@ -23,6 +23,7 @@ import pytest
 from companion.archive.report import write_campaign_report
 from companion.config import StoreConfig
 from companion.errors import UsageError
+from companion.export import fathomnet
 from companion.export.records import read_records
 from companion.export.viame_csv import copy_images, image_dir, sheet_safe
 from companion.storage.store import Store
@@ -250,6 +251,8 @@ def test_a_frame_swapped_for_a_link_after_the_check_is_not_copied(store, tmp_pat
     with pytest.raises(UsageError, match="swapped.jpg: not copied"):
         copy_images(records, out)
     assert not image_dir(out).exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".x_images")]
+    with pytest.raises(UsageError, match="swapped.jpg: not read"):  # nor hashed through it (FathomNet's sha256)
+        fathomnet.image_record(records[1], "file:///x.jpg")
 
 
 @pytest.fixture(scope="module")
