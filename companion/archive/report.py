@@ -12,6 +12,7 @@ import csv
 import html
 import io
 import json
+import math
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from companion.atomic_write import atomic_write
 from companion.evaluation.plots import plot_depth, plot_scores
 from companion.export.viame_csv import sheet_safe
 from companion.export.writer import write_campaign_exports
+from vehicle.autopilot.pose import wrap_heading
 
 INDEX_FIELDS = ("dive", "time_s", "wall_time_utc", "depth_m", "heading_deg", "lat", "lon", "topic", "score",
                 "file", "query")
@@ -67,6 +69,13 @@ def _utc(t: float | None) -> str:
     return "" if t is None else datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")
 
 
+def _heading(value: object) -> object:
+    """A heading in [0, 360) (a tags.json written before ``wrap_heading`` may hold 360.0); anything else as is."""
+    if isinstance(value, float) and math.isfinite(value):
+        return wrap_heading(value)
+    return value
+
+
 def index_rows(out_dir: Path, names: list[str]) -> list[dict]:
     """One row per summary frame of every dive, in dive then time order."""
     rows = []
@@ -78,7 +87,7 @@ def index_rows(out_dir: Path, names: list[str]) -> list[dict]:
             tag = poses.get(f["index"], {})
             pose = tag.get("pose") or {}
             rows.append({"dive": name, "time_s": f["time_s"], "wall_time_utc": _utc(tag.get("wall_time")),
-                         "depth_m": pose.get("depth_m"), "heading_deg": pose.get("heading_deg"),
+                         "depth_m": pose.get("depth_m"), "heading_deg": _heading(pose.get("heading_deg")),
                          "lat": pose.get("lat"), "lon": pose.get("lon"), "topic": f.get("topic", ""),
                          "query": queries.get(f.get("topic", ""), summary["params"]["query"]),
                          "score": f["score"], "file": f"{name}/{f['file']}"})

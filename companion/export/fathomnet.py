@@ -24,7 +24,7 @@ from typing import Any
 
 from companion.errors import MerlionError
 from companion.export.paths import absolute_url, image_root
-from companion.export.records import FrameRecord
+from companion.export.records import FrameRecord, image_bytes
 from companion.vision.encoders.query_cache import resolve_cached
 
 log = logging.getLogger(__name__)
@@ -76,7 +76,7 @@ def image_record(record: FrameRecord, url: str, imaging_type: str | None = IMAGI
         "width": record.width, "height": record.height, "depthMeters": record.depth_m,
         "latitude": record.lat, "longitude": record.lon, "timestamp": record.best_utc,
         "temperatureCelsius": record.water_temp_c, "pressureDbar": record.pressure_dbar,
-        "sha256": hashlib.sha256(record.image.read_bytes()).hexdigest(), "boundingBoxes": boxes or None,
+        "sha256": hashlib.sha256(image_bytes(record.image)).hexdigest(), "boundingBoxes": boxes or None,
         "tags": tags,
     }
     return {k: v for k, v in doc.items() if v is not None}

@@ -17,10 +17,12 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from companion.errors import UsageError
 from companion.export.frame_entry import FrameEntry
 from companion.export.video_time import video_start
+from companion.storage.frame_files import read_no_link
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,9 @@ def _pose_fields(pose: dict | None) -> dict[str, Any]:
 
 
 def _read_json(path: Path) -> Any:
+    """A store's or summary's own JSON; a symbolic link is refused (it would read, and export, another folder's)."""
+    if path.is_symlink():
+        raise UsageError(f"{path}: a symbolic link; an export follows none")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -157,8 +162,17 @@ def _read_json(path: Path) -> Any:
         raise UsageError(f"{path}: not readable JSON ({err})") from None
 
 
+def image_bytes(path: Path) -> bytes:
+    """A frame's bytes as checked (``FrameEntry.image``), opened with ``O_NOFOLLOW``: a frame swapped for a link
+    after its check is refused, never hashed or measured through the link."""
+    data = read_no_link(path)
+    if data is None:
+        raise UsageError(f"{path}: not read (missing, unreadable or a symbolic link); an export follows no link")
+    return data
+
+
 def _image_size(path: Path) -> tuple[int, int]:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image = cv2.imdecode(np.frombuffer(image_bytes(path), np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise UsageError(f"{path}: frame image missing or not an image")
     return int(image.shape[1]), int(image.shape[0])
@@ -192,7 +206,7 @@ def _summary_records(folder: Path, doc: dict, dive: str) -> list[FrameRecord]:
     video = doc.get("source") if isinstance(doc.get("source"), str) and doc.get("source") else None
     started = video_start(video, folder) if video else None
     tags_path = folder / "tags.json"
-    tags = _read_json(tags_path) if tags_path.exists() else {}
+    tags = _read_json(tags_path) if tags_path.exists() or tags_path.is_symlink() else {}
     by_index = {f.get("index"): f for f in tags.get("frames", []) if isinstance(f, dict)} \
         if isinstance(tags, dict) else {}
     out = []
@@ -226,7 +240,11 @@ def campaign_records(folder: Path, names: list[str] | None = None) -> list[Frame
         names = sorted(finished)
     out: list[FrameRecord] = []
     for name in names:
-        dive = folder / name
+        dive = folder / str(name)
+        if not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name:
+            raise UsageError(f"{folder / 'manifest.json'}: dive {str(name)!r:.60} is not a folder of the campaign")
+        if dive.is_symlink():
+            raise UsageError(f"{dive}: a symbolic link; an export follows none")
         out.extend(_summary_records(dive, _read_json(dive / "summary.json"), name))
     return out
 

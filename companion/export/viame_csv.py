@@ -14,14 +14,16 @@ CSV comes with its own image folder, ``<name>_images/`` beside it (``IMAGE_DIR``
 frames (copied, never linked), named ``000000.jpg``, ``000001.jpg``, ... in the order written: row n names image n
 and frame n, whatever the store's frames folder holds besides (raw copies, frames no longer in the summary).
 
-A cell a spreadsheet would run as a formula (one starting with ``=``, ``+``, ``-``, ``@``, a tab or a carriage
-return, and not a number) gets a leading apostrophe: a query uploaded by anyone on the link can be a formula.
+A cell a spreadsheet would run as a formula (one starting with ``=``, ``+``, ``-``, ``@``, also after blanks or
+quotes, or with a tab or a line break, and not a plain number) gets a leading apostrophe: a query uploaded by anyone
+on the link can be a formula.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import os
 import re
 import shutil
 import tempfile
@@ -39,7 +41,13 @@ HEADER = ["# 1: Detection or Track-id", "2: Video or Image Identifier", "3: Uniq
 ATTRIBUTES = ("dive", "frame", "source", "video", "time_s", "capture_utc", "autopilot_utc", "time_boot_ms",
               "date_source", "depth_m", "altitude_m", "heading_deg", "roll_deg", "pitch_deg", "yaw_deg", "lat", "lon",
               "water_temp_c", "pressure_dbar", "topic", "threshold", "below_threshold", "pilot")
-FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "\n", "\uff1d", "\uff0b", "\uff0d", "\uff20")
+"""A formula's first characters, with their full-width forms (an East Asian spreadsheet may read them alike)."""
+_LEADING = " \t\r\n\f\v\u00a0\u3000\"\u201c\u201d\u2018\u2019\ufeff"
+"""What a spreadsheet may drop before reading a cell's first character: blanks, double quotes, a byte-order mark
+(not the apostrophe: that is the escape itself)."""
+_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
+"""A plain number as the exports write one (``float()`` also takes ``" -1"``, ``"-1_0"`` and ``"-inf"``)."""
 
 
 def image_dir(out: Path) -> Path:
@@ -53,14 +61,14 @@ def image_name(n: int, record: FrameRecord) -> str:
 
 
 def sheet_safe(cell: str) -> str:
-    """A cell no spreadsheet runs: a leading apostrophe before a formula's first character, numbers as they are."""
-    if not cell.startswith(FORMULA_START):
+    """A cell no spreadsheet runs: a leading apostrophe when it starts a formula, also past blanks and quotes (a
+    spreadsheet that trims them on import, LibreOffice's "Trim spaces", reads ``  =1+1`` as a formula); plain
+    numbers as they are."""
+    if _NUMBER.fullmatch(cell):
         return cell
-    try:
-        float(cell)
-        return cell
-    except ValueError:
+    if cell.startswith(FORMULA_START) or cell.lstrip(_LEADING).startswith(FORMULA_START):
         return "'" + cell
+    return cell
 
 
 def _species(record: FrameRecord) -> str:
@@ -99,6 +107,17 @@ def render(records: list[FrameRecord], out: Path) -> str:
     return buf.getvalue()
 
 
+def _copy_no_link(src: Path, dst: Path) -> None:
+    """``src``'s bytes to a new ``dst``, opened with ``O_NOFOLLOW``: a frame swapped for a link after it was
+    checked is refused (``copyfile(follow_symlinks=False)`` copied the link itself into the export)."""
+    try:
+        fd = os.open(src, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError as err:
+        raise UsageError(f"{src}: not copied ({err.strerror}); an export follows no link") from None
+    with os.fdopen(fd, "rb") as fh, dst.open("xb") as out:
+        shutil.copyfileobj(fh, out)
+
+
 def copy_images(records: list[FrameRecord], out: Path) -> Path:
     """``image_dir(out)`` with exactly the rows' images, replaced whole (built aside, then swapped in); a folder
     there that holds anything else is left alone and refused."""
@@ -109,7 +128,7 @@ def copy_images(records: list[FrameRecord], out: Path) -> Path:
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=out.parent))
     try:
         for n, r in enumerate(records):
-            shutil.copyfile(r.image, staging / image_name(n, r), follow_symlinks=False)
+            _copy_no_link(r.image, staging / image_name(n, r))
         if target.exists():
             shutil.rmtree(target)
         staging.rename(target)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,6 +20,17 @@ from companion.vision.events import SummaryFrame
 from vehicle.autopilot.pose import Pose
 
 FORMAT_VERSION = 1
+
+
+def read_no_link(path: Path) -> bytes | None:
+    """``path``'s bytes; None when it is missing, unreadable or a symbolic link (``O_NOFOLLOW``): what the store
+    serves over the link is its own file, never one a link in ``frames/`` points at (/etc/shadow)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:
+        return None
+    with os.fdopen(fd, "rb") as fh:
+        return fh.read()
 
 
 def frame_name(index: int) -> str:

@@ -47,6 +47,7 @@ from companion.storage.frame_files import (
     frame_name,
     load_frame,
     read_frame,
+    read_no_link,
     sidecar_for,
     write_feature_files,
     write_frame_files,
@@ -274,14 +275,10 @@ class Store:
 
     def frame_jpeg(self, index: int, raw: bool = False) -> bytes | None:
         """The stored JPEG of a frame as written (None: not on disk), so what the surface downloads over FTP is
-        byte for byte what the vehicle keeps."""
+        byte for byte what the vehicle keeps; never through a link."""
         if self.memory_only:
             return None
-        path = self.frames_dir / (f"{frame_name(index)}.raw.jpg" if raw else f"{frame_name(index)}.jpg")
-        try:
-            return path.read_bytes()
-        except OSError:
-            return None
+        return read_no_link(self.frames_dir / (f"{frame_name(index)}.raw.jpg" if raw else f"{frame_name(index)}.jpg"))
 
     def sidecar(self, index: int) -> dict[str, Any] | None:
         with self._lock:

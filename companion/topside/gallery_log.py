@@ -1,6 +1,6 @@
 """log.csv: one appended row per gallery event (added, thumbnail, tags, removed, dive, topics), for spreadsheets and
-audits; at most ``MAX_LOG_ROWS`` rows a run. A log started by an older tool keeps its own header, so rows never
-slip a column."""
+audits; at most ``MAX_LOG_ROWS`` rows a run; no cell a spreadsheet can run (``sheet_safe``: the text comes off the
+link). A log started by an older tool keeps its own header, so rows never slip a column."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from companion.errors import MerlionError
+from companion.export.viame_csv import sheet_safe
 from companion.topside.capture import Capture
 
 log = logging.getLogger("merlion.surface")
@@ -67,4 +68,5 @@ class GalleryLog:
                 writer.writerow(self._columns)
             row = cap.to_dict()
             row.update(event=event, wall_time=f"{time.time():.3f}")
-            writer.writerow(["" if row.get(k) is None else row.get(k) for k in self._columns])
+            # the dive, topic and file_url come off the link: no cell of them may run as a spreadsheet formula
+            writer.writerow(["" if row.get(k) is None else sheet_safe(str(row.get(k))) for k in self._columns])

@@ -5,6 +5,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 
+def wrap_heading(degrees: float) -> float:
+    """``degrees`` as a compass heading in [0, 360). Python's ``%`` alone gives 360.0 for a tiny negative angle
+    (``-1e-17 % 360.0``: a yaw a hair west of north), a heading no compass shows and an export must not carry."""
+    heading = degrees % 360.0
+    return 0.0 if heading >= 360.0 else heading
+
+
 @dataclass(frozen=True)
 class Pose:
     """Where the vehicle was and how it was oriented at ``time`` (companion wall clock, seconds since epoch).

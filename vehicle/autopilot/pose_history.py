@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from vehicle.autopilot.pose import Pose
+from vehicle.autopilot.pose import Pose, wrap_heading
 
 Quaternion = tuple[float, float, float, float]
 
@@ -145,7 +145,7 @@ class PoseHistory:
         self._add(self._attitude, t, normalise(q))
 
     def add_heading(self, t: float, heading_deg: float) -> None:
-        self._add(self._heading, t, (heading_deg % 360.0,))
+        self._add(self._heading, t, (wrap_heading(heading_deg),))
 
     def add_local_position(self, t: float, north: float, east: float, down: float) -> None:
         self._add(self._local, t, (north, east, down))
@@ -192,7 +192,7 @@ class PoseHistory:
                 i, j, f = where
                 q = slerp(self._attitude.values[i], self._attitude.values[j], f)
                 roll, pitch, yaw = quaternion_to_euler(q)
-                fields.update(q=q, roll=roll, pitch=pitch, yaw=yaw, heading_deg=math.degrees(yaw) % 360.0)
+                fields.update(q=q, roll=roll, pitch=pitch, yaw=yaw, heading_deg=wrap_heading(math.degrees(yaw)))
             else:
                 heading = self._heading_at(t, limit)
                 if heading is not None:
@@ -236,4 +236,4 @@ class PoseHistory:
         i, j, f = where
         a, b = self._heading.values[i][0], self._heading.values[j][0]
         delta = (b - a + 180.0) % 360.0 - 180.0  # the short way round through north
-        return (a + delta * f) % 360.0
+        return wrap_heading(a + delta * f)

@@ -23,7 +23,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from vehicle.autopilot.pose import Pose
+from vehicle.autopilot.pose import Pose, wrap_heading
 from vehicle.autopilot.pose_history import PoseHistory, euler_to_quaternion, normalise, quaternion_to_euler
 from vehicle.link.clock_sync import BootClock
 from vehicle.link.connection import MavLink
@@ -252,7 +252,7 @@ class VehicleTelemetry:
             q = euler_to_quaternion(msg.roll, msg.pitch, msg.yaw)
             if h is not None:
                 h.add_attitude(t, q)
-            update.update(roll=msg.roll, pitch=msg.pitch, yaw=msg.yaw, heading_deg=math.degrees(msg.yaw) % 360.0)
+            update.update(roll=msg.roll, pitch=msg.pitch, yaw=msg.yaw, heading_deg=wrap_heading(math.degrees(msg.yaw)))
         elif mtype == "ATTITUDE_QUATERNION":
             try:
                 q = normalise((msg.q1, msg.q2, msg.q3, msg.q4))
@@ -261,7 +261,7 @@ class VehicleTelemetry:
             if h is not None:
                 h.add_attitude(t, q)
             roll, pitch, yaw = quaternion_to_euler(q)
-            update.update(roll=roll, pitch=pitch, yaw=yaw, heading_deg=math.degrees(yaw) % 360.0)
+            update.update(roll=roll, pitch=pitch, yaw=yaw, heading_deg=wrap_heading(math.degrees(yaw)))
         elif mtype == "GLOBAL_POSITION_INT":
             self._depth(update, t, arrival, "global_position_int", -msg.relative_alt / 1000.0, msg.vz / 100.0)
             if msg.hdg != 65535 and h is not None:

@@ -61,13 +61,14 @@ def _finite(value: float | None) -> bool:
 def captured_message(frame: CaptureFrame, time_boot_ms: int, *, ext: str = "jpg", camera_id: int = 1,
                      dive: str = "") -> mav.MAVLink_camera_image_captured_message:
     """CAMERA_IMAGE_CAPTURED for a summary frame; fields the pose lacks are 0 (position) or NaN (attitude). With
-    no valid position (no EKF origin, a stale pose) ``capture_result`` is 0: QGroundControl then draws no marker,
+    no valid position (no EKF origin, a stale pose, 0/0 once in 1e-7 degrees) ``capture_result`` is 0: QGroundControl then draws no marker,
     rather than one at 0°, 0° (docs/surface-link.md)."""
     pose = None if frame.pose is None or frame.pose.stale else frame.pose
     placed = pose is not None and _finite(pose.lat) and _finite(pose.lon) and abs(pose.lat) <= 90 \
         and abs(pose.lon) <= 180  # QGroundControl marks the map at lat/lon: both valid, or both 0 (unknown)
     lat = int(round(pose.lat * 1e7)) if placed else 0
     lon = int(round(pose.lon * 1e7)) if placed else 0
+    placed = placed and (lat, lon) != (0, 0)  # 0/0 on the wire is "no position" (ArduSub's own), never a marker
     alt = int(round(pose.alt_m * 1000)) if pose is not None and _finite(pose.alt_m) else 0
     rel = int(round(-pose.depth_m * 1000)) if pose is not None and _finite(pose.depth_m) else 0
     return mav.MAVLink_camera_image_captured_message(

@@ -98,7 +98,7 @@ class CameraComponent:
             CMD_REQUEST_CAMERA_CAPTURE_STATUS: lambda _m: (mav.MAV_RESULT_ACCEPTED, self.capture_status()),
             CMD_REQUEST_STORAGE_INFORMATION: self._request_storage,
             CMD_REQUEST_CAMERA_IMAGE_CAPTURE: lambda m: self._capture(m.param1, latest_if_unset=False),
-            CMD_IMAGE_START_CAPTURE: lambda m: (self.shutter.press(m), None),
+            CMD_IMAGE_START_CAPTURE: self._press,
             CMD_IMAGE_STOP_CAPTURE: lambda _m: (mav.MAV_RESULT_ACCEPTED, None),  # one image per press: none running
         }
         """Command -> its handler: the one table of what this camera does (anything else is UNSUPPORTED)."""
@@ -167,6 +167,14 @@ class CameraComponent:
         if wanted is None:
             return mav.MAV_RESULT_DENIED, None
         return mav.MAV_RESULT_UNSUPPORTED, None
+
+    def _press(self, msg: mav.MAVLink_message) -> Reply:
+        """The shutter's answer; a DENIED press (a time-lapse series) comes with the capture status. QGroundControl
+        (``_mavCommandResult``) resets its button only on ACCEPTED-then-idle or after retrying TEMPORARILY_REJECTED
+        or FAILED; DENIED it logs as a bad response and the button stays "in progress", but any
+        CAMERA_CAPTURE_STATUS (``handleCaptureStatus``) sets it to what the status says: idle."""
+        result = self.shutter.press(msg)
+        return result, self.capture_status() if result == mav.MAV_RESULT_DENIED else None
 
     def _request_storage(self, msg: mav.MAVLink_message) -> Reply:
         """MAV_CMD_REQUEST_STORAGE_INFORMATION: p1 the storage id (0: all), p2 1 to ask."""

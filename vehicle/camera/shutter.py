@@ -4,7 +4,8 @@ QGroundControl (src/Camera/VehicleCameraControl.cc: ``takePhoto``, ``_mavCommand
 sends IMAGE_START_CAPTURE (interval 0, count 1) and shows the shutter "in progress" until CAMERA_CAPTURE_STATUS
 says idle: on ACCEPTED it asks for the capture status a second later, and again every second while the image
 status is not idle; on TEMPORARILY_REJECTED or FAILED it retries twice, then resets the button; any other answer
-(UNSUPPORTED, DENIED) leaves the button "in progress" for good. So a press is answered at once (the frame is kept
+(UNSUPPORTED, DENIED) leaves the button "in progress" until a CAMERA_CAPTURE_STATUS says idle (so the camera
+sends one with a DENIED press: ``CameraComponent._press``). So a press is answered at once (the frame is kept
 on the companion's own thread): ACCEPTED when a capture was started, TEMPORARILY_REJECTED when there is nothing to
 capture yet or a capture is still being kept (one at a time: QGroundControl never presses while its button is
 "in progress", so only a flood does); the capture status says "in progress" until the frame was announced, then

@@ -17,7 +17,9 @@ import os
 import re
 from pathlib import Path
 
-FORMULA = ("=", "+", "-", "@", "\t", "\r")
+FORMULA = ("=", "+", "-", "@", "\uff1d", "\uff0b", "\uff0d", "\uff20")
+TRIMMED = " \t\r\n\u00a0\u3000\"\u201c\u201d\ufeff"
+"""What a spreadsheet that trims cells on import may drop before the first character it reads."""
 
 
 def _deduce(value: str):
@@ -61,15 +63,15 @@ def dive_read(path: Path) -> list[dict]:
 
 
 def formula_cells(path: Path) -> list[str]:
-    """Cells a spreadsheet would run: starting with = + - @ tab or CR, and not a number."""
+    """Cells a spreadsheet would run: starting with = + - @ (or their full-width forms), also past blanks and
+    quotes a spreadsheet may trim, or with a tab or line break; and not a plain number."""
     found = []
-    for row in csv.reader(path.read_text().splitlines()):
-        for cell in row:
-            if cell.startswith(FORMULA):
-                try:
-                    float(cell)
-                except ValueError:
-                    found.append(cell)
+    with path.open(newline="", encoding="utf-8") as fh:
+        for row in csv.reader(fh):
+            for cell in row:
+                if cell.lstrip(TRIMMED).startswith(FORMULA) or cell.startswith(("\t", "\r", "\n")):
+                    if not re.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", cell):
+                        found.append(cell)
     return found
 
 

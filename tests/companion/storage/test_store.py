@@ -208,3 +208,17 @@ def test_space_reports_the_budget_its_files_and_the_room_left(tmp_path: Path) ->
             summary = (summary + [i])[-6:]
             small.apply(added(make_frame(i, size=(200, 260)), summary))
         assert small.memory_only and small.space().available == 0
+
+
+def test_a_frame_that_is_a_link_is_not_served(tmp_path: Path) -> None:
+    """What the surface downloads over FTP is the store's own file: a link in frames/ is not followed."""
+    store = Store(StoreConfig(dir=str(tmp_path / "store")))
+    store.apply(added(make_frame(0), [0]))
+    store.apply(added(make_frame(1), [0, 1]))
+    assert store.frame_jpeg(0)[:2] == b"\xff\xd8"  # a JPEG, as written
+    secret = tmp_path / "secret.txt"
+    secret.write_bytes(b"not for the link")
+    jpg = tmp_path / "store" / "frames" / "000001.jpg"
+    jpg.unlink()
+    jpg.symlink_to(secret)
+    assert store.frame_jpeg(1) is None and store.frame_jpeg(0)[:2] == b"\xff\xd8"

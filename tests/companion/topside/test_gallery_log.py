@@ -49,3 +49,14 @@ def test_a_log_that_is_not_text_is_a_one_line_error(tmp_path):
     (tmp_path / "log.csv").write_bytes(b"\xff\xfe\x00bad")
     with pytest.raises(MerlionError, match="log.csv: not a log this tool can append to"):
         GalleryLog(tmp_path / "log.csv")
+
+
+def test_text_off_the_link_never_makes_a_formula_cell(tmp_path):
+    log = GalleryLog(tmp_path / "log.csv")
+    cap = Capture(image_index=2, dive="-cmd", topic='=HYPERLINK("http://evil.example")', depth_m=-1.5,
+                  file_url=' @SUM(1,2)')
+    log.append("added", cap, "-cmd")
+    row = dict(zip(LOG_COLUMNS, _rows(tmp_path / "log.csv")[1], strict=True))
+    assert (row["dive"], row["topic"], row["file_url"]) == ("'-cmd", '\'=HYPERLINK("http://evil.example")',
+                                                            "' @SUM(1,2)")
+    assert row["depth_m"] == "-1.5" and row["image_index"] == "2"  # numbers stay numbers

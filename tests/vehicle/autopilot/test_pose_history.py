@@ -104,6 +104,18 @@ def test_heading_alone_interpolates_through_north():
     assert h.pose_at(0.75).heading_deg == pytest.approx(5.0)
 
 
+def test_headings_stay_in_0_to_360_also_a_hair_west_of_north():
+    h = PoseHistory(stale_after_s=1.0)
+    h.add_depth(0.0, 1.0, "vfr_hud")
+    h.add_heading(0.0, -1e-15)  # as added (% 360.0 alone kept 360.0)
+    h.add_heading(1.0, 0.0)
+    assert [h.pose_at(t).heading_deg for t in (0.0, 0.5, 1.0)] == [0.0, 0.0, 0.0]
+    q = PoseHistory(stale_after_s=1.0)
+    q.add_depth(0.0, 1.0, "vfr_hud")
+    q.add_attitude(0.0, _yaw_q(-1e-15))  # from the attitude quaternion
+    assert q.pose_at(0.0).heading_deg == 0.0
+
+
 def test_history_keeps_pruning_after_a_reboot_clears_it():
     """After clear() (an autopilot reboot) times start again near zero; old samples must still be dropped."""
     h = PoseHistory(stale_after_s=1.0, history_s=2.0)

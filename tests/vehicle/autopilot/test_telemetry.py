@@ -83,6 +83,16 @@ def test_only_the_autopilot_is_believed(rig):
     assert tel.latest.roll == pytest.approx(0.1) and tel.latest.depth_m is None
 
 
+def test_a_yaw_a_hair_west_of_north_is_heading_0_not_360(rig):
+    tel, ap, _ = rig
+    ap.send(mav2.MAVLink_attitude_message(600, 0.0, 0.0, -1e-17, 0, 0, 0))  # -1e-17 % 360.0 is 360.0 in Python
+    assert tel.wait_for(lambda s: s.heading_deg is not None, 5)
+    assert tel.latest.heading_deg == 0.0
+    ap.send(mav2.MAVLink_attitude_message(700, 0.0, 0.0, -math.pi / 2, 0, 0, 0))
+    assert tel.wait_for(lambda s: s.heading_deg is not None and s.heading_deg > 1.0, 5)
+    assert tel.latest.heading_deg == pytest.approx(270.0)
+
+
 def test_samples_are_placed_by_autopilot_time_not_arrival(rig):
     tel, ap, _ = rig
     # sent back to back: they arrive together, but the autopilot measured them 200 ms apart

@@ -106,8 +106,10 @@ def test_the_shutter_answers_at_once_and_is_busy_until_the_capture_is_done(camer
     series = mav.MAVLink_command_long_message(1, 100, mav.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 2, 0, NAN, NAN, NAN,
                                               NAN)
     series._header = press._header
-    (ack,) = cam.handle(series)  # time-lapse forever: the summary is the series
+    ack, status = cam.handle(series)  # time-lapse forever: the summary is the series
     assert ack.result == mav.MAV_RESULT_DENIED and len(finish) == 1
+    # QGroundControl leaves its button "in progress" on DENIED; the capture status that follows sets it idle
+    assert status.get_type() == "CAMERA_CAPTURE_STATUS" and status.image_status == 0
     (ack,) = cam.handle(_cmd(mav.MAV_CMD_IMAGE_STOP_CAPTURE, 0))
     assert ack.result == mav.MAV_RESULT_ACCEPTED
 

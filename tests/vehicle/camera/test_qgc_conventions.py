@@ -120,6 +120,8 @@ def test_captures_put_a_map_marker_only_where_the_position_is_valid(qgc):
         3: (pose(1.25, 103.8, stale=True), (0, 0)),  # telemetry lost: the old position is not this frame's
         4: (pose(NAN, NAN), (0, 0)),
         5: (None, (0, 0)),
+        6: (pose(0.0, 0.0), (0, 0)),  # a pose that says 0/0 (a tool that did not filter it): still no marker
+        7: (pose(4e-8, -4e-8), (0, 0)),  # rounds to 0/0 on the wire (1e-7 degree units): no marker there either
     }
     held: list[int] = []
     for index, (p, _) in cases.items():
