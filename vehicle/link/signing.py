@@ -465,4 +465,5 @@ class LinkSigning:
             "spoofed_autopilot": sum(self.spoofed.values()), "autopilot": self.autopilot,
             "autopilot_obeys": self.watch.obeys, "mismatch": self.mismatch,
             "autopilot_changes": [f"{v.signs}, {'obeys' if v.obeys else 'ignores'} us" for v in self.watch.changes],
+            "autopilot_changes_withheld": self.watch.withheld,
         }
