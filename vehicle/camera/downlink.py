@@ -174,8 +174,11 @@ class Downlink:
                                         on_flood=self._flood, clock=clock)
         """FTP data replies, per requester, signed ones first (bursts come from the FTP server itself)."""
         self.budget.add_source(Priority.CONTROL, self.replies.next)
-        self.budget.add_source(Priority.BULK, self._next_burst)
+        # signed links' bursts, then the data replies (signed first), then strangers' bursts: an unsigned burst
+        # never goes ahead of a signed client's data (it had gone first, whatever the slice)
+        self.budget.add_source(Priority.BULK, lambda: self._next_burst(signed=True))
         self.budget.add_source(Priority.BULK, self.bulk_replies.next)
+        self.budget.add_source(Priority.BULK, lambda: self._next_burst(signed=False))
         for name, value in self.params.restored.items():
             self._own_param(name, value)
 
@@ -452,8 +455,8 @@ class Downlink:
         request = bytes(msg.payload)
         self.ftp_worker.submit(lambda: self._send_ftp(who, self.ftp.refuse(request), Priority.CONTROL))
 
-    def _next_burst(self) -> mav.MAVLink_message | None:
-        got = self.ftp.next_burst()
+    def _next_burst(self, *, signed: bool) -> mav.MAVLink_message | None:
+        got = self.ftp.next_burst(signed)
         if got is None:
             return None
         (sysid, compid), payload = got

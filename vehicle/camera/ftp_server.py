@@ -378,11 +378,12 @@ class FtpServer:
 
     # ---- bursts ---------------------------------------------------------------------------------------------
 
-    def next_burst(self) -> tuple[Requester, bytes] | None:
-        """The next bulk packet of the oldest running burst (signed links' first), or None when none is running."""
+    def next_burst(self, signed: bool | None = None) -> tuple[Requester, bytes] | None:
+        """The next bulk packet of the oldest running burst (signed links' first), or None when none is running;
+        ``signed``: of signed (True) or unsigned (False) links' sessions only."""
         with self._lock:
             for sess in self.sessions.values():
-                if sess.burst_offset is None:
+                if sess.burst_offset is None or (signed is not None and sess.signed != signed):
                     continue
                 offset = sess.burst_offset
                 chunk = bytes(sess.data[offset: offset + MAX_DATA])

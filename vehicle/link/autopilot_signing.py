@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from vehicle.link.warning_bucket import WarningBucket
+
 log = logging.getLogger(__name__)
 
 UNKNOWN = "unknown"
@@ -43,6 +45,12 @@ UNANSWERED_ASKS = 3
 ASK_WAIT_S = 2.0
 PROBE_EVERY_S = 1.0
 PROBES = 3
+CHANGES_SAID = 4
+"""Changes of verdict said (log line and STATUSTEXT) at once; then one more each ``CHANGE_REFILL_S``. A stranger
+can forge every kind of evidence but a signature with our key (an unsigned message, or one whose signature flag is
+set and its signature garbage, under the autopilot's ids): alternating them it flipped the verdict, and a
+STATUSTEXT went out, every few seconds for as long as it liked. A pilot's signing change is one or two."""
+CHANGE_REFILL_S = 60.0
 
 
 def probe_message(target: tuple[int, int]) -> mavlink2.MAVLink_message:
@@ -125,6 +133,9 @@ class AutopilotSigning:
         self._probes_left = 0
         self._next_probe = 0.0
         self._callbacks: list[Callable[[str, int], None]] = []
+        self._changes_said = WarningBucket(CHANGES_SAID, CHANGE_REFILL_S, clock=clock)
+        self.withheld = 0
+        """Changes of verdict not said (beyond ``CHANGES_SAID``): counted, and the first of them logged."""
 
     def on_change(self, callback: Callable[[str, int], None]) -> None:
         """``callback(text, severity)`` for each verdict worth a STATUSTEXT (a change, or a first one that is bad)."""
@@ -204,6 +215,12 @@ class AutopilotSigning:
         self.changes.append(v)
         text, status, severity = describe(v, has_key=self._has_key(), required=self._required())
         bad = severity <= mavlink2.MAV_SEVERITY_WARNING
+        if not first and not self._changes_said.take():
+            self.withheld += 1
+            if self.withheld == 1:
+                log.warning("%s: the autopilot's signing verdict keeps changing (now: %s); a stranger may be sending "
+                            "under its ids: further changes are only counted", self.name, text)
+            return
         if first:
             (log.error if severity <= mavlink2.MAV_SEVERITY_ERROR else log.warning if bad else log.info)(
                 "%s: %s", self.name, text)

@@ -155,14 +155,14 @@ class RateKeeper:
     def _on_message(self, msg: mav2.MAVLink_message) -> None:
         """On the receive thread: answer a waiting command, or note when a wanted message came (nothing more)."""
         mtype = msg.get_type()
+        if self.link.autopilot is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self.link.autopilot:
+            return  # only the autopilot's: another peer's (or, with a key, an unsigned) COMMAND_ACK is no answer
         if mtype == "COMMAND_ACK":
             if msg.target_system in (0, self.link.system_id) and msg.target_component in (0, self.link.component_id):
                 with self._ack_cv:
                     self._last_ack = (msg.command, msg.result)
                     self._ack_serial += 1
                     self._ack_cv.notify_all()
-            return
-        if self.link.autopilot is not None and (msg.get_srcSystem(), msg.get_srcComponent()) != self.link.autopilot:
             return
         self._inbox.put((mtype, self.clock()))
 

@@ -292,8 +292,10 @@ class LinkSigning:
     @property
     def require_signed_autopilot(self) -> bool:
         """With a key, only the autopilot's signed messages are used, from the very first packet: an unsigned
-        heartbeat never settles who the autopilot is nor keeps it alive, and no unsigned telemetry under its ids
-        reaches a subscriber (MAVLink 1 framing cannot be signed at all)."""
+        heartbeat never settles who the autopilot is nor keeps it alive, and once it is settled no unsigned message
+        under its ids reaches a subscriber (MAVLink 1 framing cannot be signed at all). Before that, unsigned reads
+        from any ids pass (its ids are not known yet): the autopilot's subscribers (telemetry, the rate keeper) take
+        nothing while ``MavLink.autopilot`` is None."""
         return self._key is not None and not self.unsigned_autopilot
 
     @property
@@ -465,4 +467,5 @@ class LinkSigning:
             "spoofed_autopilot": sum(self.spoofed.values()), "autopilot": self.autopilot,
             "autopilot_obeys": self.watch.obeys, "mismatch": self.mismatch,
             "autopilot_changes": [f"{v.signs}, {'obeys' if v.obeys else 'ignores'} us" for v in self.watch.changes],
+            "autopilot_changes_withheld": self.watch.withheld,
         }

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 WARN_BURST = 5
 WARN_REFILL_S = 10.0
@@ -19,17 +20,19 @@ WARN_REFILL_S = 10.0
 class WarningBucket:
     """A token bucket of ``burst`` warnings, one more every ``refill_s`` seconds; thread-safe."""
 
-    def __init__(self, burst: int = WARN_BURST, refill_s: float = WARN_REFILL_S) -> None:
+    def __init__(self, burst: int = WARN_BURST, refill_s: float = WARN_REFILL_S, *,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.burst = burst
         self.refill_s = refill_s
+        self._clock = clock
         self._tokens = float(burst)
-        self._at = time.monotonic()
+        self._at = clock()
         self._lock = threading.Lock()
 
     def take(self) -> bool:
         """True when one more warning may be sent now."""
         with self._lock:
-            now = time.monotonic()
+            now = self._clock()
             self._tokens = min(self.burst, self._tokens + (now - self._at) / self.refill_s)
             self._at = now
             if self._tokens < 1:

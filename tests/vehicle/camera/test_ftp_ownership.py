@@ -11,10 +11,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from tests.conftest import free_udp_port
 from tests.vehicle.camera.conftest import serving_frames, signed_companion_link
-from tests.vehicle.surface_env import companion_link
-from tests.vehicle.tether import KEY, Peer, gcs_heartbeat
+from tests.vehicle.surface_env import added, companion_link
+from tests.vehicle.tether import KEY, Peer, Repeater, gcs_heartbeat
 from tests.waiting import wait_until
+from vehicle.camera.downlink import Downlink
 from vehicle.protocol.ftp import MAX_DATA, FtpErr, FtpPacket, Op
+from vehicle.settings import SurfaceConfig
 
 COMPANION = (1, 100)
 
@@ -189,3 +191,47 @@ def test_an_unsigned_client_ends_its_own_read_sessions_and_no_one_elses(signed):
     read = owner.request(Op.READ_FILE, session=3, size=MAX_DATA)  # the reset and the refused end left it open
     assert read.opcode == Op.ACK and read.data == surface.tree.read("/summary/index.json")[:MAX_DATA]
     assert surface.ftp.naks.get(int(FtpErr.FILE_PROTECTED), 0) == 0  # no end of a session refused as protected
+
+
+def test_a_strangers_endless_bursts_never_hold_back_a_signed_clients_reads(tmp_path):
+    """Issue 46 review: on the default 2000 B/s downlink an unsigned client restarting a burst read four times a
+    second keeps a burst always running; the signed client's READ_FILE answers (FTP data, the same bulk priority)
+    still go out, as they went first before its burst (an unsigned burst drew on no slice and went ahead of them)."""
+    port = free_udp_port()
+    link = signed_companion_link(tmp_path, port)
+    surface = Downlink(link, SurfaceConfig(push=False))
+    peers: list[Peer] = []
+    flood = None
+    try:
+        surface.start()
+        for i in (3, 4, 5):
+            surface.publish(added(i, [3, 4, 5][: i - 2]))
+        stranger = RawFtp(_peer(port, peers, 255, 191))
+        opened = stranger.request(Op.OPEN_FILE_RO, session=1, data=b"/summary/full/5.jpg", timeout=20)
+        assert opened is not None and opened.opcode == Op.ACK
+        burst = FtpPacket(50, 1, Op.BURST_READ_FILE, offset=0).pack()
+        flood = Repeater(stranger.peer, lambda: [mav2.MAVLink_file_transfer_protocol_message(0, *COMPANION,
+                                                                                              list(burst))], 4)
+
+        def burst_packets() -> int:
+            return sum(FtpPacket.unpack(m.payload).req_opcode == Op.BURST_READ_FILE
+                       for m in stranger.peer.got("FILE_TRANSFER_PROTOCOL", COMPANION))
+
+        assert wait_until(lambda: burst_packets() >= 3, 20), "the stranger's burst never ran"
+        owner = RawFtp(_peer(port, peers, 255, 190, KEY))
+        held = owner.request(Op.OPEN_FILE_RO, session=2, data=b"/summary/full/4.jpg", timeout=20)
+        assert held is not None and held.opcode == Op.ACK
+        want = surface.tree.read("/summary/full/4.jpg")
+        for offset in (0, MAX_DATA, 2 * MAX_DATA):
+            read = owner.request(Op.READ_FILE, session=2, offset=offset, size=MAX_DATA, timeout=15)
+            assert read is not None, f"the signed read at {offset} was never answered during the stranger's bursts"
+            assert read.opcode == Op.ACK and read.data == want[offset:offset + MAX_DATA]
+        before = burst_packets()
+        assert wait_until(lambda: burst_packets() > before, 20), "the stranger's bursts stopped altogether"
+    finally:
+        if flood is not None:
+            flood.stop()
+        surface.stop()
+        link.stop()
+        for p in peers:
+            p.close()

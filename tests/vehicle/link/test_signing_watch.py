@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from companion.config import MavlinkConfig, TelemetryConfig
 from companion.live.udp_hub import UdpHub
 from tests.vehicle.sim_env import FAST_LINK, quick_dive
-from tests.vehicle.tether import Peer, gcs_heartbeat
+from tests.vehicle.tether import Peer, Repeater, gcs_heartbeat
 from tests.waiting import wait_until
 from vehicle.autopilot.telemetry import VehicleTelemetry
 from vehicle.camera.downlink import Downlink
@@ -210,3 +210,35 @@ def test_after_a_change_the_verdict_waits_for_fresh_answers_not_old_silence():
     _tick(watch, clock, 0.1)
     assert said[-1] == ("Autopilot does not sign", 5) and watch.verdict == sig.Verdict(sig.UNSIGNED, True)
     assert [v.signs for v in watch.changes] == [sig.NEEDS_A_KEY, sig.UNSIGNED]
+
+
+def test_a_stranger_alternating_forged_signatures_gets_a_few_changes_said_not_a_flapping_verdict(tmp_path, caplog):
+    """Issue 46 review: beside the unsigned simulated ArduSub, a stranger sends heartbeats under its ids (1/1) with a
+    signature of another key (anyone can: only a signature with OUR key is unforgeable), stops until the verdict is
+    back, and again, six times: twelve changes of verdict. A few are said (``CHANGES_SAID``); the rest are counted
+    and logged once, and the verdict still follows the evidence."""
+    caplog.set_level(logging.INFO, logger="vehicle")
+    with _router(tmp_path) as router:
+        watch = router.link.signing.watch
+        assert wait_until(lambda: watch.said == sig.Verdict(sig.UNSIGNED, True), 10)
+        watch.window_s = 0.5  # the stranger's evidence ages out in half a second: a cycle is about a second
+        stranger = Peer(router.hub.port, 1, 1, hashlib.sha256(b"another passphrase").digest())
+        try:
+            for _ in range(6):
+                forging = Repeater(stranger, lambda: [mav2.MAVLink_heartbeat_message(
+                    mav2.MAV_TYPE_SUBMARINE, mav2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3)], 10)
+                assert wait_until(lambda: watch.said == sig.Verdict(sig.NEEDS_A_KEY, True), 20), watch.said
+                forging.stop()
+                assert wait_until(lambda: watch.said == sig.Verdict(sig.UNSIGNED, True), 20), watch.said
+        finally:
+            stranger.close()
+        assert len(watch.changes) == 13  # the first verdict and twelve changes, all followed
+        beats = router.heartbeats()
+        assert wait_until(lambda: router.heartbeats() >= beats + 3, 20)  # what was said has reached the station
+        said = [t for t in router.texts() if t.startswith("Autopilot")]
+        assert len(said) == sig.CHANGES_SAID, said
+        assert watch.withheld == 12 - sig.CHANGES_SAID
+        assert router.link.stats()["signing"]["autopilot_changes_withheld"] == watch.withheld
+        kept = [r.getMessage() for r in caplog.records if "keeps changing" in r.getMessage()]
+        changed = [r.getMessage() for r in caplog.records if "signing changed" in r.getMessage()]
+        assert len(kept) == 1 and len(changed) == sig.CHANGES_SAID, (kept, changed)
