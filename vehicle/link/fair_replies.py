@@ -6,6 +6,8 @@ name: (system, component, whether its request was signed). The budget's sender p
 so a requester of large replies gets no more of the link than one of small ones). Unsigned requesters all together
 draw on ONE byte bucket, ``UnsignedSlice`` (a share of the link's rate): ids are free to make up, so a slice per id
 had let 200 made-up ids ask for 200 shares, and the captures and thumbnails below (``LinkBudget``) lost the link.
+An unsigned FTP burst (a file read streamed without a request per chunk) is not a reply here: it takes only the
+bulk bytes left after signed bursts and the queued replies (``Downlink``, ``FtpServer.next_burst``).
 A requester's queue holds at most ``per_requester`` replies; what does not fit is dropped and counted, and the first
 drop for a requester is reported once (``on_flood``), never per packet. A requester that asked nothing for
 ``quiet_s`` has gone (a flood that stopped, a ground station closed): its queued replies expire and it leaves the
