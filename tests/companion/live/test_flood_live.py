@@ -10,7 +10,7 @@ import pytest
 
 from companion.bench.flood_live_bench import CAPTURE_EVERY_S, measure_live_flood
 
-SECONDS = 20.0
+SECONDS = 12.0
 
 
 @pytest.mark.slow
