@@ -36,6 +36,7 @@ from vehicle.link.connection import MavLink
 from vehicle.link.fair_replies import QUIET_S
 from vehicle.link.signing import key_from_bytes
 from vehicle.settings import MavlinkConfig, SurfaceConfig
+from vehicle.sim.link_bench import SummaryEvent, SummaryFrame
 from vehicle.sim.unsigned_flood import FIRST_ID, send_flood
 
 PASSPHRASE = b"flood bench key"
@@ -46,28 +47,6 @@ ANSWERS = frozenset({"PARAM_VALUE", "FILE_TRANSFER_PROTOCOL", "COMMAND_ACK"})
 PARAMS = [ParamSpec(f"MERL_P{i}", float(i), 0, 100) for i in range(8)]
 KEEP = 4
 """Summary size K: from the fifth frame on, each new one trims the oldest out, as the live summary does."""
-
-
-@dataclass
-class _Frame:
-    image_index: int
-    frame_index: int
-    time_s: float
-    capture_time: float
-    score: float
-    image: Any
-    pose: Any
-    enhanced: bool = False
-    raw_image: Any = None
-    topic: str = "main"
-    raw_score: float | None = None
-
-
-@dataclass
-class _Event:
-    kind: str
-    frame: _Frame
-    summary: list[int]
 
 
 @dataclass
@@ -136,22 +115,22 @@ class SignedStation:
             self.answers.append(now)  # PARAM_VALUE has no target: the station asked for none
 
 
-def _frame(index: int) -> _Frame:
+def _frame(index: int) -> SummaryFrame:
     rng = np.random.default_rng(index)
     image = cv2.resize((rng.random((34, 60, 3)) * 255).astype(np.uint8), (480, 270), interpolation=cv2.INTER_CUBIC)
     now = time.time()
-    return _Frame(image_index=index, frame_index=index, time_s=float(index), capture_time=now, score=0.8,
-                  image=image, pose=Pose(time=now, age_s=0.0, stale=False, depth_m=5.0))
+    return SummaryFrame(image_index=index, frame_index=index, time_s=float(index), capture_time=now, score=0.8,
+                        image=image, pose=Pose(time=now, age_s=0.0, stale=False, depth_m=5.0), topic="main")
 
 
-def _summary_step(surface: Downlink, held: list[_Frame], index: int) -> None:
+def _summary_step(surface: Downlink, held: list[SummaryFrame], index: int) -> None:
     """What the live companion sends for a new summary frame with K = ``KEEP``: the oldest frame trimmed out (a
     STATUSTEXT), the new one added (a capture, a STATUSTEXT, a push), and its status values (six a second)."""
     if len(held) == KEEP:
         gone = held.pop(0)
-        surface.publish(_Event("removed", gone, [f.image_index for f in held]))
+        surface.publish(SummaryEvent("removed", gone, [f.image_index for f in held]))
     held.append(_frame(index))
-    surface.publish(_Event("added", held[-1], [f.image_index for f in held]))
+    surface.publish(SummaryEvent("added", held[-1], [f.image_index for f in held]))
     surface.update_status(fps=9.5, seen_fps=15.0, score=0.8, summary=len(held), depth_m=5.0)
 
 
@@ -199,7 +178,7 @@ def _phases(surface: Downlink, station: SignedStation, port: int, seconds: float
     flood = ctx.Process(target=send_flood, args=(port, rate, seconds), kwargs={"ids": ids, "results": results},
                         daemon=True)
     published: list[tuple[int, float]] = []
-    held: list[_Frame] = []
+    held: list[SummaryFrame] = []
     phases: dict[str, tuple[float, float]] = {}
     index = 0
     time.sleep(1.0)  # the start-up line goes first

@@ -132,14 +132,16 @@ def _stress_frames(count: int, width: int, height: int) -> list[Any]:
         img = cv2.resize((rng.random((height // 8, width // 8, 3)) * 255).astype(np.uint8), (width, height),
                          interpolation=cv2.INTER_CUBIC)
         pose = Pose(time=1_700_000_000.0 + i, age_s=0.05, stale=False, depth_m=3.0 + i, depth_source="sim")
-        frames.append(_Frame(image_index=i, frame_index=10 * i, time_s=float(i), capture_time=1_700_000_000.0 + i,
-                             score=0.5, image=img, pose=pose))
+        frames.append(SummaryFrame(image_index=i, frame_index=10 * i, time_s=float(i),
+                                   capture_time=1_700_000_000.0 + i, score=0.5, image=img, pose=pose))
     held = [f.image_index for f in frames]
-    return [_Event("added", f, held[: k + 1]) for k, f in enumerate(frames)]
+    return [SummaryEvent("added", f, held[: k + 1]) for k, f in enumerate(frames)]
 
 
 @dataclass
-class _Frame:
+class SummaryFrame:
+    """A summary frame as the Downlink reads it (vehicle/camera/capture_frame.py), for the benches that drive it."""
+
     image_index: int
     frame_index: int
     time_s: float
@@ -149,12 +151,14 @@ class _Frame:
     pose: Any
     enhanced: bool = False
     raw_image: Any = None
+    topic: str = ""  # what the Downlink reads for a frame without one
+    raw_score: float | None = None
 
 
 @dataclass
-class _Event:
+class SummaryEvent:
     kind: str
-    frame: _Frame
+    frame: SummaryFrame
     summary: list[int]
 
 
